@@ -1,0 +1,14 @@
+"""jaxmocap: human motion capture by model-based optimisation, in JAX."""
+
+from . import rotation as rotation
+from .body import SMPL_JOINT_NAMES as SMPL_JOINT_NAMES
+from .body import SMPL_PARENTS as SMPL_PARENTS
+from .body import Body as Body
+from .body import BodyFileError as BodyFileError
+from .body import BodyOutput as BodyOutput
+from .body import default_body as default_body
+from .body import forward as forward
+from .body import load_body as load_body
+from .body import save_body as save_body
+
+__version__ = "0.1.0"

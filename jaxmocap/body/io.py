@@ -1,0 +1,261 @@
+"""Loading and saving body models: SMPL `.pkl`/`.npz`, SMPL-H and SMPL-X `.npz`.
+
+Supported files (dictionary keys as the model authors ship them):
+
+| family | files                                  | joints | what we keep                     |
+|--------|----------------------------------------|--------|----------------------------------|
+| SMPL   | `.pkl` (chumpy inside is fine), `.npz` | 24     | everything                       |
+| SMPL-H | `.npz` (also `.pkl` without chumpy)    | 52     | body; hands reduced, see below   |
+| SMPL-X | `.npz` (also `.pkl` without chumpy)    | 55     | body; hands/face reduced         |
+
+SMPL-H and SMPL-X are reduced to SMPL's 24-joint tree: joints 0-21 are identical, the
+SMPL hand joints 22/23 are placed at each hand's index-finger base (as SMPL's are), and
+the skinning weights of all finger (and jaw/eye) joints are merged onto the hand (head)
+joint. With the fingers at rest (flat hand) this reduction is exact: a child joint with
+identity rotation has the same skinning transform as its parent. Pose blend shapes keep
+the 21 body joints; expression blend shapes (SMPL-X) are dropped, and shape components
+are truncated to `num_betas` if given.
+
+MANO (16 joints) and other layouts raise an error that names the file.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import pickle
+import zipfile
+from pathlib import Path
+
+import jax.numpy as jnp
+import numpy as np
+
+from .model import SMPL_JOINT_NAMES, SMPL_PARENTS, Body, make_body
+
+__all__ = ["load_body", "save_body", "default_body", "BodyFileError"]
+
+_DATA = Path(__file__).parent / "data"
+_REQUIRED = ("v_template", "f", "shapedirs", "J_regressor", "weights", "kintree_table")
+
+
+class BodyFileError(ValueError):
+    """A body model file is missing, unreadable or of an unknown layout."""
+
+
+class _ChumpyStub:
+    """Stands in for chumpy objects while unpickling, so chumpy need not be installed.
+
+    Chumpy arrays pickle their value in the state dict under 'x' (sometimes 'a').
+    """
+
+    def __init__(self, *args, **kwargs):
+        pass
+
+    def __setstate__(self, state):
+        self.__dict__.update(state if isinstance(state, dict) else {"x": state})
+
+    def __array__(self, dtype=None, copy=None):
+        for key in ("x", "a", "r"):
+            value = self.__dict__.get(key)
+            if value is not None and not isinstance(value, _ChumpyStub):
+                return np.asarray(value, dtype=dtype)
+        raise BodyFileError("a chumpy object in the file carries no array value.")
+
+
+class _ModelUnpickler(pickle.Unpickler):
+    def find_class(self, module, name):
+        if module.split(".")[0] == "chumpy":
+            return _ChumpyStub
+        if module.startswith("scipy.sparse"):
+            import scipy.sparse
+
+            return getattr(scipy.sparse, name)
+        return super().find_class(module, name)
+
+
+def _to_dense(value) -> np.ndarray:
+    if hasattr(value, "toarray"):  # scipy.sparse, as in SMPL's J_regressor
+        return value.toarray()
+    return np.asarray(value)
+
+
+def _read_dict(path: Path) -> dict[str, np.ndarray]:
+    if not path.exists():
+        raise BodyFileError(f"{path}: no such file. Give the path of an SMPL-family model file.")
+    suffix = path.suffix.lower()
+    try:
+        if suffix == ".pkl":
+            with open(path, "rb") as f:
+                raw = _ModelUnpickler(f, encoding="latin1").load()
+            if not isinstance(raw, dict):
+                raise BodyFileError(f"{path}: the pickle holds a {type(raw).__name__}, not a model dict.")
+        elif suffix == ".npz":
+            with np.load(path, allow_pickle=True) as z:
+                raw = {k: z[k] for k in z.files}
+        else:
+            raise BodyFileError(
+                f"{path}: unknown model file type {suffix!r}; expected an SMPL-family .pkl or .npz."
+            )
+    except BodyFileError:
+        raise
+    except (pickle.UnpicklingError, EOFError, zipfile.BadZipFile, OSError, ValueError, AttributeError, ImportError) as e:
+        raise BodyFileError(f"{path}: cannot read the file ({type(e).__name__}: {e}); it may be corrupt or truncated.") from e
+    out = {}
+    for k, v in raw.items():
+        try:
+            out[k] = _to_dense(v)
+        except Exception:  # metadata we do not need (strings, dicts, ...)
+            continue
+    missing = [k for k in _REQUIRED if k not in out]
+    if missing:
+        raise BodyFileError(
+            f"{path}: not an SMPL-family model, missing {missing}. Found keys: {sorted(raw)}."
+        )
+    return out
+
+
+def _reduce_to_smpl_tree(path: Path, d: dict[str, np.ndarray]) -> tuple[dict, str]:
+    """Map a 24/52/55-joint model onto SMPL's 24 joints (see the module docstring)."""
+    num_joints = d["weights"].shape[1]
+    if num_joints == 24:
+        return d, "smpl"
+    if num_joints not in (52, 55):
+        raise BodyFileError(
+            f"{path}: a model with {num_joints} joints is not supported; jaxmocap reads SMPL "
+            "(24), SMPL-H (52) and SMPL-X (55) files."
+        )
+    kind = "smplh" if num_joints == 52 else "smplx"
+    parents = d["kintree_table"][0].astype(np.int64)
+    parents[0] = -1
+    left_base, right_base = (22, 37) if num_joints == 52 else (25, 40)
+
+    def hand_of(j: int) -> int:
+        # Walk up the tree to the body joint this joint hangs off; wrists 20/21 -> 22/23.
+        while j >= 22:
+            j = int(parents[j])
+        return {20: 22, 21: 23}.get(j, j)
+
+    weights = np.zeros((d["weights"].shape[0], 24), d["weights"].dtype)
+    for j in range(num_joints):
+        weights[:, j if j < 22 else hand_of(j)] += d["weights"][:, j]
+    regressor = np.concatenate(
+        [d["J_regressor"][:22], d["J_regressor"][[left_base, right_base]]], 0
+    )
+    posedirs = d["posedirs"].reshape(d["posedirs"].shape[0], 3, -1)
+    posedirs = np.concatenate([posedirs[..., : 21 * 9], np.zeros_like(posedirs[..., :18])], -1)
+    shapedirs = d["shapedirs"]
+    if kind == "smplx" and shapedirs.shape[-1] > 300:
+        shapedirs = shapedirs[..., :300]  # the rest are expression directions
+    reduced = dict(d, weights=weights, J_regressor=regressor, posedirs=posedirs, shapedirs=shapedirs)
+    return reduced, kind
+
+
+def _gender_from(path: Path) -> str:
+    name = path.name.lower()
+    for key, gender in (("female", "female"), ("_f_", "female"), ("neutral", "neutral"), ("male", "male"), ("_m_", "male")):
+        if key in name or key in str(path.parent.name).lower():
+            return gender
+    return "neutral"
+
+
+def _find_in_directory(path: Path, gender: str) -> Path:
+    tags = {"neutral": ("neutral", "_neu"), "male": ("_male", "male/", "_m_"), "female": ("female", "_f_")}[gender]
+    candidates = sorted(p for p in path.rglob("*") if p.suffix.lower() in (".pkl", ".npz"))
+    for p in candidates:
+        rel = str(p.relative_to(path)).lower().replace(os.sep, "/")
+        if any(t in "/" + rel for t in tags) and not (gender == "male" and "female" in rel):
+            return p
+    raise BodyFileError(
+        f"{path}: no {gender} model file (.pkl/.npz) in this directory; found "
+        f"{[str(p.name) for p in candidates] or 'none'}."
+    )
+
+
+def load_body(path, gender: str | None = None, num_betas: int | None = None, dtype=jnp.float32) -> Body:
+    """Load an SMPL, SMPL-H or SMPL-X model file (or our own `.npz`) as a `Body`.
+
+    Args:
+        path: a model file, or a directory holding per-gender files (then `gender`
+            picks one, e.g. `SMPL_FEMALE.pkl`, `smplh/female/model.npz`).
+        gender: "neutral", "male" or "female". For a file, recorded as given (inferred
+            from the file name when None).
+        num_betas: keep this many shape components (default: all in the file).
+        dtype: leaf dtype, float32 (default) or float64.
+    Raises:
+        BodyFileError: missing, corrupt, or unknown file, naming the file and the problem.
+    """
+    path = Path(path)
+    if gender is not None and gender not in ("neutral", "male", "female"):
+        raise ValueError(f"gender must be 'neutral', 'male' or 'female', got {gender!r}.")
+    if path.is_dir():
+        path = _find_in_directory(path, gender or "neutral")
+    d = _read_dict(path)
+    d, kind = _reduce_to_smpl_tree(path, d)
+    if "kind" in d and d["kind"].ndim == 0:  # written by save_body or our converter
+        kind = str(d["kind"])
+    shapedirs = d["shapedirs"]
+    if num_betas is not None:
+        if num_betas > shapedirs.shape[-1]:
+            raise ValueError(f"{path}: num_betas={num_betas} but the file has {shapedirs.shape[-1]} shape components.")
+        shapedirs = shapedirs[..., :num_betas]
+    V = d["v_template"].shape[0]
+    posedirs = d.get("posedirs", np.zeros((V, 3, 207)))
+    names = tuple(str(n) for n in d["joint_names"]) if "joint_names" in d else SMPL_JOINT_NAMES
+    if "gender" in d and d["gender"].ndim == 0 and gender is None:
+        gender = str(d["gender"])
+    try:
+        return make_body(
+            v_template=d["v_template"],
+            faces=d["f"].astype(np.int64),
+            shapedirs=shapedirs,
+            posedirs=posedirs.reshape(V, 3, -1),
+            J_regressor=d["J_regressor"],
+            weights=d["weights"],
+            parents=SMPL_PARENTS,
+            joint_names=names,
+            kind=kind,
+            gender=gender or _gender_from(path),
+            dtype=dtype,
+        )
+    except ValueError as e:
+        raise BodyFileError(f"{path}: inconsistent model arrays: {e}") from e
+
+
+def save_body(body: Body, path) -> Path:
+    """Write `body` as an SMPL-layout `.npz` that `load_body` reads back unchanged."""
+    path = Path(path)
+    kintree = np.stack([np.array(body.parents), np.arange(body.num_joints)])
+    np.savez_compressed(
+        path,
+        v_template=np.asarray(body.v_template),
+        f=body.faces,
+        shapedirs=np.asarray(body.shapedirs),
+        posedirs=np.asarray(body.posedirs),
+        J_regressor=np.asarray(body.J_regressor),
+        weights=np.asarray(body.weights),
+        kintree_table=kintree,
+        joint_names=np.array(body.joint_names),
+        kind=np.array(body.kind),
+        gender=np.array(body.gender),
+    )
+    return path
+
+
+_DEFAULT_CACHE: dict = {}
+
+
+def default_body(resolution: str = "low", dtype=jnp.float32) -> Body:
+    """The bundled open (CC0) body derived from MakeHuman, in SMPL's layout.
+
+    Args:
+        resolution: "low" (~1.5k vertices; default for tests and batches) or "full"
+            (~14k vertices).
+    See `jaxmocap/body/data/README.md` for how it differs from SMPL.
+    """
+    if resolution not in ("low", "full"):
+        raise ValueError(f"resolution must be 'low' or 'full', got {resolution!r}.")
+    key = (resolution, jnp.dtype(dtype).name)
+    if key not in _DEFAULT_CACHE:
+        body = load_body(_DATA / f"default_body_{resolution}.npz", gender="neutral", dtype=dtype)
+        _DEFAULT_CACHE[key] = dataclasses.replace(body, kind="default")
+    return _DEFAULT_CACHE[key]

@@ -1,0 +1,156 @@
+"""Forward kinematics and the SMPL forward pass (shape and pose blend shapes + LBS).
+
+All functions take arbitrary leading batch axes; nothing is mutated. The maths follows
+SMPL (Loper et al. 2015) as summarised in Huang §2.1 and von Marcard §2.2.1-2.2.3.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+from jax import Array
+
+from ..rotation import axis_angle_to_matrix
+from .model import Body
+
+__all__ = ["BodyOutput", "forward", "forward_kinematics", "shaped_joints", "as_float_array"]
+
+
+class BodyOutput(eqx.Module):
+    """Result of `forward`: posed vertices, joints and global joint rotations."""
+
+    vertices: Array  # (..., V, 3)
+    joints: Array  # (..., J, 3) posed joint centres, translation included
+    joint_rotations: Array  # (..., J, 3, 3) global (world-from-bone) rotations
+
+
+def as_float_array(x, dtype, name: str) -> Array:
+    """`x` as a JAX array of `dtype`; a ValueError names `name` if it is not numeric."""
+    x = jnp.asarray(x)
+    if not (jnp.issubdtype(x.dtype, jnp.floating) or jnp.issubdtype(x.dtype, jnp.integer)):
+        raise ValueError(f"{name} must be a numeric array, got dtype {x.dtype}.")
+    return x.astype(dtype)
+
+
+def forward_kinematics(
+    parents: Sequence[int], local_rotations: Array, rest_joints: Array
+) -> tuple[Array, Array]:
+    """Global rotations and positions of a kinematic tree.
+
+    Von Marcard eq. 2.29-2.32: G_j = G_parent(j) · [R_j | J_j - J_parent(j)], with the
+    root at J_0. Rotation and translation are kept apart instead of 4x4 products, which
+    halves the work.
+
+    Args:
+        parents: parent index per joint, root first (-1).
+        local_rotations: (..., J, 3, 3) joint rotations relative to the parent.
+        rest_joints: (..., J, 3) joint centres in the rest pose.
+    Returns:
+        (global_rotations (..., J, 3, 3), global_positions (..., J, 3)), root at J_0.
+    """
+    rotations = [local_rotations[..., 0, :, :]]
+    positions = [rest_joints[..., 0, :]]
+    for j in range(1, len(parents)):
+        p = parents[j]
+        offset = rest_joints[..., j, :] - rest_joints[..., p, :]
+        rotations.append(rotations[p] @ local_rotations[..., j, :, :])
+        positions.append(positions[p] + jnp.einsum("...ab,...b->...a", rotations[p], offset))
+    return jnp.stack(rotations, -3), jnp.stack(positions, -2)
+
+
+def shaped_joints(body: Body, betas: Array) -> Array:
+    """Rest-pose joints J(β) = 𝒥 (T̄ + 𝒮 β), (..., B) -> (..., J, 3).
+
+    Uses linearity, 𝒥 T̄ + (𝒥 𝒮) β, so the per-sample cost does not grow with V.
+    """
+    nb = betas.shape[-1]
+    joint_template = body.J_regressor @ body.v_template
+    joint_shapedirs = jnp.einsum("jv,vck->jck", body.J_regressor, body.shapedirs[..., :nb])
+    return joint_template + jnp.einsum("jck,...k->...jc", joint_shapedirs, betas)
+
+
+def _check_inputs(body: Body, pose, betas, trans) -> tuple[Array, Array, Array]:
+    pose = jnp.asarray(pose)
+    dtype = pose.dtype if jnp.issubdtype(pose.dtype, jnp.floating) else body.dtype
+    J = body.num_joints
+    if pose.ndim < 2 or pose.shape[-2:] != (J, 3):
+        raise ValueError(
+            f"pose has shape {pose.shape}; expected (..., {J}, 3) axis-angle vectors, one per "
+            f"joint of this {body.kind} body. Reshape a flat (..., {3 * J}) pose with "
+            f"pose.reshape(*pose.shape[:-1], {J}, 3)."
+        )
+    pose = pose.astype(dtype)
+    betas = jnp.zeros((body.num_betas,), dtype) if betas is None else as_float_array(betas, dtype, "betas")
+    if betas.ndim < 1 or betas.shape[-1] > body.num_betas:
+        raise ValueError(
+            f"betas has shape {betas.shape}; expected (..., B) with B <= {body.num_betas}, "
+            "the number of shape components of this body."
+        )
+    trans = jnp.zeros((3,), dtype) if trans is None else as_float_array(trans, dtype, "trans")
+    if trans.ndim < 1 or trans.shape[-1] != 3:
+        raise ValueError(f"trans has shape {trans.shape}; expected (..., 3).")
+    try:
+        batch = np.broadcast_shapes(pose.shape[:-2], betas.shape[:-1], trans.shape[:-1])
+    except ValueError:
+        raise ValueError(
+            f"batch shapes do not broadcast: pose {pose.shape[:-2]}, betas {betas.shape[:-1]}, "
+            f"trans {trans.shape[:-1]}."
+        ) from None
+    return (
+        jnp.broadcast_to(pose, (*batch, J, 3)),
+        jnp.broadcast_to(betas, (*batch, betas.shape[-1])),
+        jnp.broadcast_to(trans, (*batch, 3)),
+    )
+
+
+def forward(body: Body, pose, betas=None, trans=None) -> BodyOutput:
+    """The SMPL function M(β, θ) + translation.
+
+    Huang eq. 2.1-2.4: T(β, θ) = T̄ + B_s(β) + B_p(θ), joints J(β) = 𝒥 (T̄ + B_s(β)),
+    pose blend shapes linear in vec(R(θ_j) - I) for the J-1 non-root joints, then linear
+    blend skinning v_i = Σ_j w_ij G_j(θ, J) G_j(0, J)⁻¹ t_i.
+
+    Computation happens in the dtype of `pose` (the body is cast if needed).
+
+    Args:
+        body: the body model.
+        pose: (..., J, 3) axis-angle joint rotations, root first.
+        betas: (..., B) shape coefficients, B <= body.num_betas (default: zeros).
+        trans: (..., 3) root translation in metres (default: zeros).
+    Returns:
+        BodyOutput with vertices (..., V, 3), joints (..., J, 3) and global
+        joint_rotations (..., J, 3, 3); batch axes broadcast across the inputs.
+    """
+    pose, betas, trans = _check_inputs(body, pose, betas, trans)
+    dtype = pose.dtype
+    if body.dtype != dtype:
+        body = body.astype(dtype)
+    nb = betas.shape[-1]
+
+    local = axis_angle_to_matrix(pose)
+    eye = jnp.eye(3, dtype=dtype)
+    pose_feature = (local[..., 1:, :, :] - eye).reshape(*pose.shape[:-2], -1)
+    # One product for both blend shapes: [𝒮 | 𝒫] [β; vec(R - I)].
+    blend_dirs = jnp.concatenate([body.shapedirs[..., :nb], body.posedirs], -1)
+    coefficients = jnp.concatenate([betas, pose_feature], -1)
+    v_posed = body.v_template + jnp.einsum("vck,...k->...vc", blend_dirs, coefficients)
+
+    rest = shaped_joints(body, betas)
+    global_rot, global_pos = forward_kinematics(body.parents, local, rest)
+    # Skinning transform A_j = G_j(θ) G_j(0)⁻¹ = [G_R | G_t - G_R J_j].
+    offsets = global_pos - jnp.einsum("...jab,...jb->...ja", global_rot, rest)
+    transforms = jnp.concatenate([global_rot, offsets[..., None]], -1)  # (..., J, 3, 4)
+    blended = jnp.einsum("vj,...jab->...vab", body.weights, transforms)
+    vertices = (
+        jnp.einsum("...vab,...vb->...va", blended[..., :3], v_posed)
+        + blended[..., 3]
+        + trans[..., None, :]
+    )
+    return BodyOutput(
+        vertices=vertices,
+        joints=global_pos + trans[..., None, :],
+        joint_rotations=global_rot,
+    )

@@ -1,0 +1,185 @@
+"""The body model as an immutable pytree: SMPL's parameters as leaves, topology static.
+
+Huang §2.1 and von Marcard §2.2.3: M(β, θ) = W(T(β, θ), J(β), θ, 𝒲) with
+T = T̄ + B_s(β) + B_p(θ). The arrays here are exactly those of an SMPL file
+(`v_template`, `shapedirs`, `posedirs`, `J_regressor`, `weights`) so that a real
+SMPL file, our default body and a random test model all run the same code.
+"""
+
+from __future__ import annotations
+
+import hashlib
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+from jax import Array
+
+__all__ = ["Body", "SMPL_JOINT_NAMES", "SMPL_PARENTS", "StaticArray"]
+
+SMPL_JOINT_NAMES: tuple[str, ...] = (
+    "pelvis", "left_hip", "right_hip", "spine1", "left_knee", "right_knee", "spine2",
+    "left_ankle", "right_ankle", "spine3", "left_foot", "right_foot", "neck",
+    "left_collar", "right_collar", "head", "left_shoulder", "right_shoulder",
+    "left_elbow", "right_elbow", "left_wrist", "right_wrist", "left_hand", "right_hand",
+)  # fmt: skip
+SMPL_PARENTS: tuple[int, ...] = (
+    -1, 0, 0, 0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 9, 9, 12, 13, 14, 16, 17, 18, 19, 20, 21,
+)  # fmt: skip
+
+
+class StaticArray:
+    """A read-only NumPy array that can sit in a pytree's static (hashed) metadata.
+
+    Faces are topology: they never change under jit and must not become tracers, but a
+    plain ndarray is unhashable. Hashing by content keeps jit caches shared between
+    bodies with the same mesh.
+    """
+
+    __slots__ = ("array", "_hash")
+
+    def __init__(self, array: np.ndarray):
+        array = np.ascontiguousarray(array)
+        array.setflags(write=False)
+        self.array = array
+        digest = hashlib.blake2b(array.tobytes(), digest_size=8).digest()
+        self._hash = hash((array.shape, str(array.dtype), digest))
+
+    def __hash__(self) -> int:
+        return self._hash
+
+    def __eq__(self, other: object) -> bool:
+        return (
+            isinstance(other, StaticArray)
+            and self._hash == other._hash
+            and np.array_equal(self.array, other.array)
+        )
+
+    def __repr__(self) -> str:
+        return f"StaticArray(shape={self.array.shape}, dtype={self.array.dtype})"
+
+
+class Body(eqx.Module):
+    """An SMPL-layout body model.
+
+    Leaves (arrays, all of one floating dtype):
+        v_template: (V, 3) mean template mesh T̄, metres, y up, facing +z.
+        shapedirs: (V, 3, B) shape blend shapes 𝒮; B_s(β) = 𝒮 β.
+        posedirs: (V, 3, 9(J-1)) pose blend shapes 𝒫, linear in (R_j - I), j ≥ 1.
+        J_regressor: (J, V) joint regressor 𝒥; joints J(β) = 𝒥 (T̄ + B_s(β)).
+        weights: (V, J) linear blend skinning weights 𝒲, rows sum to one.
+    Static metadata (hashed; changing it recompiles):
+        faces: (F, 3) triangle indices.
+        parents: parent index per joint, -1 for the root.
+        joint_names: one name per joint.
+        kind: "smpl", "smplh", "smplx" (reduced to the SMPL tree) or "default".
+        gender: "neutral", "male", "female".
+    """
+
+    v_template: Array
+    shapedirs: Array
+    posedirs: Array
+    J_regressor: Array
+    weights: Array
+    faces_static: StaticArray = eqx.field(static=True)
+    parents: tuple[int, ...] = eqx.field(static=True)
+    joint_names: tuple[str, ...] = eqx.field(static=True)
+    kind: str = eqx.field(static=True, default="smpl")
+    gender: str = eqx.field(static=True, default="neutral")
+
+    def __check_init__(self):
+        V = self.v_template.shape[0]
+        J = len(self.parents)
+        expected = {
+            "v_template": (V, 3),
+            "shapedirs": (V, 3, self.shapedirs.shape[-1]),
+            "posedirs": (V, 3, 9 * (J - 1)),
+            "J_regressor": (J, V),
+            "weights": (V, J),
+        }
+        for name, shape in expected.items():
+            got = getattr(self, name).shape
+            if got != shape:
+                raise ValueError(
+                    f"Body.{name} has shape {got}; expected {shape} for a model with "
+                    f"{V} vertices and {J} joints."
+                )
+        if len(self.joint_names) != J:
+            raise ValueError(f"{len(self.joint_names)} joint names for {J} joints.")
+        for j, p in enumerate(self.parents):
+            if not (p == -1 if j == 0 else 0 <= p < j):
+                raise ValueError(
+                    f"parents must list each joint after its parent with the root first; "
+                    f"joint {j} has parent {p}."
+                )
+        faces = self.faces_static.array
+        if faces.ndim != 2 or faces.shape[1] != 3 or faces.min() < 0 or faces.max() >= V:
+            raise ValueError(f"faces must be (F, 3) indices into {V} vertices.")
+
+    @property
+    def faces(self) -> np.ndarray:
+        """(F, 3) int32 triangle indices (NumPy, static)."""
+        return self.faces_static.array
+
+    @property
+    def num_vertices(self) -> int:
+        return self.v_template.shape[0]
+
+    @property
+    def num_joints(self) -> int:
+        return len(self.parents)
+
+    @property
+    def num_betas(self) -> int:
+        return self.shapedirs.shape[-1]
+
+    @property
+    def dtype(self):
+        return self.v_template.dtype
+
+    def astype(self, dtype) -> Body:
+        """The same body with every leaf cast to `dtype` (float32 or float64)."""
+        return eqx.tree_at(
+            lambda b: (b.v_template, b.shapedirs, b.posedirs, b.J_regressor, b.weights),
+            self,
+            tuple(
+                jnp.asarray(x, dtype)
+                for x in (self.v_template, self.shapedirs, self.posedirs, self.J_regressor, self.weights)
+            ),
+        )
+
+    def joint_index(self, name: str) -> int:
+        """Index of the joint called `name`; the error lists the valid names."""
+        try:
+            return self.joint_names.index(name)
+        except ValueError:
+            raise ValueError(f"No joint {name!r}; this body has {list(self.joint_names)}.") from None
+
+
+def make_body(
+    v_template,
+    faces,
+    shapedirs,
+    posedirs,
+    J_regressor,
+    weights,
+    parents=SMPL_PARENTS,
+    joint_names=SMPL_JOINT_NAMES,
+    kind: str = "smpl",
+    gender: str = "neutral",
+    dtype=jnp.float32,
+) -> Body:
+    """Build a `Body` from array-likes (NumPy or JAX), casting leaves to `dtype`."""
+    as_leaf = lambda x: jnp.asarray(np.asarray(x), dtype)  # noqa: E731
+    return Body(
+        v_template=as_leaf(v_template),
+        shapedirs=as_leaf(shapedirs),
+        posedirs=as_leaf(posedirs),
+        J_regressor=as_leaf(J_regressor),
+        weights=as_leaf(weights),
+        faces_static=StaticArray(np.asarray(faces, np.int32)),
+        parents=tuple(int(p) for p in parents),
+        joint_names=tuple(str(n) for n in joint_names),
+        kind=kind,
+        gender=gender,
+    )

@@ -1,0 +1,72 @@
+"""A motion: per-frame SMPL-tree joint rotations and root translation at a frame rate.
+
+World frame convention used throughout jaxmocap: metres, **y up**, right-handed, as in
+SMPL's template (the body faces +z at zero root rotation, its left side is +x).
+Readers of files with other conventions (AMASS is z up) convert on load.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+__all__ = ["Motion"]
+
+
+@dataclasses.dataclass(frozen=True)
+class Motion:
+    """A motion sequence on SMPL's 24-joint tree (NumPy arrays; feed them to `forward`).
+
+    Attributes:
+        poses: (T, 24, 3) axis-angle joint rotations relative to the parent, root first.
+        trans: (T, 3) root translation in metres, world frame y up.
+        fps: frames per second.
+        betas: (B,) body shape coefficients (may be empty).
+        gender: "neutral", "male" or "female".
+        name: where the motion came from (file name, generator), for reports.
+    """
+
+    poses: np.ndarray
+    trans: np.ndarray
+    fps: float
+    betas: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0))
+    gender: str = "neutral"
+    name: str = ""
+
+    def __post_init__(self):
+        poses = np.asarray(self.poses, np.float64)
+        trans = np.asarray(self.trans, np.float64)
+        if poses.ndim != 3 or poses.shape[1:] != (24, 3):
+            raise ValueError(f"Motion.poses has shape {poses.shape}; expected (T, 24, 3).")
+        if trans.shape != (poses.shape[0], 3):
+            raise ValueError(
+                f"Motion.trans has shape {trans.shape}; expected ({poses.shape[0]}, 3) to match poses."
+            )
+        if not (np.isfinite(poses).all() and np.isfinite(trans).all()):
+            raise ValueError("Motion poses/trans contain NaN or inf.")
+        if not self.fps > 0:
+            raise ValueError(f"Motion.fps must be positive, got {self.fps}.")
+        object.__setattr__(self, "poses", poses)
+        object.__setattr__(self, "trans", trans)
+        object.__setattr__(self, "betas", np.asarray(self.betas, np.float64).reshape(-1))
+        object.__setattr__(self, "fps", float(self.fps))
+
+    @property
+    def num_frames(self) -> int:
+        return self.poses.shape[0]
+
+    @property
+    def duration(self) -> float:
+        """Seconds from the first to the last frame."""
+        return (self.num_frames - 1) / self.fps
+
+    def __getitem__(self, frames) -> Motion:
+        """Frames by slice or index array, e.g. `motion[::4]` (fps is not changed)."""
+        poses = self.poses[frames]
+        if poses.ndim == 2:
+            raise ValueError("Index a Motion with a slice or an index array, not a single frame.")
+        return dataclasses.replace(self, poses=poses, trans=self.trans[frames])
+
+    def replace(self, **changes) -> Motion:
+        return dataclasses.replace(self, **changes)

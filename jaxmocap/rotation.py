@@ -1,0 +1,209 @@
+"""Rotations on SO(3): axis-angle, matrices, quaternions and the 6D representation.
+
+Every map is written for a single rotation with arbitrary leading batch axes, and is
+jit-, vmap- and grad-safe in float32 and float64. Small-angle branches use Taylor
+series behind a double `where`, so values *and gradients* stay finite at the identity
+(von Marcard §2.1.2, eq. 2.10-2.16: exp and log of so(3)).
+
+Conventions: quaternions are (w, x, y, z) with w >= 0 after `quaternion_from_matrix`;
+axis-angle vectors are ω = θ·axis with θ in [0, π]; matrices act on column vectors.
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+from jax import Array
+
+__all__ = [
+    "hat",
+    "vee",
+    "axis_angle_to_matrix",
+    "matrix_to_axis_angle",
+    "quaternion_to_matrix",
+    "matrix_to_quaternion",
+    "axis_angle_to_quaternion",
+    "quaternion_to_axis_angle",
+    "quaternion_multiply",
+    "matrix_to_6d",
+    "sixd_to_matrix",
+    "geodesic_angle",
+    "rotation_about_axis",
+]
+
+# Below this θ² the Taylor branch is used; its truncation error (θ⁶ terms) is far below
+# float64 epsilon there, and the exact branch is accurate above it.
+_SMALL_THETA2 = 1e-6
+
+
+def hat(omega: Array) -> Array:
+    """Skew-symmetric matrix ω^ with ω^ v = ω × v.  (..., 3) -> (..., 3, 3)."""
+    x, y, z = omega[..., 0], omega[..., 1], omega[..., 2]
+    zero = jnp.zeros_like(x)
+    return jnp.stack(
+        [
+            jnp.stack([zero, -z, y], -1),
+            jnp.stack([z, zero, -x], -1),
+            jnp.stack([-y, x, zero], -1),
+        ],
+        -2,
+    )
+
+
+def vee(matrix: Array) -> Array:
+    """Inverse of `hat` for the skew part of a matrix.  (..., 3, 3) -> (..., 3)."""
+    return 0.5 * jnp.stack(
+        [
+            matrix[..., 2, 1] - matrix[..., 1, 2],
+            matrix[..., 0, 2] - matrix[..., 2, 0],
+            matrix[..., 1, 0] - matrix[..., 0, 1],
+        ],
+        -1,
+    )
+
+
+def _safe_theta2(theta2: Array) -> tuple[Array, Array]:
+    """(small-angle mask, θ² with the small entries replaced by 1) for NaN-free grads."""
+    small = theta2 < _SMALL_THETA2
+    return small, jnp.where(small, jnp.ones_like(theta2), theta2)
+
+
+def axis_angle_to_matrix(omega: Array) -> Array:
+    """Rodrigues' formula R = I + a ω^ + b ω^², a = sin θ/θ, b = (1 - cos θ)/θ².
+
+    Von Marcard eq. 2.14. (..., 3) -> (..., 3, 3).
+    """
+    theta2 = jnp.sum(omega * omega, axis=-1)
+    small, safe2 = _safe_theta2(theta2)
+    theta = jnp.sqrt(safe2)
+    a = jnp.where(small, 1.0 - theta2 / 6.0 + theta2**2 / 120.0, jnp.sin(theta) / theta)
+    # 1 - cos θ = 2 sin²(θ/2) avoids the cancellation that ruins float32 at small θ.
+    half_sin = jnp.sin(0.5 * theta)
+    b = jnp.where(small, 0.5 - theta2 / 24.0 + theta2**2 / 720.0, 2.0 * half_sin * half_sin / safe2)
+    K = hat(omega)
+    eye = jnp.eye(3, dtype=omega.dtype)
+    return eye + a[..., None, None] * K + b[..., None, None] * (K @ K)
+
+
+def rotation_about_axis(axis: Array, angle: Array) -> Array:
+    """Rotation by `angle` (...,) about a unit `axis` (..., 3)."""
+    return axis_angle_to_matrix(axis * jnp.asarray(angle)[..., None])
+
+
+def matrix_to_quaternion(matrix: Array) -> Array:
+    """Rotation matrix to unit quaternion (w, x, y, z) with w >= 0.  (..., 3, 3) -> (..., 4).
+
+    Shepperd's method: of the four algebraically equal formulas, use the one whose
+    square root has the largest argument, which keeps it well conditioned near θ = π.
+    """
+    m = matrix
+    m00, m11, m22 = m[..., 0, 0], m[..., 1, 1], m[..., 2, 2]
+    trace = m00 + m11 + m22
+    # 4 q_k² for k = w, x, y, z.
+    four_sq = jnp.stack(
+        [1.0 + trace, 1.0 + m00 - m11 - m22, 1.0 - m00 + m11 - m22, 1.0 - m00 - m11 + m22], -1
+    )
+    best = jnp.argmax(four_sq, axis=-1)
+    # Clamp so the branches not taken have finite gradients too.
+    r = jnp.sqrt(jnp.maximum(four_sq, 1e-12))  # 2|q_k|
+    d21, d02, d10 = m[..., 2, 1] - m[..., 1, 2], m[..., 0, 2] - m[..., 2, 0], m[..., 1, 0] - m[..., 0, 1]
+    s21, s02, s10 = m[..., 2, 1] + m[..., 1, 2], m[..., 0, 2] + m[..., 2, 0], m[..., 1, 0] + m[..., 0, 1]
+    candidates = jnp.stack(
+        [
+            jnp.stack([r[..., 0], d21 / r[..., 0], d02 / r[..., 0], d10 / r[..., 0]], -1),
+            jnp.stack([d21 / r[..., 1], r[..., 1], s10 / r[..., 1], s02 / r[..., 1]], -1),
+            jnp.stack([d02 / r[..., 2], s10 / r[..., 2], r[..., 2], s21 / r[..., 2]], -1),
+            jnp.stack([d10 / r[..., 3], s02 / r[..., 3], s21 / r[..., 3], r[..., 3]], -1),
+        ],
+        -2,
+    ) * 0.5
+    q = jnp.take_along_axis(candidates, best[..., None, None], axis=-2)[..., 0, :]
+    q = q / jnp.linalg.norm(q, axis=-1, keepdims=True)
+    return jnp.where(q[..., :1] < 0, -q, q)
+
+
+def quaternion_to_matrix(quaternion: Array) -> Array:
+    """Unit quaternion (w, x, y, z) to rotation matrix.  (..., 4) -> (..., 3, 3)."""
+    q = quaternion / jnp.linalg.norm(quaternion, axis=-1, keepdims=True)
+    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    return jnp.stack(
+        [
+            jnp.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
+            jnp.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
+            jnp.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
+        ],
+        -2,
+    )
+
+
+def axis_angle_to_quaternion(omega: Array) -> Array:
+    """(..., 3) -> (..., 4): q = (cos θ/2, sin(θ/2)/θ · ω)."""
+    theta2 = jnp.sum(omega * omega, axis=-1)
+    small, safe2 = _safe_theta2(theta2)
+    theta = jnp.sqrt(safe2)
+    # sin(θ/2)/θ and cos(θ/2) with their Taylor series at 0.
+    s = jnp.where(small, 0.5 - theta2 / 48.0 + theta2**2 / 3840.0, jnp.sin(0.5 * theta) / theta)
+    c = jnp.where(small, 1.0 - theta2 / 8.0 + theta2**2 / 384.0, jnp.cos(0.5 * theta))
+    return jnp.concatenate([c[..., None], s[..., None] * omega], -1)
+
+
+def quaternion_to_axis_angle(quaternion: Array) -> Array:
+    """(..., 4) -> (..., 3), θ in [0, π]: ω = 2 atan2(|v|, w) / |v| · v with w >= 0."""
+    q = quaternion / jnp.linalg.norm(quaternion, axis=-1, keepdims=True)
+    q = jnp.where(q[..., :1] < 0, -q, q)
+    w, v = q[..., 0], q[..., 1:]
+    n2 = jnp.sum(v * v, axis=-1)
+    small, safe2 = _safe_theta2(n2)
+    n = jnp.sqrt(safe2)
+    # Near the identity w ≈ 1 and 2 atan2(n, w)/n = (2/w)(1 - n²/(3w²) + n⁴/(5w⁴)).
+    w_safe = jnp.where(small, w, jnp.ones_like(w))
+    ratio = n2 / (w_safe * w_safe)
+    factor = jnp.where(
+        small,
+        2.0 / w_safe * (1.0 - ratio / 3.0 + ratio * ratio / 5.0),
+        2.0 * jnp.arctan2(n, w) / n,
+    )
+    return factor[..., None] * v
+
+
+def matrix_to_axis_angle(matrix: Array) -> Array:
+    """Logarithm map log(R)^∨ (von Marcard eq. 2.15-2.16).  (..., 3, 3) -> (..., 3).
+
+    Goes through the quaternion so that it stays accurate (and differentiable)
+    near θ = π, where the textbook formula θ/(2 sin θ)(R - Rᵀ)^∨ loses all precision.
+    """
+    return quaternion_to_axis_angle(matrix_to_quaternion(matrix))
+
+
+def quaternion_multiply(p: Array, q: Array) -> Array:
+    """Hamilton product p ⊗ q, so that R(p ⊗ q) = R(p) R(q).  (..., 4) x (..., 4)."""
+    pw, px, py, pz = p[..., 0], p[..., 1], p[..., 2], p[..., 3]
+    qw, qx, qy, qz = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    return jnp.stack(
+        [
+            pw * qw - px * qx - py * qy - pz * qz,
+            pw * qx + px * qw + py * qz - pz * qy,
+            pw * qy - px * qz + py * qw + pz * qx,
+            pw * qz + px * qy - py * qx + pz * qw,
+        ],
+        -1,
+    )
+
+
+def matrix_to_6d(matrix: Array) -> Array:
+    """The continuous 6D representation (Zhou et al. 2019): the first two columns."""
+    return jnp.concatenate([matrix[..., :, 0], matrix[..., :, 1]], -1)
+
+
+def sixd_to_matrix(sixd: Array) -> Array:
+    """Gram-Schmidt of the two 3-vectors in (..., 6) to a rotation matrix."""
+    a1, a2 = sixd[..., :3], sixd[..., 3:]
+    b1 = a1 / jnp.linalg.norm(a1, axis=-1, keepdims=True)
+    a2 = a2 - jnp.sum(b1 * a2, -1, keepdims=True) * b1
+    b2 = a2 / jnp.linalg.norm(a2, axis=-1, keepdims=True)
+    b3 = jnp.cross(b1, b2)
+    return jnp.stack([b1, b2, b3], -1)
+
+
+def geodesic_angle(r1: Array, r2: Array) -> Array:
+    """Angle ‖log(R₁ R₂ᵀ)‖ in radians (MPJAE, von Marcard eq. 2.74).  -> (...,)."""
+    return jnp.linalg.norm(matrix_to_axis_angle(r1 @ jnp.swapaxes(r2, -1, -2)), axis=-1)
