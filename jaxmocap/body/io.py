@@ -90,7 +90,8 @@ def _read_dict(path: Path) -> dict[str, np.ndarray]:
             if not isinstance(raw, dict):
                 raise BodyFileError(f"{path}: the pickle holds a {type(raw).__name__}, not a model dict.")
         elif suffix == ".npz":
-            with np.load(path, allow_pickle=True) as z:
+            # Our own handle: np.load leaks its file when a truncated zip makes it raise.
+            with open(path, "rb") as f, np.load(f, allow_pickle=True) as z:
                 raw = {k: z[k] for k in z.files}
         else:
             raise BodyFileError(
@@ -193,7 +194,7 @@ def load_body(path, gender: str | None = None, num_betas: int | None = None, dty
     d, kind = _reduce_to_smpl_tree(path, d)
     if "kind" in d and d["kind"].ndim == 0:  # written by save_body or our converter
         kind = str(d["kind"])
-    shapedirs = d["shapedirs"]
+    shapedirs = d["shapedirs"]  # SMPL file layout (V, 3, B)
     if num_betas is not None:
         if num_betas > shapedirs.shape[-1]:
             raise ValueError(f"{path}: num_betas={num_betas} but the file has {shapedirs.shape[-1]} shape components.")
@@ -229,8 +230,8 @@ def save_body(body: Body, path) -> Path:
         path,
         v_template=np.asarray(body.v_template),
         f=body.faces,
-        shapedirs=np.asarray(body.shapedirs),
-        posedirs=np.asarray(body.posedirs),
+        shapedirs=np.moveaxis(np.asarray(body.shapedirs), 0, -1),
+        posedirs=np.moveaxis(np.asarray(body.posedirs), 0, -1),
         J_regressor=np.asarray(body.J_regressor),
         weights=np.asarray(body.weights),
         kintree_table=kintree,

@@ -64,8 +64,10 @@ class Body(eqx.Module):
 
     Leaves (arrays, all of one floating dtype):
         v_template: (V, 3) mean template mesh T̄, metres, y up, facing +z.
-        shapedirs: (V, 3, B) shape blend shapes 𝒮; B_s(β) = 𝒮 β.
-        posedirs: (V, 3, 9(J-1)) pose blend shapes 𝒫, linear in (R_j - I), j ≥ 1.
+        shapedirs: (B, V, 3) shape blend shapes 𝒮; B_s(β) = Σ_k β_k 𝒮_k.
+        posedirs: (9(J-1), V, 3) pose blend shapes 𝒫, linear in vec(R_j - I), j ≥ 1.
+        (SMPL files store both as (V, 3, K); we keep K first so that each blend is
+        one row-major matrix product. `make_body` takes the file layout.)
         J_regressor: (J, V) joint regressor 𝒥; joints J(β) = 𝒥 (T̄ + B_s(β)).
         weights: (V, J) linear blend skinning weights 𝒲, rows sum to one.
     Static metadata (hashed; changing it recompiles):
@@ -92,8 +94,8 @@ class Body(eqx.Module):
         J = len(self.parents)
         expected = {
             "v_template": (V, 3),
-            "shapedirs": (V, 3, self.shapedirs.shape[-1]),
-            "posedirs": (V, 3, 9 * (J - 1)),
+            "shapedirs": (self.shapedirs.shape[0], V, 3),
+            "posedirs": (9 * (J - 1), V, 3),
             "J_regressor": (J, V),
             "weights": (V, J),
         }
@@ -131,7 +133,7 @@ class Body(eqx.Module):
 
     @property
     def num_betas(self) -> int:
-        return self.shapedirs.shape[-1]
+        return self.shapedirs.shape[0]
 
     @property
     def dtype(self):
@@ -169,12 +171,16 @@ def make_body(
     gender: str = "neutral",
     dtype=jnp.float32,
 ) -> Body:
-    """Build a `Body` from array-likes (NumPy or JAX), casting leaves to `dtype`."""
+    """Build a `Body` from arrays in SMPL's file layout, casting leaves to `dtype`.
+
+    shapedirs and posedirs are (V, 3, K) as in SMPL files.
+    """
     as_leaf = lambda x: jnp.asarray(np.asarray(x), dtype)  # noqa: E731
+    blend_first = lambda x: as_leaf(np.moveaxis(np.asarray(x), -1, 0))  # noqa: E731
     return Body(
         v_template=as_leaf(v_template),
-        shapedirs=as_leaf(shapedirs),
-        posedirs=as_leaf(posedirs),
+        shapedirs=blend_first(shapedirs),
+        posedirs=blend_first(posedirs),
         J_regressor=as_leaf(J_regressor),
         weights=as_leaf(weights),
         faces_static=StaticArray(np.asarray(faces, np.int32)),

@@ -70,3 +70,31 @@ class Motion:
 
     def replace(self, **changes) -> Motion:
         return dataclasses.replace(self, **changes)
+
+    def resample(self, fps: float) -> Motion:
+        """The motion at `fps`: slerp per joint rotation, linear root translation.
+
+        Frames are taken at times k / fps for k = 0 .. floor(duration · fps) (+ a tiny
+        tolerance), so 120 → 30 Hz keeps every 4th frame exactly and gives
+        ceil(T / 4) frames. No low-pass filtering is applied before downsampling.
+        """
+        from scipy.interpolate import interp1d
+        from scipy.spatial.transform import Rotation, Slerp
+
+        fps = float(fps)
+        if not fps > 0:
+            raise ValueError(f"fps must be positive, got {fps}.")
+        if fps == self.fps:
+            return self
+        T = self.num_frames
+        if T == 1:
+            return dataclasses.replace(self, fps=fps)
+        times = np.arange(T) / self.fps
+        n = int(np.floor(self.duration * fps + 1e-6)) + 1
+        new_times = np.minimum(np.arange(n) / fps, times[-1])
+        poses = np.empty((n, 24, 3))
+        for j in range(24):
+            slerp = Slerp(times, Rotation.from_rotvec(self.poses[:, j]))
+            poses[:, j] = slerp(new_times).as_rotvec()
+        trans = interp1d(times, self.trans, axis=0)(new_times)
+        return dataclasses.replace(self, poses=poses, trans=trans, fps=fps)

@@ -1,0 +1,101 @@
+"""`load_motion`: one entry point for every motion file; jaxmocap's own `.npz` format.
+
+Dispatch on the suffix:
+    .npz  jaxmocap's own file (has the key ``jaxmocap_motion``; y up, (T, 24, 3) poses)
+          or else an AMASS file (z up, converted; see `amass`);
+    .amc  CMU ASF/AMC, with the skeleton ``<subject>.asf`` next to it (02_01.amc →
+          02.asf) or given as ``asf=``; retargeted onto SMPL's tree (see `retarget`);
+    .bvh  BVH, retargeted likewise.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from .sequence import Motion
+from .skeleton import MotionFileError, check_file
+
+__all__ = ["load_motion", "save_motion", "FORMAT_VERSION"]
+
+FORMAT_VERSION = 1
+
+
+def save_motion(motion: Motion, path) -> Path:
+    """Write `motion` as jaxmocap's own npz (y up, no conversion)."""
+    path = Path(path)
+    np.savez(
+        path,
+        jaxmocap_motion=np.array(FORMAT_VERSION),
+        poses=motion.poses,
+        trans=motion.trans,
+        fps=np.array(motion.fps),
+        betas=motion.betas,
+        gender=np.array(motion.gender),
+        name=np.array(motion.name),
+    )
+    return path if path.suffix == ".npz" else path.with_name(path.name + ".npz")
+
+
+def _load_own(path: Path, d: dict) -> Motion:
+    missing = [k for k in ("poses", "trans", "fps") if k not in d]
+    if missing:
+        raise MotionFileError(f"{path}: jaxmocap motion file misses key(s) {missing}.")
+    try:
+        return Motion(
+            poses=d["poses"],
+            trans=d["trans"],
+            fps=float(d["fps"]),
+            betas=d.get("betas", np.zeros(0)),
+            gender=str(d.get("gender", "neutral")),
+            name=str(d.get("name", path)),
+        )
+    except ValueError as e:
+        raise MotionFileError(f"{path}: {e}") from e
+
+
+def load_motion(path, fps: float | None = None, body=None, asf=None, **retarget_options) -> Motion:
+    """Load any supported motion file as a y-up `Motion` on SMPL's 24-joint tree.
+
+    Args:
+        path: .npz (jaxmocap or AMASS), .amc (CMU ASF/AMC) or .bvh file.
+        fps: resample to this rate (slerp); default: the file's rate.
+        body: the body used for the AMASS pelvis pivot and as retargeting target
+            (default: `jaxmocap.default_body()`).
+        asf: the ASF skeleton for an .amc file (default: found next to it).
+        **retarget_options: passed to `retarget` (mapping, floor, betas, ...), and
+            `scale` to `load_bvh`.
+    Raises:
+        FileNotFoundError (missing file or skeleton) or MotionFileError (a ValueError:
+        unknown suffix, corrupt content), always naming the file.
+    """
+    path = check_file(path)
+    suffix = path.suffix.lower()
+    if suffix == ".npz":
+        from .amass import load_amass
+
+        try:
+            with np.load(path, allow_pickle=False) as f:
+                own = "jaxmocap_motion" in f.files
+                d = {k: f[k] for k in f.files} if own else None
+        except Exception as e:
+            raise MotionFileError(f"Cannot read {path} as an .npz file: {e}") from e
+        motion = _load_own(path, d) if own else load_amass(path, body=body)
+    elif suffix == ".amc":
+        from .asf_amc import load_asf_amc
+        from .retarget import retarget
+
+        motion = retarget(load_asf_amc(path, asf_path=asf), body=body, **retarget_options)
+    elif suffix == ".bvh":
+        from .bvh import load_bvh
+        from .retarget import retarget
+
+        scale = retarget_options.pop("scale", "auto")
+        motion = retarget(load_bvh(path, scale=scale), body=body, **retarget_options)
+    else:
+        raise MotionFileError(
+            f"Unknown motion file type {path.suffix!r} for {path}; expected .npz (AMASS or "
+            "jaxmocap), .amc (with its .asf) or .bvh."
+        )
+    return motion if fps is None else motion.resample(fps)

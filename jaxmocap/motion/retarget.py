@@ -1,0 +1,289 @@
+"""Retarget a source skeleton's motion (ASF/AMC, BVH) onto SMPL's 24-joint tree.
+
+Method (global-orientation transfer with rest-direction alignment):
+
+1. Each SMPL joint j is mapped to a source joint s(j) whose global rotation drives it,
+   and to a source *point* q(j) (default s(j)) that plays the role of SMPL's joint
+   centre. Tables for CMU ASF, CMU BVH (the 131_01-style names and Bruce Hahne's
+   MotionBuilder-style names) are below; pass `mapping=` for other skeletons.
+2. Source rotations are relative to the source rest pose (ASF: all DOFs zero; BVH: all
+   channels zero). For a non-leaf SMPL joint j with primary child c (the only child;
+   `neck` for spine3, `spine1` for the pelvis) let d_smpl = J_c − J_j (SMPL rest
+   joints for the body shape) and d_src = q(c) − q(j) in the source rest pose. A_j is
+   the minimal rotation taking d_smpl onto d_src, and
+
+       G_smpl_j(t) = G_src_s(j)(t) · A_j,
+
+   so the SMPL segment j→c points exactly where the source segment q(j)→q(c) points
+   (up to the source's own rotations between s(j) and q(c), which SMPL lacks).
+   Pelvis: A = I, since both rest poses stand upright facing +z with the left side at
+   +x (checked for CMU ASF and BVH: left hip at +x, toes toward +z, y up).
+   Leaves (feet, head, hands) and joints whose source direction is degenerate (a
+   zero-length source segment) use their parent's A, i.e. they transfer the source's
+   rotation relative to the parent's segment. SMPL joints without any source joint
+   get the identity local rotation.
+3. Local rotations R_j = G_parent⁻¹ G_j, as axis-angle (scipy).
+4. Root translation: the SMPL pelvis joint follows the source point q(pelvis) (CMU: the
+   ASF root / BVH Hips, the pelvis centre between the hips), in metres, unscaled:
+   trans = q_pelvis(t) − J_0. With `floor=True` (default) a constant vertical shift then
+   puts the feet on y = 0: over the whole clip, the lowest SMPL ankle/foot joint sits
+   at its rest-pose height above the body's soles (the lowest rest vertex). The source
+   world frame is used as is (CMU is y up, like jaxmocap); `world_rotation` converts
+   other frames.
+
+Limitations: segment lengths are SMPL's (no IK), so with a body whose legs differ in
+length from the subject's the feet slide a little; twist about a bone is the
+source's, transported by the minimal rotation A_j.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from ..body.model import SMPL_JOINT_NAMES, SMPL_PARENTS
+from .sequence import Motion
+from .skeleton import SkeletonMotion
+
+__all__ = [
+    "retarget",
+    "retarget_rotations",
+    "CMU_ASF_MAP",
+    "CMU_BVH_MAP",
+    "CMU_BVH_HAHNE_MAP",
+    "detect_mapping",
+    "minimal_rotation",
+    "smpl_rest",
+    "smpl_joint_positions",
+    "alignment",
+]
+
+# SMPL joint -> source joint name, or (rotation joint, point joint).
+CMU_ASF_MAP: dict[str, str | tuple[str, str]] = {
+    "pelvis": "root",
+    "left_hip": "lfemur", "right_hip": "rfemur",
+    "left_knee": "ltibia", "right_knee": "rtibia",
+    "left_ankle": "lfoot", "right_ankle": "rfoot",
+    "left_foot": "ltoes", "right_foot": "rtoes",
+    # SMPL's 3 spine joints take CMU's lowerback/upperback/thorax; SMPL's neck takes
+    # upperneck (so CMU's lowerneck bend goes into SMPL's neck local rotation).
+    "spine1": "lowerback", "spine2": "upperback", "spine3": "thorax",
+    "neck": "upperneck", "head": "head",
+    "left_collar": "lclavicle", "right_collar": "rclavicle",
+    "left_shoulder": "lhumerus", "right_shoulder": "rhumerus",
+    "left_elbow": "lradius", "right_elbow": "rradius",
+    # CMU "wrist" is the forearm-twist segment wrist→palm; "hand" carries the flexion.
+    "left_wrist": "lwrist", "right_wrist": "rwrist",
+    "left_hand": "lhand", "right_hand": "rhand",
+}  # fmt: skip
+
+# CMU BVH as shipped in ../shared (131_01.bvh: Hips, LHipJoint, LeftHip, LeftKnee, ...).
+CMU_BVH_MAP: dict[str, str | tuple[str, str]] = {
+    "pelvis": "Hips",
+    "left_hip": "LeftHip", "right_hip": "RightHip",
+    "left_knee": "LeftKnee", "right_knee": "RightKnee",
+    "left_ankle": "LeftAnkle", "right_ankle": "RightAnkle",
+    "left_foot": "LeftToe", "right_foot": "RightToe",
+    "spine1": "lowerback", "spine2": "Chest", "spine3": "Chest2",
+    "neck": "Neck", "head": "Head",
+    "left_collar": "LeftCollar", "right_collar": "RightCollar",
+    "left_shoulder": "LeftShoulder", "right_shoulder": "RightShoulder",
+    "left_elbow": "LeftElbow", "right_elbow": "RightElbow",
+    "left_wrist": "LeftWrist", "right_wrist": "RightWrist",
+    # lhand sits on the wrist (zero offset); its segment ends at the fingers.
+    "left_hand": ("lhand", "LFingers"), "right_hand": ("rhand", "RFingers"),
+}  # fmt: skip
+
+# Bruce Hahne's MotionBuilder-friendly CMU BVH release.
+CMU_BVH_HAHNE_MAP: dict[str, str | tuple[str, str]] = {
+    "pelvis": "Hips",
+    "left_hip": "LeftUpLeg", "right_hip": "RightUpLeg",
+    "left_knee": "LeftLeg", "right_knee": "RightLeg",
+    "left_ankle": "LeftFoot", "right_ankle": "RightFoot",
+    "left_foot": "LeftToeBase", "right_foot": "RightToeBase",
+    "spine1": "LowerBack", "spine2": "Spine", "spine3": "Spine1",
+    "neck": "Neck1", "head": "Head",
+    "left_collar": "LeftShoulder", "right_collar": "RightShoulder",
+    "left_shoulder": "LeftArm", "right_shoulder": "RightArm",
+    "left_elbow": "LeftForeArm", "right_elbow": "RightForeArm",
+    "left_wrist": "LeftHand", "right_wrist": "RightHand",
+    "left_hand": ("LeftFingerBase", "LeftHandIndex1"), "right_hand": ("RightFingerBase", "RightHandIndex1"),
+}  # fmt: skip
+
+_TABLES = (("lfemur", CMU_ASF_MAP), ("LeftHip", CMU_BVH_MAP), ("LeftUpLeg", CMU_BVH_HAHNE_MAP))
+
+# Primary child of each SMPL joint (-1 for leaves): the only child, neck for spine3.
+_CHILD = [-1] * 24
+for _j, _p in enumerate(SMPL_PARENTS[1:], 1):
+    if _CHILD[_p] == -1:
+        _CHILD[_p] = _j
+_CHILD[9] = SMPL_JOINT_NAMES.index("neck")
+
+
+def detect_mapping(src: SkeletonMotion) -> dict:
+    """The built-in table whose key joint names the source has (ValueError otherwise)."""
+    for key, table in _TABLES:
+        if key in src.names:
+            return table
+    raise ValueError(
+        f"No built-in SMPL joint mapping for the skeleton of {src.name or 'this motion'} "
+        f"(joints {list(src.names)[:12]}...); pass mapping={{smpl_joint: source_joint}}."
+    )
+
+
+def minimal_rotation(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The smallest rotation taking direction `a` onto direction `b` (3x3)."""
+    a = a / np.linalg.norm(a)
+    b = b / np.linalg.norm(b)
+    axis = np.cross(a, b)
+    s, c = np.linalg.norm(axis), float(np.dot(a, b))
+    if s < 1e-12:
+        if c > 0:
+            return np.eye(3)
+        # Antiparallel: half turn about any axis orthogonal to a.
+        ortho = np.cross(a, [1.0, 0, 0] if abs(a[0]) < 0.9 else [0, 1.0, 0])
+        return Rotation.from_rotvec(np.pi * ortho / np.linalg.norm(ortho)).as_matrix()
+    return Rotation.from_rotvec(axis / s * np.arctan2(s, c)).as_matrix()
+
+
+def smpl_rest(body, betas=None) -> tuple[np.ndarray, float]:
+    """(rest joints (24, 3), lowest rest vertex height) of `body` with shape `betas`.
+
+    Uses the public forward pass at zero pose (float64 if jax_enable_x64 is on), so it
+    does not depend on the body's internal array layout.
+    """
+    from ..body.kinematics import forward
+
+    nb = body.num_betas
+    b = np.zeros(nb) if betas is None else np.asarray(betas, np.float64).reshape(-1)[:nb]
+    out = forward(body, np.zeros((body.num_joints, 3), body.dtype), b if b.size else None)
+    joints = np.asarray(out.joints, np.float64)
+    return joints, float(np.asarray(out.vertices)[:, 1].min())
+
+
+def _resolve(mapping: dict, src: SkeletonMotion) -> tuple[list, list]:
+    unknown = [k for k in mapping if k not in SMPL_JOINT_NAMES]
+    if unknown:
+        raise ValueError(f"mapping has keys {unknown} that are not SMPL joints {list(SMPL_JOINT_NAMES)}.")
+    rot_idx, pt_idx = [None] * 24, [None] * 24
+    for k, v in mapping.items():
+        j = SMPL_JOINT_NAMES.index(k)
+        r, p = (v, v) if isinstance(v, str) else v
+        if r not in src.names or p not in src.names:
+            missing = r if r not in src.names else p
+            raise ValueError(f"mapping[{k!r}] names {missing!r}, which {src.name or 'the skeleton'} does not have.")
+        rot_idx[j], pt_idx[j] = src.names.index(r), src.names.index(p)
+    if rot_idx[0] is None:
+        raise ValueError("mapping must give the pelvis (the source root).")
+    return rot_idx, pt_idx
+
+
+def alignment(src: SkeletonMotion, rest_joints: np.ndarray, mapping: dict) -> np.ndarray:
+    """(24, 3, 3) rest alignments A_j (see the module docstring)."""
+    rot_idx, pt_idx = _resolve(mapping, src)
+    A = np.zeros((24, 3, 3))
+    A[0] = np.eye(3)
+    for j in range(1, 24):
+        A[j] = A[SMPL_PARENTS[j]]
+        c = _CHILD[j]
+        if c < 0 or pt_idx[j] is None or pt_idx[c] is None:
+            continue
+        d_src = src.rest_positions[pt_idx[c]] - src.rest_positions[pt_idx[j]]
+        d_smpl = rest_joints[c] - rest_joints[j]
+        if np.linalg.norm(d_src) > 1e-6 and np.linalg.norm(d_smpl) > 1e-9:
+            A[j] = minimal_rotation(d_smpl, d_src)
+    return A
+
+
+def retarget_rotations(src: SkeletonMotion, rest_joints: np.ndarray, mapping: dict) -> np.ndarray:
+    """(T, 24, 3, 3) SMPL global rotations G_j = G_src · A_j (identity local if unmapped)."""
+    rot_idx, _ = _resolve(mapping, src)
+    A = alignment(src, rest_joints, mapping)
+    T = src.num_frames
+    G = np.zeros((T, 24, 3, 3))
+    for j in range(24):
+        if rot_idx[j] is None:
+            G[:, j] = G[:, SMPL_PARENTS[j]]
+        else:
+            G[:, j] = src.rotations[:, rot_idx[j]] @ A[j]
+    return G
+
+
+def _rotate_world(src: SkeletonMotion, W: np.ndarray) -> SkeletonMotion:
+    """The same motion expressed in a world frame rotated by W (G ↦ W G Wᵀ, p ↦ W p)."""
+    import dataclasses
+
+    return dataclasses.replace(
+        src,
+        rest_positions=src.rest_positions @ W.T,
+        tips=src.tips @ W.T,
+        rotations=W @ src.rotations @ W.T,
+        positions=src.positions @ W.T,
+    )
+
+
+def retarget(
+    src: SkeletonMotion,
+    body=None,
+    betas=None,
+    mapping: dict | None = None,
+    fps: float | None = None,
+    floor: bool = True,
+    world_rotation=None,
+    name: str | None = None,
+) -> Motion:
+    """Retarget `src` onto SMPL's tree for `body` (default `jaxmocap.default_body()`).
+
+    Args:
+        src: the source motion (from `load_asf_amc` / `load_bvh`).
+        body: the SMPL-layout body whose rest joints define the target bone directions.
+        betas: its shape (default zeros); stored in the Motion.
+        mapping: {SMPL joint name: source joint or (rotation joint, point joint)};
+            default: the built-in table matching the source's joint names.
+        fps: resample to this rate (slerp), default: the source's rate.
+        floor: shift vertically so the feet touch y = 0 (see the module docstring).
+        world_rotation: 3x3 rotation from the source world frame to jaxmocap's (y up);
+            default identity (right for CMU data).
+        name: the Motion's name (default: the source file).
+    """
+    if body is None:
+        from ..body.io import default_body
+
+        body = default_body()
+    if world_rotation is not None:
+        src = _rotate_world(src, np.asarray(world_rotation, np.float64))
+    mapping = detect_mapping(src) if mapping is None else mapping
+    rest, sole = smpl_rest(body, betas)
+    G = retarget_rotations(src, rest, mapping)
+    parents = np.array(SMPL_PARENTS)
+    local = np.concatenate([G[:, :1], np.swapaxes(G[:, parents[1:]], -1, -2) @ G[:, 1:]], axis=1)
+    T = src.num_frames
+    poses = Rotation.from_matrix(local.reshape(-1, 3, 3)).as_rotvec().reshape(T, 24, 3)
+    _, pt_idx = _resolve(mapping, src)
+    trans = src.positions[:, pt_idx[0]] - rest[0]
+    if floor:
+        joints = smpl_joint_positions(G, rest, trans)
+        feet = [SMPL_JOINT_NAMES.index(n) for n in ("left_ankle", "right_ankle", "left_foot", "right_foot")]
+        clearance = (rest[feet, 1] - sole).min()
+        trans = trans + np.array([0.0, clearance - joints[:, feet, 1].min(), 0.0])
+    nb = body.num_betas
+    motion = Motion(
+        poses=poses,
+        trans=trans,
+        fps=src.fps,
+        betas=np.zeros(0) if betas is None else np.asarray(betas, np.float64).reshape(-1)[:nb],
+        gender=getattr(body, "gender", "neutral"),
+        name=src.name if name is None else name,
+    )
+    return motion if fps is None or float(fps) == src.fps else motion.resample(fps)
+
+
+def smpl_joint_positions(global_rotations: np.ndarray, rest_joints: np.ndarray, trans: np.ndarray) -> np.ndarray:
+    """(T, 24, 3) posed SMPL joints from global rotations (NumPy forward kinematics)."""
+    T = global_rotations.shape[0]
+    pos = np.zeros((T, 24, 3))
+    pos[:, 0] = rest_joints[0] + trans
+    for j in range(1, 24):
+        p = SMPL_PARENTS[j]
+        pos[:, j] = pos[:, p] + global_rotations[:, p] @ (rest_joints[j] - rest_joints[p])
+    return pos

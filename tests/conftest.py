@@ -1,0 +1,51 @@
+"""Shared fixtures: float64 on, and small random models in SMPL's exact file layout."""
+
+import jax
+import numpy as np
+import pytest
+
+jax.config.update("jax_enable_x64", True)
+
+
+def random_smpl_dict(num_vertices: int = 120, num_betas: int = 10, seed: int = 0) -> dict:
+    """A random model with SMPL's keys, shapes and dtypes (kintree_table root = 2**32-1).
+
+    The rest joints sit at SMPL-like places so that poses behave like a body.
+    """
+    rng = np.random.default_rng(seed)
+    from jaxmocap.body import SMPL_PARENTS
+
+    V = num_vertices
+    v_template = rng.normal(scale=0.3, size=(V, 3))
+    weights = rng.random((V, 24)) ** 4
+    weights /= weights.sum(1, keepdims=True)
+    J_regressor = rng.random((24, V)) * (rng.random((24, V)) < 0.1)
+    J_regressor[:, 0] += 1e-3
+    J_regressor /= J_regressor.sum(1, keepdims=True)
+    parents = np.array(SMPL_PARENTS, np.int64)
+    parents[0] = 4294967295
+    return {
+        "v_template": v_template,
+        "f": rng.integers(0, V, size=(2 * V, 3)).astype(np.uint32),
+        "shapedirs": rng.normal(scale=0.02, size=(V, 3, num_betas)),
+        "posedirs": rng.normal(scale=0.02, size=(V, 3, 207)),
+        "J_regressor": J_regressor,
+        "weights": weights,
+        "kintree_table": np.stack([parents, np.arange(24)]).astype(np.int64),
+    }
+
+
+@pytest.fixture(scope="session")
+def smpl_dict():
+    return random_smpl_dict()
+
+
+@pytest.fixture(scope="session")
+def random_body(smpl_dict):
+    from jaxmocap.body import make_body
+
+    d = smpl_dict
+    return make_body(
+        d["v_template"], d["f"], d["shapedirs"], d["posedirs"], d["J_regressor"], d["weights"],
+        dtype=np.float64,
+    )

@@ -1,0 +1,117 @@
+"""Rotation maps: values against SciPy, gradients (jacfwd == jacrev ≈ finite differences)."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from jaxmocap import rotation as rot
+
+rng = np.random.default_rng(1)
+AXIS = np.array([0.48, -0.6, 0.64])
+AXIS /= np.linalg.norm(AXIS)
+# Zero, tiny, generic, large and near-π rotations.
+CASES = {
+    "zero": np.zeros(3),
+    "tiny": 1e-9 * AXIS,
+    "small": 1e-3 * AXIS,
+    "generic": np.array([0.3, -0.7, 0.2]),
+    "large": 2.5 * AXIS,
+    "near_pi": (np.pi - 1e-6) * AXIS,
+}
+
+
+def central_difference(f, x, eps=1e-6):
+    x = np.asarray(x, np.float64)
+    cols = []
+    for i in range(x.size):
+        dx = np.zeros_like(x)
+        dx.flat[i] = eps
+        cols.append((np.asarray(f(x + dx)) - np.asarray(f(x - dx))) / (2 * eps))
+    return np.stack(cols, -1)
+
+
+@pytest.mark.parametrize("name", CASES)
+def test_axis_angle_to_matrix_matches_scipy_and_is_orthonormal(name):
+    w = CASES[name]
+    R = np.asarray(rot.axis_angle_to_matrix(jnp.asarray(w)))
+    np.testing.assert_allclose(R, Rotation.from_rotvec(w).as_matrix(), atol=1e-14)
+    np.testing.assert_allclose(R @ R.T, np.eye(3), atol=1e-14)
+
+
+@pytest.mark.parametrize("name", CASES)
+def test_exp_gradients(name):
+    w = jnp.asarray(CASES[name])
+    fwd = jax.jacfwd(rot.axis_angle_to_matrix)(w)
+    rev = jax.jacrev(rot.axis_angle_to_matrix)(w)
+    fd = central_difference(lambda x: rot.axis_angle_to_matrix(jnp.asarray(x)), w)
+    assert np.isfinite(fwd).all()
+    np.testing.assert_allclose(fwd, rev, atol=1e-12)
+    np.testing.assert_allclose(fwd, fd, atol=1e-7)
+
+
+@pytest.mark.parametrize("name", CASES)
+def test_log_inverts_exp_with_identity_jacobian(name):
+    w = jnp.asarray(CASES[name])
+    roundtrip = lambda x: rot.matrix_to_axis_angle(rot.axis_angle_to_matrix(x))  # noqa: E731
+    np.testing.assert_allclose(roundtrip(w), w, atol=1e-9)
+    fwd = jax.jacfwd(roundtrip)(w)
+    rev = jax.jacrev(roundtrip)(w)
+    # Near π, finite steps must not cross π (where the log wraps): keep them tiny.
+    fd = central_difference(lambda x: roundtrip(jnp.asarray(x)), w, eps=1e-8)
+    np.testing.assert_allclose(fwd, np.eye(3), atol=1e-6)
+    np.testing.assert_allclose(fwd, rev, atol=1e-10)
+    np.testing.assert_allclose(fd, np.eye(3), atol=1e-5)
+
+
+@pytest.mark.parametrize("name", CASES)
+def test_log_gradient_wrt_matrix_matches_finite_differences(name):
+    R = Rotation.from_rotvec(CASES[name]).as_matrix()
+    f = rot.matrix_to_axis_angle
+    fwd = jax.jacfwd(f)(jnp.asarray(R))
+    rev = jax.jacrev(f)(jnp.asarray(R))
+    assert np.isfinite(fwd).all() and np.isfinite(rev).all()
+    np.testing.assert_allclose(fwd, rev, atol=1e-9)
+    if name != "near_pi":  # off-manifold steps of 1e-7 would cross π there
+        fd = central_difference(lambda x: f(jnp.asarray(x)), R, eps=1e-7)
+        np.testing.assert_allclose(np.asarray(fwd).reshape(3, 9), fd, atol=1e-6)
+
+
+def test_quaternion_and_6d_round_trips():
+    w = rng.normal(size=(50, 3))
+    w *= (rng.random((50, 1)) * np.pi) / np.linalg.norm(w, axis=1, keepdims=True)
+    R = rot.axis_angle_to_matrix(jnp.asarray(w))
+    q = rot.matrix_to_quaternion(R)
+    ref = Rotation.from_rotvec(w).as_quat(scalar_first=True)
+    ref *= np.sign(ref[:, :1])
+    np.testing.assert_allclose(q, ref, atol=1e-12)
+    np.testing.assert_allclose(rot.quaternion_to_matrix(q), R, atol=1e-12)
+    np.testing.assert_allclose(rot.axis_angle_to_quaternion(jnp.asarray(w)), ref, atol=1e-12)
+    np.testing.assert_allclose(rot.quaternion_to_axis_angle(q), w, atol=1e-10)
+    np.testing.assert_allclose(rot.sixd_to_matrix(rot.matrix_to_6d(R)), R, atol=1e-12)
+    p = rot.matrix_to_quaternion(R[::-1])
+    np.testing.assert_allclose(
+        rot.quaternion_to_matrix(rot.quaternion_multiply(p, q)), R[::-1] @ R, atol=1e-12
+    )
+
+
+def test_float32_accuracy_and_zero_gradient():
+    w = jnp.asarray(CASES["small"], jnp.float32)
+    R = rot.axis_angle_to_matrix(w)
+    assert R.dtype == jnp.float32
+    np.testing.assert_allclose(R, Rotation.from_rotvec(CASES["small"]).as_matrix(), atol=1e-7)
+    g = jax.grad(lambda x: rot.matrix_to_axis_angle(rot.axis_angle_to_matrix(x)).sum())(
+        jnp.zeros(3, jnp.float32)
+    )
+    np.testing.assert_allclose(g, np.ones(3), atol=1e-6)
+
+
+@pytest.mark.parametrize("batch", [(), (1,), (3, 2)])
+def test_batch_shapes(batch):
+    w = jnp.asarray(rng.normal(size=(*batch, 3)))
+    R = rot.axis_angle_to_matrix(w)
+    assert R.shape == (*batch, 3, 3)
+    assert rot.matrix_to_axis_angle(R).shape == (*batch, 3)
+    assert rot.geodesic_angle(R, R).shape == batch
+    np.testing.assert_allclose(rot.geodesic_angle(R, R), 0.0, atol=1e-7)
