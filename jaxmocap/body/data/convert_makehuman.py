@@ -381,12 +381,6 @@ def sample_phenotypes(n: int, rng: np.random.Generator) -> dict[str, np.ndarray]
     }
 
 
-def anny_default_phenotype() -> dict[str, np.ndarray]:
-    d = {k: np.array([0.5]) for k in ("gender", "age", "muscle", "weight", "height", "proportions", "cupsize", "firmness")}
-    d.update({r: np.array([1 / 3]) for r in VARIATIONS["race"]})
-    return d
-
-
 class MacroModel:
     def __init__(self, mpfb: Path, base: np.ndarray):
         self.mpfb, self.base = mpfb, base
@@ -626,6 +620,8 @@ def build(args):
         def cube_c(X, name):
             return X[:, np.unique(np.asarray(groups[name]).ravel())].mean(1)
 
+        lowV, lowG = load_obj(data / "topology" / args.low_topology)  # metres, same frame
+
         print(f"sampling {args.samples} phenotypes ...")
         pheno = sample_phenotypes(args.samples, rng)
         Xs_T = np.empty((args.samples, nb, 3), np.float32)
@@ -681,7 +677,6 @@ def build(args):
               f"  ({int((Jreg[j] > 0).sum())} vertices)")
 
     # 10. low resolution
-    lowV, lowG = load_obj(data / "topology" / args.low_topology)
     lowF = triangulate(sum(lowG.values(), [])).astype(np.int32)
     idx, bary, dist = barycentric_projection(lowV, base[:nb], F)
     print(f"low mesh projection distance: mean {dist.mean()*1000:.2f} mm, max {dist.max()*1000:.2f} mm")
