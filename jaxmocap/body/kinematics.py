@@ -9,6 +9,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jax import Array
@@ -118,7 +119,11 @@ def _skin(body: Body, transforms: Array, v_posed: Array) -> Array:
     5-9x slower on XLA-CPU (benchmarks/body_forward.py history), so skinning is dense.
     """
     N, J, V = transforms.shape[0], body.num_joints, body.num_vertices
-    blended = (body.weights @ transforms.reshape(N, J, 12)).reshape(N, V, 3, 4)
+    # Full float32 here: GPUs' default TF32 products moved vertices by ~0.5 mm
+    # (benchmarks/results/body_forward_gpu.json); this product is memory-bound anyway.
+    blended = jnp.matmul(
+        body.weights, transforms.reshape(N, J, 12), precision=jax.lax.Precision.HIGHEST
+    ).reshape(N, V, 3, 4)
     return jnp.einsum("nvab,nvb->nva", blended[..., :3], v_posed) + blended[..., 3]
 
 

@@ -205,12 +205,12 @@ def export_sequence(
     return paths
 
 
-def _progress(items, enabled: bool, desc: str):
+def _progress(items, enabled: bool, desc: str, unit: str = "frame"):
     if not enabled:
         return items
     from tqdm.auto import tqdm
 
-    return tqdm(items, desc=desc, unit="frame", leave=False)
+    return tqdm(items, desc=desc, unit=unit, leave=False)
 
 
 @jax.jit
@@ -266,7 +266,7 @@ def posed_vertices(
     vertices = np.empty((T, V, 3), dtype)
     joints = np.empty((T, J, 3), dtype)
     size = _chunk_size(T, chunk)
-    for start in _progress(range(0, T, size), progress, "posing"):
+    for start in _progress(range(0, T, size), progress, f"posing {size} frames at a time", "batch"):
         stop = min(start + size, T)
         n = stop - start
         pose = np.zeros((size, J, 3), dtype)

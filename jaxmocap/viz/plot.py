@@ -135,7 +135,7 @@ def plot_pose(
         view: "front" or "side" (see the module docstring), or an azimuth in degrees.
         joint_names: names used to tell left from right (default SMPL's for 24 joints).
         title: axes title.
-        path: if given, the figure is written there as PNG.
+        path: if given, the (whole) figure is written there as PNG.
     Returns:
         The axes (or the path written, when `path` is given).
     """
@@ -157,8 +157,8 @@ def plot_pose(
     _set_limits(ax, lo, hi, margin=0.15)
     if title:
         ax.set_title(title)
-    if fig is not None and path is not None:
-        return _save(fig, path)
+    if path is not None:
+        return _save(ax.figure if fig is None else fig, path)
     return ax
 
 
@@ -435,7 +435,10 @@ def plot_sequence(
         if i is not None:
             ax_top.plot(joints[:, i, 2], joints[:, i, 0], color=c, alpha=0.3, linewidth=1.0, zorder=2)
     _style_axes(ax_top, "z (m)", "x (m)")
-    _set_limits(ax_top, np.array([z.min(), x.min()]), np.array([z.max(), x.max()]), margin=0.25)
+    lo, hi = np.array([z.min(), x.min()]) - 0.25, np.array([z.max(), x.max()]) + 0.25
+    span = hi - lo
+    pad = np.maximum(0.45 * span[::-1] - span, 0) / 2  # no thinner than about 1 : 2.2
+    _set_limits(ax_top, lo - pad, hi + pad, margin=0.0)
     length = np.linalg.norm(np.diff(root[:, [0, 2]], axis=0), axis=1).sum()
     ax_top.set_title(f"Root path from above: {length:.2f} m", fontsize=10)
     ax_top.legend(loc="best", fontsize=7, framealpha=0.8)

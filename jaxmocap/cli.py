@@ -1,0 +1,242 @@
+"""The `jaxmocap` command: inspect, convert, export, demo.
+
+Each subcommand is one `configure(parser)` function that declares its arguments and one
+`run(args) -> int` function that does the work; `COMMANDS` registers them. To add a
+subcommand (fit, check, sweep, ...), write those two functions and append a `Command`.
+
+User mistakes (missing files, unreadable or unknown formats, bad values) print one line
+`jaxmocap <command>: error: <message>` on stderr and exit with status 2; `--debug` shows
+the traceback instead.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import sys
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+__all__ = ["COMMANDS", "Command", "main", "build_parser"]
+
+
+@dataclasses.dataclass(frozen=True)
+class Command:
+    """A subcommand: its name, one-line help, argument declarations and action."""
+
+    name: str
+    help: str
+    configure: Callable[[argparse.ArgumentParser], None]
+    run: Callable[[argparse.Namespace], int | None]
+
+
+def _add_body_option(parser: argparse.ArgumentParser, default: str = "default-low") -> None:
+    parser.add_argument(
+        "--body",
+        default=default,
+        metavar="BODY",
+        help="body model: default-low, default-full, mannequin, or a model file "
+        f"(.pkl/.npz; SMPL, SMPL-H, SMPL-X) (default: {default})",
+    )
+
+
+def _load_motion(path, fps=None, body=None):
+    from .motion.io import load_motion
+
+    return load_motion(path, fps=fps, body=body)
+
+
+def _positive(kind):
+    def parse(text: str):
+        value = kind(text)
+        if not value > 0:
+            raise argparse.ArgumentTypeError(f"must be positive, got {text}")
+        return value
+
+    return parse
+
+
+# --- inspect ------------------------------------------------------------------------
+
+
+def _configure_inspect(p: argparse.ArgumentParser) -> None:
+    p.add_argument("file", help="a motion file (.npz AMASS/jaxmocap, .amc, .bvh) or a body model (.pkl/.npz)")
+
+
+def _is_body_file(path: Path) -> bool:
+    if path.suffix.lower() == ".pkl":
+        return True
+    if path.suffix.lower() != ".npz" or not path.is_file():
+        return False
+    import numpy as np
+
+    try:
+        with np.load(path, allow_pickle=False) as f:
+            return "v_template" in f.files
+    except Exception:  # unreadable: let the motion loader name the problem
+        return False
+
+
+def _run_inspect(args) -> int:
+    import numpy as np
+
+    path = Path(args.file)
+    if not path.exists():
+        raise FileNotFoundError(f"{path}: no such file.")
+    if _is_body_file(path):
+        from .body.io import load_body
+
+        body = load_body(path)
+        v = np.asarray(body.v_template)
+        print(f"body model   {path}")
+        print(f"kind         {body.kind} ({body.gender})")
+        print(f"vertices     {body.num_vertices}")
+        print(f"faces        {len(body.faces)}")
+        print(f"joints       {body.num_joints}")
+        print(f"betas        {body.num_betas} shape components")
+        print(f"rest height  {np.ptp(v[:, 1]):.3f} m (template, y up)")
+        return 0
+    motion = _load_motion(path)
+    trans = motion.trans
+    step = np.linalg.norm(np.diff(trans, axis=0), axis=1)
+    ground = np.linalg.norm(np.diff(trans[:, [0, 2]], axis=0), axis=1)
+    betas = np.array2string(motion.betas, precision=3, max_line_width=88) if motion.betas.size else "none (mean shape)"
+    print(f"motion       {path}")
+    print(f"frames       {motion.num_frames}")
+    print(f"fps          {motion.fps:g}")
+    print(f"duration     {motion.duration:.3f} s")
+    print(f"joints       {motion.poses.shape[1]} (SMPL tree)")
+    print(f"root path    {step.sum():.3f} m ({ground.sum():.3f} m on the ground plane)")
+    print(f"root height  {trans[:, 1].min():.3f} .. {trans[:, 1].max():.3f} m (y up)")
+    print(f"gender       {motion.gender}")
+    print(f"betas        {betas}")
+    return 0
+
+
+# --- convert ------------------------------------------------------------------------
+
+
+def _configure_convert(p: argparse.ArgumentParser) -> None:
+    p.add_argument("input", help="any readable motion file (.npz, .amc, .bvh)")
+    p.add_argument("output", help="AMASS-style .npz to write (z up, as AMASS)")
+    p.add_argument("--fps", type=_positive(float), help="resample to this frame rate")
+    _add_body_option(p)
+
+
+def _run_convert(args) -> int:
+    from .motion.amass import save_amass
+    from .viz.demo import resolve_body
+
+    out = Path(args.output)
+    if out.suffix.lower() != ".npz":
+        raise ValueError(f"{out}: the output must be an .npz file (AMASS layout).")
+    body = resolve_body(args.body)
+    motion = _load_motion(args.input, fps=args.fps, body=body)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    written = save_amass(motion, out, body=body)
+    print(f"wrote {written}: {motion.num_frames} frames at {motion.fps:g} fps ({motion.duration:.2f} s)")
+    return 0
+
+
+# --- export -------------------------------------------------------------------------
+
+
+def _configure_export(p: argparse.ArgumentParser) -> None:
+    p.add_argument("motion", help="motion file (.npz, .amc, .bvh)")
+    p.add_argument("outdir", help="folder for meshes/ and pictures")
+    _add_body_option(p)
+    p.add_argument("--format", default="ply", choices=("ply", "glb", "obj"), help="mesh format (default: ply)")
+    p.add_argument("--every", type=_positive(int), default=1, metavar="N", help="keep every N-th frame")
+    p.add_argument("--fps", type=_positive(float), help="resample the motion first")
+    p.add_argument("--png", action="store_true", help="also write filmstrip.png and body.png")
+
+
+def _run_export(args) -> int:
+    from .viz.demo import export_motion, resolve_body
+
+    body = resolve_body(args.body)
+    motion = _load_motion(args.motion, fps=args.fps, body=body)
+    result = export_motion(
+        motion, body, args.outdir, fmt=args.format, every=args.every, pictures=args.png,
+        progress=sys.stderr.isatty(),
+    )
+    where = result.meshes[0].parent if result.meshes else Path(args.outdir)
+    print(f"wrote {len(result.meshes)} {args.format.upper()} file(s) to {where} "
+          f"({motion.num_frames} frames, every {args.every})")
+    for png in result.pictures:
+        print(f"wrote {png}")
+    return 0
+
+
+# --- demo ---------------------------------------------------------------------------
+
+
+def _configure_demo(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--out", default="out/demo", help="output folder (default: out/demo)")
+    _add_body_option(p, default="default-full")
+    p.add_argument("--seconds", type=_positive(float), default=4.0, help="length of the clip (default: 4)")
+    p.add_argument("--every", type=_positive(int), default=5, metavar="N", help="PLY every N frames (default: 5)")
+
+
+def _run_demo(args) -> int:
+    from .viz.demo import run_demo
+
+    result = run_demo(args.out, body=args.body, seconds=args.seconds, every=args.every,
+                      progress=sys.stderr.isatty())
+    plys = [p for p in result.meshes if p.suffix == ".ply"]
+    glbs = [p for p in result.meshes if p.suffix == ".glb"]
+    print(f"motion   {result.source}: {result.num_frames} frames at {result.fps:g} fps")
+    if plys:
+        print(f"meshes   {len(plys)} PLY in {plys[0].parent} ({plys[0].name} .. {plys[-1].name})")
+    for p in glbs:
+        print(f"scene    {p} (one node per kept frame, y up)")
+    for p in result.pictures:
+        print(f"picture  {p}")
+    print(f"done in {result.seconds:.1f} s")
+    return 0
+
+
+COMMANDS: list[Command] = [
+    Command("inspect", "summarise a motion file or a body model file", _configure_inspect, _run_inspect),
+    Command("convert", "convert any readable motion to an AMASS-style .npz", _configure_convert, _run_convert),
+    Command("export", "pose a body with a motion; write meshes (and pictures)", _configure_export, _run_export),
+    Command("demo", "walk → posed body → meshes and pictures (the `make demo` job)", _configure_demo, _run_demo),
+]
+
+
+def build_parser(commands: Sequence[Command] = COMMANDS) -> argparse.ArgumentParser:
+    from . import __version__
+
+    parser = argparse.ArgumentParser(prog="jaxmocap", description="Human motion capture in JAX.")
+    parser.add_argument("--version", action="version", version=f"jaxmocap {__version__}")
+    parser.add_argument("--debug", action="store_true", help="show tracebacks instead of one-line errors")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    for command in commands:
+        p = sub.add_parser(command.name, help=command.help, description=command.help)
+        command.configure(p)
+        p.set_defaults(_run=command.run)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the `jaxmocap` console command; returns the exit status."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args._run(args) or 0)
+    except (OSError, ValueError, KeyError) as e:
+        if args.debug:
+            raise
+        if isinstance(e, OSError) and e.strerror and e.filename:  # "[Errno 2] ..." → "path: reason"
+            message = f"{e.filename}: {e.strerror}"
+        else:
+            message = str(e) if not isinstance(e, KeyError) else f"missing key {e}"
+        print(f"jaxmocap {args.command}: error: {message}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"jaxmocap {args.command}: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

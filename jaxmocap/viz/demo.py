@@ -1,0 +1,165 @@
+"""The end-to-end demo (`jaxmocap demo`, `make demo`): a walk, posed, exported and pictured.
+
+Also holds the small pieces the command line shares: picking a body from a short name
+(`resolve_body`) and exporting a motion's meshes and pictures (`export_motion`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import time
+from pathlib import Path
+
+from ..body.model import Body
+
+__all__ = ["BODY_CHOICES", "DemoResult", "ExportResult", "export_motion", "find_cmu_dir", "resolve_body", "run_demo"]
+
+#: Short names accepted wherever a body is asked for (or give a model file path).
+BODY_CHOICES = ("default-low", "default-full", "mannequin")
+
+
+def resolve_body(spec: str | os.PathLike | Body | None = "default-low") -> Body:
+    """A body from "default-low", "default-full", "mannequin", or a model file path.
+
+    Raises:
+        BodyFileError (a ValueError) for a missing or unreadable model file.
+    """
+    if isinstance(spec, Body):
+        return spec
+    from ..body.io import default_body, load_body
+
+    spec = "default-low" if spec is None else spec
+    if spec in ("default-low", "default-full"):
+        return default_body(str(spec).split("-")[1])
+    if spec == "mannequin":
+        from .mannequin import mannequin_body
+
+        return mannequin_body(detail=2)
+    return load_body(spec)
+
+
+def find_cmu_dir() -> Path | None:
+    """The CMU clip folder: $JAXMOCAP_CMU, else `shared/data/cmu` beside the repository."""
+    env = os.environ.get("JAXMOCAP_CMU")
+    if env:
+        return Path(env) if Path(env).is_dir() else None
+    repo = Path(__file__).resolve().parents[2]
+    for candidate in (repo.parent / "shared" / "data" / "cmu", repo / "shared" / "data" / "cmu"):
+        if candidate.is_dir():
+            return candidate
+    return None
+
+
+@dataclasses.dataclass(frozen=True)
+class ExportResult:
+    """What `export_motion` wrote."""
+
+    meshes: list[Path]
+    pictures: list[Path]
+    num_frames: int
+
+
+def export_motion(
+    motion,
+    body: Body,
+    out_dir,
+    fmt: str = "ply",
+    every: int = 1,
+    pictures: bool = True,
+    glb: bool = False,
+    progress: bool = False,
+) -> ExportResult:
+    """Pose `body` with `motion` and write meshes (and PNG pictures) into `out_dir`.
+
+    Writes `out_dir/meshes/frame_XXXX.<fmt>` for every `every`-th frame (for fmt="glb",
+    one `meshes/sequence.glb`), plus, with `glb=True`, that GLB in addition to PLY/OBJ;
+    with `pictures`, `filmstrip.png` (skeleton filmstrip, trajectory, root height and
+    speed) and `body.png` (the shaded mesh at mid-sequence, front/side/¾ views).
+    """
+    from .mesh import export_sequence, posed_vertices
+    from .plot import plot_body, plot_sequence
+
+    out_dir = Path(out_dir)
+    vertices, joints = posed_vertices(body, motion, progress=progress)
+    meshes = export_sequence(vertices, body.faces, out_dir / "meshes", fmt=fmt, every=every, progress=progress)
+    if glb and fmt != "glb":
+        meshes += export_sequence(vertices, body.faces, out_dir / "meshes", fmt="glb", every=every)
+    pngs = []
+    if pictures:
+        name = Path(motion.name).name if motion.name else "motion"
+        pngs.append(
+            plot_sequence(
+                joints, body.parents, out_dir / "filmstrip.png", fps=motion.fps, joint_names=body.joint_names,
+                title=f"{name}: {motion.num_frames} frames at {motion.fps:g} fps ({motion.duration:.2f} s)",
+            )
+        )
+        mid = motion.num_frames // 2
+        pngs.append(
+            plot_body(
+                vertices[mid], body.faces, out_dir / "body.png", joints=joints[mid], parents=body.parents,
+                title=f"{name}, frame {mid} (t = {mid / motion.fps:.2f} s): {body.kind} body, "
+                f"{body.num_vertices} vertices",
+            )
+        )
+    return ExportResult(meshes=meshes, pictures=pngs, num_frames=motion.num_frames)
+
+
+@dataclasses.dataclass(frozen=True)
+class DemoResult:
+    """What the demo did and wrote."""
+
+    source: str
+    num_frames: int
+    fps: float
+    meshes: list[Path]
+    pictures: list[Path]
+    seconds: float
+
+
+def _demo_motion(body: Body, fps: float, seconds: float):
+    from ..motion.io import load_motion
+
+    cmu = find_cmu_dir()
+    if cmu is not None and (cmu / "02_01.amc").is_file():
+        motion = load_motion(cmu / "02_01.amc", fps=fps, body=body)
+        source = f"CMU walk {cmu / '02_01.amc'}"
+    else:
+        try:
+            from ..motion.library import walk
+        except ImportError as e:
+            raise FileNotFoundError(
+                "No CMU clips found (set JAXMOCAP_CMU to the folder holding 02_01.amc) and the "
+                f"procedural walk is unavailable ({e})."
+            ) from e
+        motion = walk(int(round(seconds * fps)) + 1, fps, body=body)
+        source = "procedural walk (jaxmocap.motion.library.walk)"
+    frames = min(motion.num_frames, int(round(seconds * fps)) + 1)
+    return motion[:frames], source
+
+
+def run_demo(
+    out_dir="out/demo",
+    body: str | Body = "default-full",
+    fps: float = 30.0,
+    seconds: float = 4.0,
+    every: int = 5,
+    progress: bool = False,
+) -> DemoResult:
+    """Load a walk (CMU 02_01 if present, else the procedural one), pose a body, export.
+
+    Writes into `out_dir`: `meshes/frame_XXXX.ply` every `every` frames, one
+    `meshes/sequence.glb` (a node per kept frame), `filmstrip.png` and `body.png`.
+    """
+    start = time.perf_counter()
+    body = resolve_body(body)
+    motion, source = _demo_motion(body, fps, seconds)
+    result = export_motion(motion, body, out_dir, fmt="ply", every=every, pictures=True, glb=True, progress=progress)
+    return DemoResult(
+        source=source,
+        num_frames=motion.num_frames,
+        fps=motion.fps,
+        meshes=result.meshes,
+        pictures=result.pictures,
+        seconds=time.perf_counter() - start,
+    )

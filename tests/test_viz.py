@@ -1,0 +1,141 @@
+"""Mesh export (trimesh round trips), batched posing, and the PNG pictures."""
+
+import matplotlib.image
+import numpy as np
+import pytest
+import trimesh
+
+from jaxmocap.body import forward
+from jaxmocap.motion import Motion
+from jaxmocap.viz import (
+    MeshExportError,
+    export_mesh,
+    export_sequence,
+    mannequin_body,
+    plot_body,
+    plot_pose,
+    plot_sequence,
+    posed_vertices,
+    scalars_to_colors,
+)
+from jaxmocap.viz.mannequin import MANNEQUIN_JOINTS
+
+T = 16  # one jit shape for the whole file (chunks of 8 or 16)
+
+
+@pytest.fixture(scope="module")
+def body():
+    return mannequin_body(detail=0)
+
+
+@pytest.fixture(scope="module")
+def motion():
+    rng = np.random.default_rng(1)
+    t = np.arange(T) / 30.0
+    poses = rng.normal(scale=0.15, size=(T, 24, 3))
+    poses[:, 0] = [0.0, 0.4, 0.0]  # a fixed yaw
+    trans = np.stack([0.3 * t, 0.02 * np.sin(6 * t), 1.2 * t], 1)
+    return Motion(poses=poses, trans=trans, fps=30.0, name="random")
+
+
+@pytest.fixture(scope="module")
+def posed(body, motion):
+    return posed_vertices(body, motion, chunk=8)
+
+
+def assert_picture(path, min_bytes=10_000):
+    assert path.is_file() and path.suffix == ".png"
+    assert path.stat().st_size > min_bytes
+    image = matplotlib.image.imread(path)[..., :3]
+    assert image.std() > 0.05  # not blank
+    assert (image < 0.5).mean() > 0.001  # some dark ink on the white page
+
+
+def test_mannequin_layout(body):
+    assert body.num_joints == 24 and body.num_vertices == 656
+    joints = np.asarray(body.J_regressor @ body.v_template)
+    np.testing.assert_allclose(joints, MANNEQUIN_JOINTS, atol=1e-5)
+    np.testing.assert_allclose(np.asarray(body.weights).sum(1), 1.0)
+
+
+def test_posed_vertices_matches_forward(body, motion, posed):
+    vertices, joints = posed
+    assert vertices.shape == (T, body.num_vertices, 3) and joints.shape == (T, 24, 3)
+    out = forward(body, np.asarray(motion.poses[[0, 13]], np.float32), None, np.asarray(motion.trans[[0, 13]], np.float32))
+    np.testing.assert_allclose(vertices[[0, 13]], out.vertices, atol=1e-5)
+    np.testing.assert_allclose(joints[[0, 13]], out.joints, atol=1e-5)
+    v5, j5 = posed_vertices(body, motion, frames=slice(3, 8))  # padded to the same 8-frame chunk
+    np.testing.assert_allclose(v5, vertices[3:8], atol=1e-6)
+
+
+@pytest.mark.parametrize("suffix", ["ply", "obj", "glb"])
+def test_export_mesh_round_trip(tmp_path, body, posed, suffix):
+    vertices = posed[0][5]
+    path = export_mesh(vertices, body.faces, tmp_path / "sub" / f"pose.{suffix}")
+    assert path.is_file()
+    mesh = trimesh.load(path, process=False, force="mesh")
+    assert mesh.vertices.shape == vertices.shape
+    np.testing.assert_allclose(mesh.vertices, vertices, atol=1e-6)
+    np.testing.assert_array_equal(mesh.faces, body.faces)
+
+
+def test_export_mesh_colors(tmp_path, body, posed):
+    values = np.linspace(0.0, 1.0, body.num_vertices)
+    path = export_mesh(posed[0][0], body.faces, tmp_path / "heat.ply", colors=values, cmap="inferno")
+    mesh = trimesh.load(path, process=False)
+    expected = scalars_to_colors(values, "inferno")
+    np.testing.assert_array_equal(mesh.visual.vertex_colors, expected)
+    assert expected.shape == (body.num_vertices, 4) and expected.dtype == np.uint8
+
+
+def test_export_mesh_errors(tmp_path, body, posed):
+    with pytest.raises(MeshExportError, match=r"\.stl"):
+        export_mesh(posed[0][0], body.faces, tmp_path / "pose.stl")
+    with pytest.raises(MeshExportError, match="colors"):
+        export_mesh(posed[0][0], body.faces, tmp_path / "pose.ply", colors=np.zeros(3))
+    with pytest.raises(MeshExportError, match=r"\(V, 3\)"):
+        export_mesh(posed[0], body.faces, tmp_path / "pose.ply")
+
+
+def test_export_sequence(tmp_path, body, posed):
+    vertices = posed[0]
+    paths = export_sequence(vertices, body.faces, tmp_path / "ply", every=3)
+    assert [p.name for p in paths] == [f"frame_{t:04d}.ply" for t in range(0, T, 3)]
+    assert sorted(p.name for p in (tmp_path / "ply").iterdir()) == [p.name for p in paths]
+    last = trimesh.load(paths[-1], process=False)
+    np.testing.assert_allclose(last.vertices, vertices[15], atol=1e-6)
+
+    heat = np.random.default_rng(0).random((T, body.num_vertices))
+    (glb,) = export_sequence(vertices, body.faces, tmp_path / "glb", fmt="glb", every=5, colors=heat)
+    scene = trimesh.load(glb, process=False)
+    names = sorted(scene.graph.nodes_geometry)
+    assert names == ["frame_0000", "frame_0005", "frame_0010", "frame_0015"]
+    assert len(scene.geometry) == 4
+    mesh = scene.geometry[scene.graph[names[2]][1]]  # (transform, geometry name) of a node
+    np.testing.assert_allclose(mesh.vertices, vertices[10], atol=1e-6)
+
+    with pytest.raises(MeshExportError, match="stl"):
+        export_sequence(vertices, body.faces, tmp_path / "x", fmt="stl")
+
+
+def test_plot_pose(tmp_path, body, posed):
+    path = plot_pose(posed[1][4], body.parents, view="side", title="frame 4", path=tmp_path / "pose.png")
+    assert_picture(path, min_bytes=5_000)
+
+
+def test_plot_body(tmp_path, body, posed):
+    vertices, joints = posed
+    path = plot_body(vertices[7], body.faces, tmp_path / "pics" / "body.png", joints=joints[7])
+    assert_picture(path)
+    heat = vertices[7][:, 1]  # height as a stand-in for contact heat
+    path = plot_body(vertices[7], body.faces, tmp_path / "heat.png", vertex_values=heat, views=("front",))
+    assert_picture(path)
+
+
+def test_plot_sequence(tmp_path, body, posed):
+    path = plot_sequence(posed[1], body.parents, tmp_path / "strip.png", num_panels=6, fps=30.0)
+    assert_picture(path, min_bytes=30_000)
+    image = matplotlib.image.imread(path)
+    assert image.shape[1] > image.shape[0]  # a wide filmstrip page
+    with pytest.raises(ValueError, match="expected"):
+        plot_sequence(posed[1][:, :5], body.parents, tmp_path / "bad.png")
