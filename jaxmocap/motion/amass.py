@@ -38,7 +38,7 @@ from scipy.spatial.transform import Rotation
 from .sequence import Motion
 from .skeleton import MotionFileError, check_file
 
-__all__ = ["load_amass", "save_amass", "Z_UP_TO_Y_UP", "SMPL_NEUTRAL_PELVIS", "pelvis_rest"]
+__all__ = ["SMPL_NEUTRAL_PELVIS", "Z_UP_TO_Y_UP", "load_amass", "pelvis_rest", "save_amass"]
 
 #: World rotation from AMASS (z up) to jaxmocap (y up): rot_x(−90°).
 Z_UP_TO_Y_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
@@ -100,7 +100,9 @@ def load_amass(path, body=None) -> Motion:
     if "poses" in d:
         poses = np.asarray(d["poses"], np.float64)
     elif "root_orient" in d and "pose_body" in d:
-        poses = np.concatenate([np.asarray(d["root_orient"]), np.asarray(d["pose_body"])], -1).astype(np.float64)
+        poses = np.concatenate(
+            [np.asarray(d["root_orient"]), np.asarray(d["pose_body"])], -1
+        ).astype(np.float64)
     else:
         raise MotionFileError(
             f"{path}: no 'poses' (or 'root_orient' + 'pose_body') key; keys are {sorted(d)}. "
@@ -120,14 +122,18 @@ def load_amass(path, body=None) -> Motion:
     T = poses.shape[0]
     trans = np.asarray(d["trans"], np.float64)
     if trans.shape != (T, 3):
-        raise MotionFileError(f"{path}: trans has shape {trans.shape}; expected ({T}, 3) to match poses.")
+        raise MotionFileError(
+            f"{path}: trans has shape {trans.shape}; expected ({T}, 3) to match poses."
+        )
     betas = np.asarray(d.get("betas", np.zeros(0)), np.float64).reshape(-1)
     fps = float(np.asarray(d[rate_key]).reshape(-1)[0])
     for key, value in (("poses", poses), ("trans", trans), ("betas", betas)):
         if not np.isfinite(value).all():
             raise MotionFileError(f"{path}: {key} contains NaN or inf.")
     if T == 0 or not fps > 0:
-        raise MotionFileError(f"{path}: needs at least one frame and a positive frame rate (got {T}, {fps}).")
+        raise MotionFileError(
+            f"{path}: needs at least one frame and a positive frame rate (got {T}, {fps})."
+        )
 
     smpl = np.zeros((T, 24, 3))
     if _LAYOUTS[poses.shape[1]] == "smpl":
@@ -168,7 +174,11 @@ def save_amass(motion: Motion, path, body=None, layout: str = "auto") -> Path:
     j0 = pelvis_rest(body, motion.betas)
     poses, trans = _pose_world(motion.poses, motion.trans, Z_UP_TO_Y_UP.T, j0)
     T = motion.num_frames
-    flat = poses.reshape(T, 72) if layout == "smpl" else np.concatenate([poses[:, :22].reshape(T, 66), np.zeros((T, 90))], 1)
+    flat = (
+        poses.reshape(T, 72)
+        if layout == "smpl"
+        else np.concatenate([poses[:, :22].reshape(T, 66), np.zeros((T, 90))], 1)
+    )
     np.savez(
         path,
         poses=flat,

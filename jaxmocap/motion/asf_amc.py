@@ -41,7 +41,7 @@ from scipy.spatial.transform import Rotation
 
 from .skeleton import MotionFileError, SkeletonMotion, check_file
 
-__all__ = ["AsfBone", "AsfSkeleton", "read_asf", "read_amc", "load_asf_amc"]
+__all__ = ["AsfBone", "AsfSkeleton", "load_asf_amc", "read_amc", "read_asf"]
 
 _ROT = ("rx", "ry", "rz")
 
@@ -111,7 +111,9 @@ def _floats(path, lineno, tokens, n=None) -> np.ndarray:
     try:
         values = np.array([float(t) for t in tokens], np.float64)
     except ValueError:
-        raise MotionFileError(f"{path}, line {lineno}: non-numeric value in {' '.join(tokens)!r}.") from None
+        raise MotionFileError(
+            f"{path}, line {lineno}: non-numeric value in {' '.join(tokens)!r}."
+        ) from None
     if n is not None and values.size != n:
         raise MotionFileError(f"{path}, line {lineno}: expected {n} numbers, got {values.size}.")
     if not np.isfinite(values).all():
@@ -171,7 +173,10 @@ def read_asf(path) -> AsfSkeleton:
                 root_orient = _floats(path, lineno, tok[1:4], 3)
         elif section == "bonedata":
             if key == "begin":
-                current, in_limits = {"dof": (), "limits": [], "axis": np.zeros(3), "order": "XYZ"}, False
+                current, in_limits = (
+                    {"dof": (), "limits": [], "axis": np.zeros(3), "order": "XYZ"},
+                    False,
+                )
                 continue
             if current is None:
                 raise MotionFileError(f"{path}, line {lineno}: bone data outside begin/end.")
@@ -219,7 +224,7 @@ def read_asf(path) -> AsfSkeleton:
                 current["dof"] = dof
             elif key == "limits":
                 in_limits = True
-                current["limits"].append(_limit(path, lineno, line[len(tok[0]):].strip()))
+                current["limits"].append(_limit(path, lineno, line[len(tok[0]) :].strip()))
         elif section == "hierarchy":
             if key in ("begin", "end"):
                 continue
@@ -236,7 +241,9 @@ def read_asf(path) -> AsfSkeleton:
         p = queue.pop(0)
         for c in children.get(p, []):
             if c not in by_name:
-                raise MotionFileError(f"{path}: :hierarchy names unknown bone {c!r} (child of {p!r}).")
+                raise MotionFileError(
+                    f"{path}: :hierarchy names unknown bone {c!r} (child of {p!r})."
+                )
             if c in seen:
                 raise MotionFileError(f"{path}: bone {c!r} appears twice in :hierarchy.")
             seen.add(c)
@@ -245,7 +252,9 @@ def read_asf(path) -> AsfSkeleton:
             queue.append(c)
     unplaced = [b.name for b in bones if b.name not in seen]
     if unplaced:
-        raise MotionFileError(f"{path}: bones {unplaced} are not connected to the root in :hierarchy.")
+        raise MotionFileError(
+            f"{path}: bones {unplaced} are not connected to the root in :hierarchy."
+        )
     return AsfSkeleton(
         name=name,
         length_unit=0.0254 / length_scale,
@@ -298,10 +307,14 @@ def read_amc(path, skeleton: AsfSkeleton) -> tuple[dict[str, np.ndarray], float 
             frame_line.append(lineno)
             continue
         if not frames:
-            raise MotionFileError(f"{path}, line {lineno}: bone values before the first frame number.")
+            raise MotionFileError(
+                f"{path}, line {lineno}: bone values before the first frame number."
+            )
         name = tok[0]
         if name not in dof:
-            raise MotionFileError(f"{path}, line {lineno}: bone {name!r} is not in {skeleton.path}.")
+            raise MotionFileError(
+                f"{path}, line {lineno}: bone {name!r} is not in {skeleton.path}."
+            )
         frames[-1][name] = _floats(path, lineno, tok[1:], len(dof[name]))
     if not frames:
         raise MotionFileError(f"{path}: no frames; is this an AMC file?")
@@ -332,7 +345,9 @@ def _motion_rotation(channels, values: np.ndarray, degrees: bool) -> np.ndarray 
     return _euler(order, values[:, cols], degrees)
 
 
-def skeleton_motion(skeleton: AsfSkeleton, values: dict[str, np.ndarray], fps: float, name: str = "") -> SkeletonMotion:
+def skeleton_motion(
+    skeleton: AsfSkeleton, values: dict[str, np.ndarray], fps: float, name: str = ""
+) -> SkeletonMotion:
     """Forward kinematics of AMC `values` on `skeleton` (see the module docstring)."""
     T = next(iter(values.values())).shape[0]
     deg = skeleton.angle_unit == "deg"
@@ -409,7 +424,11 @@ def find_asf(amc_path) -> Path:
     amc_path = Path(amc_path)
     folder = amc_path.parent
     subject = amc_path.stem.split("_")[0]
-    candidates = [folder / f"{subject}.asf", folder / f"{subject}.ASF", folder / f"{amc_path.stem}.asf"]
+    candidates = [
+        folder / f"{subject}.asf",
+        folder / f"{subject}.ASF",
+        folder / f"{amc_path.stem}.asf",
+    ]
     for c in candidates:
         if c.is_file():
             return c

@@ -25,7 +25,7 @@ from scipy.spatial.transform import Rotation
 
 from .skeleton import MotionFileError, SkeletonMotion, check_file
 
-__all__ = ["BvhSkeleton", "read_bvh", "load_bvh", "UNIT_CANDIDATES"]
+__all__ = ["UNIT_CANDIDATES", "BvhSkeleton", "load_bvh", "read_bvh"]
 
 #: metres per file unit, for ``scale="auto"``.
 UNIT_CANDIDATES = {"m": 1.0, "cm": 0.01, "mm": 0.001, "inch": 0.0254, "asf": 0.0254 / 0.45}
@@ -79,7 +79,7 @@ def read_bvh(path) -> tuple[BvhSkeleton, np.ndarray, float]:
         except ValueError:
             raise MotionFileError(
                 f"{path}, line {tokens[start][1]}: expected {n} numbers, got "
-                f"{' '.join(t for t, _ in tokens[start:start + n])!r}."
+                f"{' '.join(t for t, _ in tokens[start : start + n])!r}."
             ) from None
 
     while k < len(tokens):
@@ -132,9 +132,11 @@ def read_bvh(path) -> tuple[BvhSkeleton, np.ndarray, float]:
             try:
                 n = int(tokens[k + 1][0])
             except ValueError:
-                raise MotionFileError(f"{path}, line {line}: bad channel count {tokens[k + 1][0]!r}.") from None
+                raise MotionFileError(
+                    f"{path}, line {line}: bad channel count {tokens[k + 1][0]!r}."
+                ) from None
             need(2 + n)
-            chans = tuple(t.lower() for t, _ in tokens[k + 2:k + 2 + n])
+            chans = tuple(t.lower() for t, _ in tokens[k + 2 : k + 2 + n])
             bad = [c for c in chans if c not in _CHANNELS]
             if bad:
                 raise MotionFileError(f"{path}, line {line}: unknown channels {bad}.")
@@ -145,20 +147,28 @@ def read_bvh(path) -> tuple[BvhSkeleton, np.ndarray, float]:
         else:
             raise MotionFileError(f"{path}, line {line}: unexpected {tok!r} in HIERARCHY.")
     if stack or k >= len(tokens):
-        raise MotionFileError(f"{path}: HIERARCHY is not closed or MOTION is missing (truncated file?).")
+        raise MotionFileError(
+            f"{path}: HIERARCHY is not closed or MOTION is missing (truncated file?)."
+        )
     if not names:
         raise MotionFileError(f"{path}: no joints in HIERARCHY.")
     skel = BvhSkeleton(names, parents, offsets, channels, is_end)
 
     # MOTION / Frames: N / Frame Time: dt / values.
-    rest = tokens[k + 1:]
+    rest = tokens[k + 1 :]
     try:
-        assert rest[0][0].lower() == "frames:" and rest[2][0].lower() == "frame" and rest[3][0].lower() == "time:"
+        assert (
+            rest[0][0].lower() == "frames:"
+            and rest[2][0].lower() == "frame"
+            and rest[3][0].lower() == "time:"
+        )
         num_frames = int(rest[1][0])
         frame_time = float(rest[4][0])
     except (AssertionError, IndexError, ValueError):
         line = rest[0][1] if rest else tokens[k][1]
-        raise MotionFileError(f"{path}, line {line}: expected 'Frames: N' and 'Frame Time: dt' after MOTION.") from None
+        raise MotionFileError(
+            f"{path}, line {line}: expected 'Frames: N' and 'Frame Time: dt' after MOTION."
+        ) from None
     if num_frames < 1 or not frame_time > 0:
         raise MotionFileError(f"{path}: Frames must be >= 1 and Frame Time > 0.")
     data = rest[5:]
@@ -170,10 +180,12 @@ def read_bvh(path) -> tuple[BvhSkeleton, np.ndarray, float]:
             f"frames follow (file truncated after line {data[-1][1] if data else rest[4][1]})."
         )
     try:
-        values = np.array([float(t) for t, _ in data[:num_frames * C]], np.float64)
+        values = np.array([float(t) for t, _ in data[: num_frames * C]], np.float64)
     except ValueError:
         bad = next(i for i, (t, _) in enumerate(data) if not _is_float(t))
-        raise MotionFileError(f"{path}, line {data[bad][1]}: non-numeric value {data[bad][0]!r}.") from None
+        raise MotionFileError(
+            f"{path}, line {data[bad][1]}: non-numeric value {data[bad][0]!r}."
+        ) from None
     if not np.isfinite(values).all():
         bad = int(np.flatnonzero(~np.isfinite(values))[0])
         raise MotionFileError(f"{path}, line {data[bad][1]}: NaN or inf value.")
@@ -213,7 +225,9 @@ def choose_scale(skel: BvhSkeleton) -> float:
     return min(UNIT_CANDIDATES.values(), key=lambda s: abs(np.log(height * s / 1.7)))
 
 
-def skeleton_motion(skel: BvhSkeleton, values: np.ndarray, fps: float, scale: float, name: str = "") -> SkeletonMotion:
+def skeleton_motion(
+    skel: BvhSkeleton, values: np.ndarray, fps: float, scale: float, name: str = ""
+) -> SkeletonMotion:
     """Forward kinematics of BVH channel `values` (T, C); positions in metres (x `scale`)."""
     T = values.shape[0]
     N = len(skel.names)
@@ -221,7 +235,7 @@ def skeleton_motion(skel: BvhSkeleton, values: np.ndarray, fps: float, scale: fl
     pos = np.zeros((T, N, 3))
     col = 0
     for j, (p, chans) in enumerate(zip(skel.parents, skel.channels)):
-        v = values[:, col:col + len(chans)]
+        v = values[:, col : col + len(chans)]
         col += len(chans)
         t = np.broadcast_to(skel.offsets[j], (T, 3)).copy()
         for i, c in enumerate(chans):
@@ -229,7 +243,9 @@ def skeleton_motion(skel: BvhSkeleton, values: np.ndarray, fps: float, scale: fl
                 t[:, "xyz".index(c[0])] += v[:, i]
         rcols = [i for i, c in enumerate(chans) if c.endswith("rotation")]
         local = (
-            Rotation.from_euler("".join(chans[i][0] for i in rcols).upper(), v[:, rcols], degrees=True).as_matrix()
+            Rotation.from_euler(
+                "".join(chans[i][0] for i in rcols).upper(), v[:, rcols], degrees=True
+            ).as_matrix()
             if rcols
             else np.broadcast_to(np.eye(3), (T, 3, 3))
         )

@@ -17,7 +17,7 @@ import numpy as np
 from .sequence import Motion
 from .skeleton import MotionFileError, check_file
 
-__all__ = ["load_motion", "save_motion", "FORMAT_VERSION"]
+__all__ = ["FORMAT_VERSION", "load_motion", "save_motion"]
 
 FORMAT_VERSION = 1
 

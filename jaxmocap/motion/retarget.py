@@ -46,16 +46,16 @@ from .sequence import Motion
 from .skeleton import SkeletonMotion
 
 __all__ = [
-    "retarget",
-    "retarget_rotations",
     "CMU_ASF_MAP",
-    "CMU_BVH_MAP",
     "CMU_BVH_HAHNE_MAP",
+    "CMU_BVH_MAP",
+    "alignment",
     "detect_mapping",
     "minimal_rotation",
-    "smpl_rest",
+    "retarget",
+    "retarget_rotations",
     "smpl_joint_positions",
-    "alignment",
+    "smpl_rest",
 ]
 
 # SMPL joint -> source joint name, or (rotation joint, point joint).
@@ -107,7 +107,8 @@ CMU_BVH_HAHNE_MAP: dict[str, str | tuple[str, str]] = {
     "left_shoulder": "LeftArm", "right_shoulder": "RightArm",
     "left_elbow": "LeftForeArm", "right_elbow": "RightForeArm",
     "left_wrist": "LeftHand", "right_wrist": "RightHand",
-    "left_hand": ("LeftFingerBase", "LeftHandIndex1"), "right_hand": ("RightFingerBase", "RightHandIndex1"),
+    "left_hand": ("LeftFingerBase", "LeftHandIndex1"),
+    "right_hand": ("RightFingerBase", "RightHandIndex1"),
 }  # fmt: skip
 
 _TABLES = (("lfemur", CMU_ASF_MAP), ("LeftHip", CMU_BVH_MAP), ("LeftUpLeg", CMU_BVH_HAHNE_MAP))
@@ -164,14 +165,19 @@ def smpl_rest(body, betas=None) -> tuple[np.ndarray, float]:
 def _resolve(mapping: dict, src: SkeletonMotion) -> tuple[list, list]:
     unknown = [k for k in mapping if k not in SMPL_JOINT_NAMES]
     if unknown:
-        raise ValueError(f"mapping has keys {unknown} that are not SMPL joints {list(SMPL_JOINT_NAMES)}.")
+        raise ValueError(
+            f"mapping has keys {unknown} that are not SMPL joints {list(SMPL_JOINT_NAMES)}."
+        )
     rot_idx, pt_idx = [None] * 24, [None] * 24
     for k, v in mapping.items():
         j = SMPL_JOINT_NAMES.index(k)
         r, p = (v, v) if isinstance(v, str) else v
         if r not in src.names or p not in src.names:
             missing = r if r not in src.names else p
-            raise ValueError(f"mapping[{k!r}] names {missing!r}, which {src.name or 'the skeleton'} does not have.")
+            raise ValueError(
+                f"mapping[{k!r}] names {missing!r}, which {src.name or 'the skeleton'} "
+                "does not have."
+            )
         rot_idx[j], pt_idx[j] = src.names.index(r), src.names.index(p)
     if rot_idx[0] is None:
         raise ValueError("mapping must give the pelvis (the source root).")
@@ -180,7 +186,7 @@ def _resolve(mapping: dict, src: SkeletonMotion) -> tuple[list, list]:
 
 def alignment(src: SkeletonMotion, rest_joints: np.ndarray, mapping: dict) -> np.ndarray:
     """(24, 3, 3) rest alignments A_j (see the module docstring)."""
-    rot_idx, pt_idx = _resolve(mapping, src)
+    _rot_idx, pt_idx = _resolve(mapping, src)
     A = np.zeros((24, 3, 3))
     A[0] = np.eye(3)
     for j in range(1, 24):
@@ -263,7 +269,10 @@ def retarget(
     trans = src.positions[:, pt_idx[0]] - rest[0]
     if floor:
         joints = smpl_joint_positions(G, rest, trans)
-        feet = [SMPL_JOINT_NAMES.index(n) for n in ("left_ankle", "right_ankle", "left_foot", "right_foot")]
+        feet = [
+            SMPL_JOINT_NAMES.index(n)
+            for n in ("left_ankle", "right_ankle", "left_foot", "right_foot")
+        ]
         clearance = (rest[feet, 1] - sole).min()
         trans = trans + np.array([0.0, clearance - joints[:, feet, 1].min(), 0.0])
     nb = body.num_betas
@@ -278,7 +287,9 @@ def retarget(
     return motion if fps is None or float(fps) == src.fps else motion.resample(fps)
 
 
-def smpl_joint_positions(global_rotations: np.ndarray, rest_joints: np.ndarray, trans: np.ndarray) -> np.ndarray:
+def smpl_joint_positions(
+    global_rotations: np.ndarray, rest_joints: np.ndarray, trans: np.ndarray
+) -> np.ndarray:
     """(T, 24, 3) posed SMPL joints from global rotations (NumPy forward kinematics)."""
     T = global_rotations.shape[0]
     pos = np.zeros((T, 24, 3))

@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["SkeletonMotion", "MotionFileError", "check_file"]
+__all__ = ["MotionFileError", "SkeletonMotion", "check_file"]
 
 
 class MotionFileError(ValueError):
@@ -71,7 +71,9 @@ class SkeletonMotion:
         try:
             return self.names.index(name)
         except ValueError:
-            raise KeyError(f"{self.name or 'skeleton'} has no joint {name!r}; it has {list(self.names)}.") from None
+            raise KeyError(
+                f"{self.name or 'skeleton'} has no joint {name!r}; it has {list(self.names)}."
+            ) from None
 
     def end_positions(self) -> np.ndarray:
         """(T, N, 3) posed end point of each joint's own segment (`tips` rotated)."""
