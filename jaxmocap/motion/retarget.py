@@ -18,9 +18,11 @@ Method (global-orientation transfer with rest-direction alignment):
    (up to the source's own rotations between s(j) and q(c), which SMPL lacks).
    Pelvis: A = I, since both rest poses stand upright facing +z with the left side at
    +x (checked for CMU ASF and BVH: left hip at +x, toes toward +z, y up).
-   Leaves (feet, head, hands) and joints whose source direction is degenerate (a
-   zero-length source segment) use their parent's A, i.e. they transfer the source's
-   rotation relative to the parent's segment. SMPL joints without any source joint
+   Leaves (feet, head, hands) use A = I: their rest orientations agree in both
+   skeletons (head upright, soles flat, palms down), and the parent's A would tilt them
+   by the parent segment's rest-direction difference (the head looked ~20° upwards
+   with the neck's A). Joints whose source direction is degenerate (a zero-length
+   source segment) use their parent's A. SMPL joints without any source joint
    get the identity local rotation.
 3. Local rotations R_j = G_parent⁻¹ G_j, as axis-angle (scipy).
 4. Root translation: the SMPL pelvis joint follows the source point q(pelvis) (CMU: the
@@ -190,8 +192,8 @@ def alignment(src: SkeletonMotion, rest_joints: np.ndarray, mapping: dict) -> np
     A = np.zeros((24, 3, 3))
     A[0] = np.eye(3)
     for j in range(1, 24):
-        A[j] = A[SMPL_PARENTS[j]]
         c = _CHILD[j]
+        A[j] = np.eye(3) if c < 0 else A[SMPL_PARENTS[j]]
         if c < 0 or pt_idx[j] is None or pt_idx[c] is None:
             continue
         d_src = src.rest_positions[pt_idx[c]] - src.rest_positions[pt_idx[j]]
