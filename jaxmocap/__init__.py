@@ -1,5 +1,6 @@
 """jaxmocap: human motion capture by model-based optimisation, in JAX."""
 
+from . import motion as motion
 from . import rotation as rotation
 from .body import SMPL_JOINT_NAMES as SMPL_JOINT_NAMES
 from .body import SMPL_PARENTS as SMPL_PARENTS

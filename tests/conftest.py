@@ -7,6 +7,17 @@ import pytest
 jax.config.update("jax_enable_x64", True)
 
 
+def central_difference(f, x, eps=1e-6) -> np.ndarray:
+    """Jacobian of f at x by central differences, shaped f(x).shape + (x.size,)."""
+    x = np.asarray(x, np.float64)
+    cols = []
+    for i in range(x.size):
+        dx = np.zeros_like(x)
+        dx.flat[i] = eps
+        cols.append((np.asarray(f(x + dx)) - np.asarray(f(x - dx))) / (2 * eps))
+    return np.stack(cols, -1)
+
+
 def random_smpl_dict(num_vertices: int = 120, num_betas: int = 10, seed: int = 0) -> dict:
     """A random model with SMPL's keys, shapes and dtypes (kintree_table root = 2**32-1).
 

@@ -7,6 +7,7 @@ import pytest
 
 import jaxmocap
 from jaxmocap.body import forward, forward_kinematics, make_body
+from conftest import central_difference
 from smpl_numpy import smpl_forward_numpy
 
 rng = np.random.default_rng(2)
@@ -51,15 +52,6 @@ def test_broadcasting_shared_shape(random_body):
     assert out.vertices.shape == (5, random_body.num_vertices, 3)
 
 
-def _fd(f, x, eps=1e-6):
-    cols = []
-    for i in range(x.size):
-        dx = np.zeros_like(x)
-        dx.flat[i] = eps
-        cols.append((np.asarray(f(x + dx)) - np.asarray(f(x - dx))) / (2 * eps))
-    return np.stack(cols, -1)
-
-
 @pytest.mark.parametrize("where", ["zero", "random", "near_pi"])
 def test_skinning_gradients(random_body, where):
     """jacfwd == jacrev ≈ finite differences of vertices w.r.t. pose (a few joints)."""
@@ -78,7 +70,7 @@ def test_skinning_gradients(random_body, where):
     x = pose[joints].ravel()
     fwd = jax.jit(jax.jacfwd(f))(jnp.asarray(x))
     rev = jax.jit(jax.jacrev(f))(jnp.asarray(x))
-    fd = _fd(lambda y: f(jnp.asarray(y)), x, eps=1e-7 if where == "near_pi" else 1e-6)
+    fd = central_difference(lambda y: f(jnp.asarray(y)), x, eps=1e-7 if where == "near_pi" else 1e-6)
     assert np.isfinite(fwd).all()
     np.testing.assert_allclose(fwd, rev, atol=1e-10)
     np.testing.assert_allclose(fwd, fd, atol=2e-6)

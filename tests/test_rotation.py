@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from conftest import central_difference
 from jaxmocap import rotation as rot
 
 rng = np.random.default_rng(1)
@@ -20,16 +21,6 @@ CASES = {
     "large": 2.5 * AXIS,
     "near_pi": (np.pi - 1e-6) * AXIS,
 }
-
-
-def central_difference(f, x, eps=1e-6):
-    x = np.asarray(x, np.float64)
-    cols = []
-    for i in range(x.size):
-        dx = np.zeros_like(x)
-        dx.flat[i] = eps
-        cols.append((np.asarray(f(x + dx)) - np.asarray(f(x - dx))) / (2 * eps))
-    return np.stack(cols, -1)
 
 
 @pytest.mark.parametrize("name", CASES)
