@@ -13,3 +13,14 @@ from .body import load_body as load_body
 from .body import save_body as save_body
 
 __version__ = "0.1.0"
+
+# Heavier subpackages (MuJoCo, trimesh, matplotlib) load on first use: `jaxmocap.physics`.
+_LAZY = ("physics", "sensors", "solve", "viz")
+
+
+def __getattr__(name):
+    if name in _LAZY:
+        import importlib
+
+        return importlib.import_module(f".{name}", __name__)
+    raise AttributeError(f"module 'jaxmocap' has no attribute {name!r}")

@@ -196,11 +196,29 @@ def _run_demo(args) -> int:
     return 0
 
 
+# --- check --------------------------------------------------------------------------
+
+
+def _configure_check(p: argparse.ArgumentParser) -> None:
+    p.add_argument("motion", help="motion file (.npz, .amc, .bvh)")
+    _add_body_option(p)
+    p.add_argument("--fps", type=_positive(float), help="resample the motion first")
+    p.add_argument("--ground", default="0", metavar="HEIGHT", help="floor height y in metres, or 'auto' (default: 0)")
+    p.add_argument("--out", metavar="DIR", help="write <name>_check.png (and the heat map .ply) here")
+
+
+def _run_check(args) -> int:
+    from .physics.cli import run_check
+
+    return run_check(args.motion, body=args.body, fps=args.fps, ground=args.ground, out=args.out)
+
+
 COMMANDS: list[Command] = [
     Command("inspect", "summarise a motion file or a body model file", _configure_inspect, _run_inspect),
     Command("convert", "convert any readable motion to an AMASS-style .npz", _configure_convert, _run_convert),
     Command("export", "pose a body with a motion; write meshes (and pictures)", _configure_export, _run_export),
     Command("demo", "walk → posed body → meshes and pictures (the `make demo` job)", _configure_demo, _run_demo),
+    Command("check", "physical plausibility: ground penetration, floating, foot skating", _configure_check, _run_check),
 ]
 
 
