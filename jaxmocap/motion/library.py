@@ -1,4 +1,5 @@
-"""Procedural motions (no data files needed): walk, run, jumping jacks, arm raises, squats, hold.
+"""Procedural motions (no data files needed): walk, run, jumping jacks, arm raises, squats,
+leg raises, sit down / stand up, hold.
 
 Every joint angle is a smooth closed-form periodic function of time (sums of cosines
 and von Mises bumps exp((cos 2π(s−c) − 1)/w²) of the gait phase s). Angles follow
@@ -34,7 +35,9 @@ __all__ = [
     "SMPL_APPROX_REST",
     "arm_raises",
     "jumping_jacks",
+    "leg_raises",
     "run",
+    "sit_stand",
     "squats",
     "static_hold",
     "walk",
@@ -286,11 +289,76 @@ def static_hold(num_frames: int = 60, fps: float = 30.0, body=None) -> Motion:
     return Motion(poses=p.axis_angle(), trans=trans, fps=fps, name="static_hold")
 
 
+def leg_raises(num_frames: int = 120, fps: float = 30.0, period: float = 2.0, body=None) -> Motion:
+    """Standing front leg raises, alternating legs each period (hip flexion up to 60°).
+
+    The raised leg stays nearly straight (knee 10°), the foot relaxed; the stance side
+    keeps its sole on the ground (root height from the lowest foot joint) and the trunk
+    counter-leans slightly backwards. Arms hang at the sides.
+    """
+    rest, sole = _rest(body)
+    t = np.arange(num_frames) / fps
+    bump = np.sin(np.pi * (t / period % 1.0)) ** 2  # 0 → 1 → 0 within each period
+    left = (np.floor(t / period) % 2 == 0).astype(float)  # left leg on even periods
+    p = _Pose(len(t))
+    for side, on in (("left", left), ("right", 1.0 - left)):
+        a = on * bump
+        p.rot(f"{side}_hip", "x", -60 * a).rot(f"{side}_knee", "x", 10 * a).rot(
+            f"{side}_ankle", "x", 10 * a
+        )
+    p.rot("spine1", "x", -5 * bump)
+    _arms_down(p, down=75.0, elbow_left=10.0, elbow_right=10.0)
+    y = _ground_height(p, rest, sole)
+    trans = np.stack([np.zeros_like(t), y, np.zeros_like(t)], -1)
+    return Motion(poses=p.axis_angle(), trans=trans, fps=fps, name="leg_raises")
+
+
+def _smoothstep(x):
+    x = np.clip(x, 0.0, 1.0)
+    return x * x * (3 - 2 * x)
+
+
+def sit_stand(
+    num_frames: int = 150, fps: float = 30.0, period: float = 5.0, body=None
+) -> Motion:
+    """Sit down on a (not modelled) seat of knee height and stand up again, every `period` s.
+
+    Each period: stand 10 %, sit down over 30 %, stay seated 20 %, stand up over 30 %,
+    stand 10 % (smoothstep transitions). Seated: hips 85°, knees 90°; the trunk leans
+    forward by up to 35° in the middle of each transition (the usual sit-to-stand
+    strategy). Feet stay planted: the root moves back and down with the hips.
+    """
+    rest, sole = _rest(body)
+    t = np.arange(num_frames) / fps
+    s = t / period % 1.0
+    a = _smoothstep((s - 0.1) / 0.3) - _smoothstep((s - 0.6) / 0.3)  # 0 → 1 (seated) → 0
+    lean = np.sin(np.pi * a) ** 2
+    p = _Pose(len(t))
+    for side in ("left", "right"):
+        # The pelvis tilt below swings the legs backwards; the hips undo it.
+        p.rot(f"{side}_hip", "x", -85 * a - 20 * lean).rot(f"{side}_knee", "x", 90 * a).rot(
+            f"{side}_ankle", "x", -5 * a
+        )
+    p.rot("pelvis", "x", 20 * lean).rot("spine1", "x", 15 * lean).rot("neck", "x", -15 * lean)
+    _arms_down(p, down=75.0, swing_left=30 * lean, swing_right=30 * lean, elbow_left=20.0,
+               elbow_right=20.0)  # fmt: skip
+    y = _ground_height(p, rest, sole)
+    from .retarget import smpl_joint_positions
+
+    z = smpl_joint_positions(p.globals(), rest, np.zeros((len(t), 3)))[
+        :, [J["left_ankle"], J["right_ankle"]], 2
+    ].mean(1)
+    trans = np.stack([np.zeros_like(t), y, -(z - z[0])], -1)
+    return Motion(poses=p.axis_angle(), trans=trans, fps=fps, name="sit_stand")
+
+
 MOTIONS = {
     "walk": walk,
     "run": run,
     "jumping_jacks": jumping_jacks,
     "arm_raises": arm_raises,
     "squats": squats,
+    "leg_raises": leg_raises,
+    "sit_stand": sit_stand,
     "static_hold": static_hold,
 }

@@ -1,0 +1,41 @@
+"""Simulated sensors: virtual IMUs, error models, calibration, cameras, 2D keypoint detectors,
+silhouettes, depth, rigid objects, and benchmark scenarios (issue 3).
+
+Seeds: von Marcard §2.4 (IMU model), §3.2 (placement, calibration), §4.2 (camera, heading
+drift); Huang §6.2-6.3 (synthetic IMU data, calibration) and ch. 4-5 (multi-view, RGB-D).
+"""
+
+from . import calibration as calibration
+from . import camera as camera
+from . import depth as depth
+from . import errors as errors
+from . import imu as imu
+from . import keypoints as keypoints
+from . import objects as objects
+from . import scenario as scenario
+from . import silhouette as silhouette
+from .calibration import heading_reset as heading_reset
+from .calibration import remove_heading as remove_heading
+from .calibration import sensor_to_bone_offsets as sensor_to_bone_offsets
+from .calibration import virtual_bone_orientations as virtual_bone_orientations
+from .camera import look_at as look_at
+from .camera import project as project
+from .depth import DepthNoiseModel as DepthNoiseModel
+from .errors import IMUErrorModel as IMUErrorModel
+from .errors import simulate_imu as simulate_imu
+from .imu import IMUPlacement as IMUPlacement
+from .imu import IMUReadings as IMUReadings
+from .imu import imu_placement as imu_placement
+from .imu import synthesize_imu as synthesize_imu
+from .keypoints import DetectorErrorModel as DetectorErrorModel
+from .keypoints import keypoint_regressor as keypoint_regressor
+from .objects import RigidObject as RigidObject
+from .scenario import CameraConfig as CameraConfig
+from .scenario import Scenario as Scenario
+from .scenario import ScenarioConfig as ScenarioConfig
+from .scenario import load_dip as load_dip
+from .scenario import load_scenario as load_scenario
+from .scenario import make_scenario as make_scenario
+from .scenario import save_dip as save_dip
+from .scenario import save_scenario as save_scenario
+from .silhouette import rasterize_views as rasterize_views

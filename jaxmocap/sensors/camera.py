@@ -1,0 +1,157 @@
+"""Pinhole cameras: intrinsics, static or moving extrinsics, projection (von Marcard §4.2.2).
+
+    [u, v, 1]ᵀ = π(K · M_g^c · p̄^g),   π(x, y, z) = (x/z, y/z, 1)      eq. 4.1-4.4
+
+Camera frame: OpenCV convention (x right, y down, z forward). The world is y up
+(jaxmocap's convention), so `look_at` builds x_c = forward × up, y_c = forward × x_c.
+Extrinsics are the world-to-camera map p^c = R p^g + t (M_g^c in the thesis); moving
+cameras carry a leading time axis on R and t.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+from jax import Array
+from scipy.ndimage import gaussian_filter1d
+
+from .errors import _exp
+from .imu import IMUReadings, imu_from_trajectory
+
+__all__ = [
+    "Camera",
+    "intrinsics",
+    "look_at",
+    "project",
+    "camera_centers",
+    "ring_cameras",
+    "handheld_trajectory",
+    "camera_imu",
+]
+
+
+class Camera(eqx.Module):
+    """One pinhole camera (or a batch/time series of extrinsics for one intrinsic matrix).
+
+    K: (3, 3) intrinsics [[f_u, 0, c_u], [0, f_v, c_v], [0, 0, 1]] (eq. 4.3).
+    R: (..., 3, 3) world-to-camera rotation; t: (..., 3) translation (p^c = R p^g + t).
+    width, height: image size in pixels (static).
+    """
+
+    K: Array
+    R: Array
+    t: Array
+    width: int = eqx.field(static=True)
+    height: int = eqx.field(static=True)
+
+
+def intrinsics(width: int, height: int, fov_y_degrees: float = 60.0) -> np.ndarray:
+    """K of a square-pixel camera with the principal point at the image centre."""
+    f = 0.5 * height / np.tan(0.5 * np.radians(fov_y_degrees))
+    return np.array([[f, 0.0, 0.5 * width], [0.0, f, 0.5 * height], [0.0, 0.0, 1.0]])
+
+
+def look_at(eye, target, up=(0.0, 1.0, 0.0)) -> tuple[np.ndarray, np.ndarray]:
+    """World-to-camera (R, t) of a camera at `eye` (..., 3) looking at `target` (..., 3)."""
+    eye, target = np.asarray(eye, np.float64), np.asarray(target, np.float64)
+    forward = target - eye
+    forward = forward / np.linalg.norm(forward, axis=-1, keepdims=True)
+    right = np.cross(forward, np.broadcast_to(np.asarray(up, np.float64), forward.shape))
+    norm = np.linalg.norm(right, axis=-1, keepdims=True)
+    if np.any(norm < 1e-9):
+        raise ValueError("look_at: the viewing direction is parallel to `up`; pick another up.")
+    right = right / norm
+    down = np.cross(forward, right)
+    R = np.stack([right, down, forward], -2)
+    t = -np.einsum("...ab,...b->...a", R, eye)
+    return R, t
+
+
+def project(K: Array, R: Array, t: Array, points: Array) -> tuple[Array, Array]:
+    """Pixels and depths of world points (eq. 4.4).
+
+    Args:
+        K: (3, 3); R: (..., 3, 3); t: (..., 3) world-to-camera; points: (..., N, 3).
+    Returns:
+        uv (..., N, 2) pixel coordinates (pixel centres at integer + 0.5) and depth
+        z^c (..., N); points behind the camera get z <= 0 and meaningless uv.
+    """
+    pc = jnp.einsum("...ab,...nb->...na", R, points) + t[..., None, :]
+    z = pc[..., 2]
+    safe = jnp.where(jnp.abs(z) < 1e-9, 1e-9, z)
+    xy = pc[..., :2] / safe[..., None]
+    uv = jnp.einsum("ab,...nb->...na", K[:2, :2], xy) + K[:2, 2]
+    return uv, z
+
+
+def camera_centers(R, t) -> np.ndarray:
+    """Camera centres -Rᵀ t in the world frame: (..., 3)."""
+    return -np.einsum("...ba,...b->...a", np.asarray(R), np.asarray(t))
+
+
+def ring_cameras(
+    num_views: int, radius: float, height: float, target, start_angle: float = 0.0
+) -> tuple[np.ndarray, np.ndarray]:
+    """Static views evenly spaced on a horizontal circle around `target`, looking at it.
+
+    Returns (R (C, 3, 3), t (C, 3)); view 0 sits on +z (in front of a body facing +z).
+    """
+    target = np.asarray(target, np.float64)
+    angles = start_angle + 2 * np.pi * np.arange(num_views) / num_views
+    eyes = target + np.stack(
+        [radius * np.sin(angles), np.full(num_views, height - target[1]), radius * np.cos(angles)], -1
+    )
+    return look_at(eyes, np.broadcast_to(target, eyes.shape))
+
+
+def _smooth_noise(rng, shape, std, sigma_frames):
+    """Gaussian-filtered white noise with standard deviation `std` (hand tremor, sway)."""
+    if std <= 0:
+        return np.zeros(shape)
+    x = gaussian_filter1d(rng.normal(size=shape), sigma_frames, axis=0, mode="nearest")
+    return x * (std / max(x.std(), 1e-12))
+
+
+def handheld_trajectory(
+    targets: np.ndarray,
+    fps: float,
+    rng: np.random.Generator,
+    distance: float = 3.5,
+    height: float = 1.5,
+    orbit_degrees_per_second: float = 8.0,
+    start_angle: float | None = None,
+    position_shake: float = 0.02,
+    rotation_shake_degrees: float = 1.0,
+) -> tuple[np.ndarray, np.ndarray]:
+    """A hand-held camera following `targets` (T, 3): slow orbit, sway and tremor.
+
+    The operator walks around the subjects at `distance` with the camera at `height` m,
+    aiming at a smoothed version of the target path (1 s Gaussian); position sway
+    (`position_shake` m, ~0.5 s correlation) and rotational tremor (~0.1 s) are smooth
+    random processes. Returns world-to-camera (R (T, 3, 3), t (T, 3)).
+    """
+    targets = np.asarray(targets, np.float64)
+    T = len(targets)
+    aim = gaussian_filter1d(targets, fps, axis=0, mode="nearest") if T > 1 else targets
+    theta0 = rng.uniform(-np.pi / 4, np.pi / 4) if start_angle is None else start_angle
+    theta = theta0 + np.radians(orbit_degrees_per_second) * np.arange(T) / fps
+    eyes = aim + np.stack([distance * np.sin(theta), height - aim[:, 1], distance * np.cos(theta)], -1)
+    eyes = eyes + _smooth_noise(rng, (T, 3), position_shake, 0.5 * fps)
+    R, t = look_at(eyes, aim)
+    tremor = _smooth_noise(rng, (T, 3), np.radians(rotation_shake_degrees), 0.1 * fps)
+    R = _exp(tremor) @ R  # about the camera's own axes
+    t = -np.einsum("tab,tb->ta", R, eyes)
+    return R, t
+
+
+def camera_imu(R, t, fps: float) -> IMUReadings:
+    """Readings of an IMU rigidly fixed to a moving camera, axes = camera axes.
+
+    The sensor frame is the camera frame: orientation R_c^g = Rᵀ, position the camera
+    centre. R (T, 3, 3), t (T, 3) world-to-camera; returns (T, 1, ...) readings.
+    """
+    R = jnp.asarray(R)
+    Rcg = jnp.swapaxes(R, -1, -2)
+    center = -jnp.einsum("tba,tb->ta", R, jnp.asarray(t))
+    return imu_from_trajectory(Rcg[:, None], center[:, None], fps)

@@ -1,0 +1,286 @@
+"""2D keypoints: COCO-18 / OpenPose BODY_25 regressors on the body and a detector error model.
+
+Regressor: a (K, V) matrix 𝒦 with keypoints = 𝒦 · vertices (posed mesh), built per body
+from its rest mesh:
+  - body joints (shoulders, elbows, wrists, hips, knees, ankles) = rows of 𝒥 (SMPL's
+    joint regressor), so they move exactly like the model's joints;
+  - neck = mean of the shoulder rows, MidHip = mean of the hip rows (OpenPose's
+    definitions);
+  - face and feet (nose, eyes, ears, big/small toes, heels) = single vertices picked with
+    `imu.ray_vertex`: the skin point straight out from a joint-relative point, among
+    vertices skinned mostly to the head / foot bones. Offsets in `_SURFACE` (metres, rest
+    pose, y up, facing +z).
+OpenPose's hips sit lower and more lateral than SMPL's; we keep SMPL's (documented
+difference, as in SMPLify's use of 𝒥 for the hips).
+
+Detector error model (`DetectorErrorModel`, `detect`): per view and frame, every person's
+keypoints get pixel noise, confidences that fall with the error, missed joints (and all
+joints outside the image), uniform outliers inside the person's box, left/right swaps
+over runs of frames (separately for arms, legs and face), missed people, and distractor
+detections (human-shaped false positives). Output is padded per frame with the identity
+of each detection (-1: distractor) kept for evaluating association (von Marcard §4.3.2).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax.numpy as jnp
+import numpy as np
+from jax import Array
+
+from ..body.model import SMPL_JOINT_NAMES, Body
+from .imu import ray_vertex, rest_joints
+
+__all__ = [
+    "COCO18_NAMES",
+    "BODY25_NAMES",
+    "KEYPOINT_FORMATS",
+    "keypoint_regressor",
+    "regress_keypoints",
+    "DetectorErrorModel",
+    "Detections",
+    "detect",
+    "flip_pairs",
+]
+
+COCO18_NAMES = (
+    "nose", "neck", "right_shoulder", "right_elbow", "right_wrist", "left_shoulder",
+    "left_elbow", "left_wrist", "right_hip", "right_knee", "right_ankle", "left_hip",
+    "left_knee", "left_ankle", "right_eye", "left_eye", "right_ear", "left_ear",
+)  # fmt: skip
+BODY25_NAMES = (
+    "nose", "neck", "right_shoulder", "right_elbow", "right_wrist", "left_shoulder",
+    "left_elbow", "left_wrist", "mid_hip", "right_hip", "right_knee", "right_ankle",
+    "left_hip", "left_knee", "left_ankle", "right_eye", "left_eye", "right_ear", "left_ear",
+    "left_big_toe", "left_small_toe", "left_heel", "right_big_toe", "right_small_toe",
+    "right_heel",
+)  # fmt: skip
+KEYPOINT_FORMATS = {"coco18": COCO18_NAMES, "body25": BODY25_NAMES}
+
+_J = {n: i for i, n in enumerate(SMPL_JOINT_NAMES)}
+_JOINT_ROWS = {
+    n: (n,) for n in (
+        "left_shoulder", "right_shoulder", "left_elbow", "right_elbow", "left_wrist",
+        "right_wrist", "left_hip", "right_hip", "left_knee", "right_knee", "left_ankle",
+        "right_ankle",
+    )
+}  # fmt: skip
+_JOINT_ROWS["neck"] = ("left_shoulder", "right_shoulder")
+_JOINT_ROWS["mid_hip"] = ("left_hip", "right_hip")
+
+# name: (joint, offset from it (left side; mirrored for right), outward direction, bone)
+_SURFACE = {
+    "nose": ("head", (0.0, 0.0, 0.0), (0.0, 0.0, 1.0), "head"),
+    "left_eye": ("head", (0.032, 0.035, 0.0), (0.0, 0.0, 1.0), "head"),
+    "left_ear": ("head", (0.0, 0.01, 0.0), (1.0, 0.0, 0.0), "head"),
+    "left_big_toe": ("left_foot", (-0.015, 0.0, 0.0), (0.0, 0.0, 1.0), "left_foot"),
+    "left_small_toe": ("left_foot", (0.03, 0.0, -0.02), (0.0, 0.0, 1.0), "left_foot"),
+    "left_heel": ("left_ankle", (0.0, -0.03, 0.0), (0.0, 0.0, -1.0), "left_ankle"),
+}
+
+
+def flip_pairs(names: tuple[str, ...]) -> list[tuple[int, int]]:
+    """Index pairs (left, right) of a keypoint layout."""
+    return [
+        (i, names.index(n.replace("left", "right")))
+        for i, n in enumerate(names)
+        if n.startswith("left") and n.replace("left", "right") in names
+    ]
+
+
+def _surface_vertex(body: Body, name: str, joints: np.ndarray) -> int:
+    right = name.startswith("right")
+    key = name.replace("right", "left") if right else name
+    joint, offset, direction, bone = _SURFACE[key]
+    if right:
+        joint, bone = joint.replace("left", "right"), bone.replace("left", "right")
+        offset = (-offset[0], offset[1], offset[2])
+        direction = (-direction[0], direction[1], direction[2])
+    point = joints[_J[joint]] + np.asarray(offset)
+    if bone in ("left_foot", "right_foot"):
+        # The low-resolution mesh merges the toes into the foot; accept either foot bone.
+        try:
+            return ray_vertex(body, point, direction, _J[bone])
+        except ValueError:
+            bone = bone.replace("foot", "ankle")
+    return ray_vertex(body, point, direction, _J[bone])
+
+
+def keypoint_regressor(body: Body, layout: str = "coco18") -> np.ndarray:
+    """(K, V) keypoint regressor for `layout` ("coco18" or "body25") on `body`."""
+    if layout not in KEYPOINT_FORMATS:
+        raise ValueError(f"Unknown keypoint layout {layout!r}; choose from {sorted(KEYPOINT_FORMATS)}.")
+    names = KEYPOINT_FORMATS[layout]
+    Jreg = np.asarray(body.J_regressor, np.float64)
+    joints = rest_joints(body)
+    out = np.zeros((len(names), body.num_vertices))
+    for k, name in enumerate(names):
+        if name in _JOINT_ROWS:
+            rows = [_J[j] for j in _JOINT_ROWS[name]]
+            out[k] = Jreg[rows].mean(0)
+        else:
+            out[k, _surface_vertex(body, name, joints)] = 1.0
+    return out
+
+
+def regress_keypoints(regressor: Array, vertices: Array) -> Array:
+    """3D keypoints 𝒦 v: (K, V) x (..., V, 3) -> (..., K, 3)."""
+    return jnp.einsum("kv,...vc->...kc", jnp.asarray(regressor, vertices.dtype), vertices)
+
+
+@dataclasses.dataclass(frozen=True)
+class DetectorErrorModel:
+    """Errors of a 2D keypoint detector (OpenPose-like); 0 switches an error off.
+
+    pixel_noise: std of Gaussian pixel noise per coordinate (px).
+    confidence_mean / confidence_std: confidence of a correct detection.
+    miss_rate: probability that a keypoint is not detected (conf 0, uv 0).
+    outlier_rate: probability that a keypoint lands anywhere in the person's box.
+    swap_rate / swap_length: probability per frame that a left/right swap run starts
+        (per person, view and group: arms, legs, face) and its mean length in frames.
+    person_miss_rate: probability that a whole person is not detected in a frame.
+    distractor_rate: mean number of distractor detections per frame (Poisson).
+    max_distractors: cap per frame (fixes the padded detection count).
+    """
+
+    pixel_noise: float = 0.0
+    confidence_mean: float = 0.9
+    confidence_std: float = 0.0
+    miss_rate: float = 0.0
+    outlier_rate: float = 0.0
+    swap_rate: float = 0.0
+    swap_length: float = 10.0
+    person_miss_rate: float = 0.0
+    distractor_rate: float = 0.0
+    max_distractors: int = 2
+
+    @classmethod
+    def off(cls) -> DetectorErrorModel:
+        return cls(confidence_mean=1.0, max_distractors=0)
+
+    @classmethod
+    def openpose(cls) -> DetectorErrorModel:
+        """Plausible OpenPose-like errors at ~1000 px person height scaled to our images.
+
+        Values chosen to give the failure modes von Marcard §4.2.5 / fig. 4.4 and Huang
+        §4.3 describe (noise of a few px, occasional misses and outliers, left/right
+        swaps over runs of frames, false positives), not measured statistics.
+        """
+        return cls(
+            pixel_noise=1.5, confidence_mean=0.8, confidence_std=0.1, miss_rate=0.03,
+            outlier_rate=0.01, swap_rate=0.01, swap_length=8.0, person_miss_rate=0.01,
+            distractor_rate=0.3, max_distractors=2,
+        )  # fmt: skip
+
+
+@dataclasses.dataclass(frozen=True)
+class Detections:
+    """Detections of one view: (T, D, K, 3) rows (u, v, confidence), padded with zeros.
+
+    person: (T, D) the true person index of each detection, -1 for distractors and -2
+    for padding; swapped: (T, D, K) whether that keypoint is a left/right swap.
+    """
+
+    keypoints: np.ndarray
+    person: np.ndarray
+    swapped: np.ndarray
+
+
+def _runs(rng, T, rate, length):
+    on = np.zeros(T, bool)
+    if rate <= 0:
+        return on
+    for t in np.flatnonzero(rng.random(T) < rate):
+        on[t : t + rng.geometric(1.0 / length)] = True
+    return on
+
+
+def _groups(names):
+    pairs = flip_pairs(names)
+    group = {"arms": [], "legs": [], "face": []}
+    for a, b in pairs:
+        n = names[a]
+        g = "face" if ("eye" in n or "ear" in n) else "arms" if any(
+            s in n for s in ("shoulder", "elbow", "wrist")
+        ) else "legs"
+        group[g].append((a, b))
+    return group
+
+
+def detect(
+    keypoints_2d: np.ndarray,
+    depth: np.ndarray,
+    width: int,
+    height: int,
+    names: tuple[str, ...],
+    model: DetectorErrorModel,
+    rng: np.random.Generator,
+) -> Detections:
+    """Simulated detector output of one view.
+
+    Args:
+        keypoints_2d: (P, T, K, 2) true projections of P people.
+        depth: (P, T, K) camera depths (keypoints with depth <= 0 are not seen).
+        width, height: image size; names: keypoint names (for left/right pairs).
+        model: the error model; rng: NumPy generator.
+    Returns:
+        Detections with D = P + model.max_distractors slots per frame.
+    """
+    P, T, K, _ = keypoints_2d.shape
+    D = P + model.max_distractors
+    out = np.zeros((T, D, K, 3))
+    person = np.full((T, D), -2, int)
+    swapped_out = np.zeros((T, D, K), bool)
+    groups = _groups(names)
+    dets, ids, swaps = [[] for _ in range(T)], [[] for _ in range(T)], [[] for _ in range(T)]
+    for p in range(P):
+        uv = keypoints_2d[p].copy()
+        swapped = np.zeros((T, K), bool)
+        for pairs in groups.values():
+            on = _runs(rng, T, model.swap_rate, model.swap_length)
+            for a, b in pairs:
+                uv[on, a], uv[on, b] = keypoints_2d[p][on, b], keypoints_2d[p][on, a]
+                swapped[on, a] = swapped[on, b] = True
+        noise = rng.normal(scale=model.pixel_noise, size=uv.shape) if model.pixel_noise > 0 else 0.0
+        uv = uv + noise
+        conf = model.confidence_mean + (
+            rng.normal(scale=model.confidence_std, size=(T, K)) if model.confidence_std > 0 else 0.0
+        )
+        lo, hi = keypoints_2d[p].min(1), keypoints_2d[p].max(1)  # (T, 2) person box
+        outlier = rng.random((T, K)) < model.outlier_rate
+        box = lo[:, None] + rng.random((T, K, 2)) * (hi - lo)[:, None]
+        uv = np.where(outlier[..., None], box, uv)
+        conf = np.where(outlier, rng.uniform(0.1, 0.6, (T, K)), conf)
+        inside = (
+            (depth[p] > 0)
+            & (keypoints_2d[p][..., 0] >= 0) & (keypoints_2d[p][..., 0] < width)
+            & (keypoints_2d[p][..., 1] >= 0) & (keypoints_2d[p][..., 1] < height)
+        )  # fmt: skip
+        missed = (rng.random((T, K)) < model.miss_rate) | ~inside
+        conf = np.where(missed, 0.0, np.clip(conf, 0.05, 1.0))
+        uv = np.where(missed[..., None], 0.0, uv)
+        person_missed = (rng.random(T) < model.person_miss_rate) | (inside.sum(1) < 3)
+        for t in np.flatnonzero(~person_missed):
+            dets[t].append(np.concatenate([uv[t], conf[t][:, None]], -1))
+            ids[t].append(p)
+            swaps[t].append(swapped[t] & ~missed[t])
+    if model.max_distractors > 0 and model.distractor_rate > 0:
+        counts = np.minimum(rng.poisson(model.distractor_rate, T), model.max_distractors)
+        for t in np.flatnonzero(counts):
+            for _ in range(counts[t]):
+                src = keypoints_2d[rng.integers(P), rng.integers(T)]
+                centre = src.mean(0)
+                scale = rng.uniform(0.4, 1.0)
+                where = rng.uniform([0, 0], [width, height])
+                uv = (src - centre) * scale + where
+                conf = rng.uniform(0.05, 0.6, K) * (rng.random(K) > 0.3)
+                uv = np.where(conf[:, None] > 0, uv, 0.0)
+                dets[t].append(np.concatenate([uv, conf[:, None]], -1))
+                ids[t].append(-1)
+                swaps[t].append(np.zeros(K, bool))
+    for t in range(T):
+        order = rng.permutation(len(dets[t]))
+        for slot, i in enumerate(order):
+            out[t, slot], person[t, slot], swapped_out[t, slot] = dets[t][i], ids[t][i], swaps[t][i]
+    return Detections(keypoints=out, person=person, swapped=swapped_out)
