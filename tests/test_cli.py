@@ -107,7 +107,7 @@ def test_bad_arguments_exit_2(amass_file, tmp_path, capsys):
 
 @pytest.mark.skipif(find_cmu_dir() is None, reason="CMU clips not present")
 def test_demo(tmp_path, capsys):
-    assert main(["demo", "--out", str(tmp_path), "--seconds", "0.5", "--every", "4", "--body", "default-low"]) == 0
+    assert main(["demo", "--out", str(tmp_path), "--seconds", "0.5", "--every", "4", "--body", "default-low", "--no-fit"]) == 0
     out = capsys.readouterr().out
     assert "CMU walk" in out and "16 frames" in out
     assert len(list((tmp_path / "meshes").glob("*.ply"))) == 4
@@ -119,7 +119,7 @@ def test_demo_without_cmu_uses_procedural_walk(tmp_path, monkeypatch, capsys):
     empty = tmp_path / "no_cmu"
     empty.mkdir()
     monkeypatch.setenv("JAXMOCAP_CMU", str(empty))
-    assert main(["demo", "--out", str(tmp_path / "demo"), "--seconds", "0.5", "--every", "8", "--body", "default-low"]) == 0
+    assert main(["demo", "--out", str(tmp_path / "demo"), "--seconds", "0.5", "--every", "8", "--body", "default-low", "--no-fit"]) == 0
     out = capsys.readouterr().out
     assert "procedural walk" in out and "16 frames" in out
     assert len(list((tmp_path / "demo" / "meshes").glob("*.ply"))) == 2

@@ -1,4 +1,5 @@
-"""The end-to-end demo (`jaxmocap demo`, `make demo`): a walk, posed, exported and pictured.
+"""The end-to-end demo (`jaxmocap demo`, `make demo`): a walk, posed, exported and pictured,
+then captured again from six simulated IMUs with SOP and SIP (von Marcard ch. 3).
 
 Also holds the small pieces the command line shares: picking a body from a short name
 (`resolve_body`) and exporting a motion's meshes and pictures (`export_motion`).
@@ -115,6 +116,8 @@ class DemoResult:
     meshes: list[Path]
     pictures: list[Path]
     seconds: float
+    errors: dict = dataclasses.field(default_factory=dict)
+    fit_seconds: dict = dataclasses.field(default_factory=dict)
 
 
 def _demo_motion(body: Body, fps: float, seconds: float):
@@ -145,21 +148,86 @@ def run_demo(
     seconds: float = 4.0,
     every: int = 5,
     progress: bool = False,
+    fit: bool = True,
+    seed: int = 0,
 ) -> DemoResult:
-    """Load a walk (CMU 02_01 if present, else the procedural one), pose a body, export.
+    """Load a walk (CMU 02_01 if present, else the procedural one), pose a body, export,
+    then (with `fit`) simulate six IMUs with realistic errors and fit SOP and SIP.
 
     Writes into `out_dir`: `meshes/frame_XXXX.ply` every `every` frames, one
-    `meshes/sequence.glb` (a node per kept frame), `filmstrip.png` and `body.png`.
+    `meshes/sequence.glb` (a node per kept frame), `filmstrip.png` and `body.png`; with
+    `fit` also `meshes_sop/` and `meshes_sip/` (the fitted poses, placed on the true root
+    translation so that they overlay the truth), `sop_vs_sip.png` (MPJAE and MPJPE per
+    frame) and `sop_vs_sip_joints.png` (MPJAE per joint).
     """
     start = time.perf_counter()
     body = resolve_body(body)
     motion, source = _demo_motion(body, fps, seconds)
     result = export_motion(motion, body, out_dir, fmt="ply", every=every, pictures=True, glb=True, progress=progress)
+    meshes, pictures = list(result.meshes), list(result.pictures)
+    errors, fit_seconds = {}, {}
+    if fit:
+        m2, p2, errors, fit_seconds = _fit_demo(motion, body, Path(out_dir), every, seed)
+        meshes += m2
+        pictures += p2
     return DemoResult(
         source=source,
         num_frames=motion.num_frames,
         fps=motion.fps,
-        meshes=result.meshes,
-        pictures=result.pictures,
+        meshes=meshes,
+        pictures=pictures,
         seconds=time.perf_counter() - start,
+        errors=errors,
+        fit_seconds=fit_seconds,
     )
+
+
+def _fit_demo(motion, body: Body, out_dir: Path, every: int, seed: int):
+    """Six IMUs (Xsens-like errors) from `motion`; SOP and SIP; plots and meshes."""
+    import dataclasses as dc
+
+    import jax
+    import numpy as np
+
+    from ..methods import inertial
+    from ..metrics import JOINT_SETS, plot_error_curves, plot_per_joint, pose_errors
+    from ..motion.sequence import Motion
+    from ..sensors import IMUErrorModel, ScenarioConfig, make_scenario
+    from .mesh import export_sequence, posed_vertices
+
+    config = ScenarioConfig(
+        fps=motion.fps, max_frames=motion.num_frames, imu_set="sip6", imu_errors=IMUErrorModel.xsens(), betas_std=0.0
+    )
+    scenario = make_scenario([motion], config, seed=seed, body=body)
+    seq = scenario.sequence(0)
+    truth, trans = seq["poses"][0], seq["trans"][0]
+    setup = inertial.from_scenario(scenario, 0, body)
+    timings = {}
+    t0 = time.perf_counter()
+    sop, _ = inertial.sparse_orientation_poser(setup)
+    jax.block_until_ready(sop)
+    timings["SOP"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    sip = inertial.sparse_inertial_poser(setup, init=sop)
+    jax.block_until_ready(sip.poses)
+    timings["SIP"] = time.perf_counter() - t0
+    errors = {name: pose_errors(body, p, truth) for name, p in (("SOP", sop), ("SIP", sip.poses))}
+    title = f"{Path(motion.name).name or 'motion'}: 6 IMUs, Xsens-like errors, {len(truth)} frames"
+    pictures = [
+        plot_error_curves({k: e["mpjae"] for k, e in errors.items()}, out_dir / "sop_vs_sip.png", motion.fps,
+                          "MPJAE [°]", title),
+        plot_error_curves({k: e["mpjpe"] for k, e in errors.items()}, out_dir / "sop_vs_sip_mpjpe.png",
+                          motion.fps, "MPJPE (Procrustes) [mm]", title),
+        plot_per_joint({k: e["mpjae"] for k, e in errors.items()}, JOINT_SETS["totalcapture_mpjae"],
+                       out_dir / "sop_vs_sip_joints.png", "MPJAE [°]", title),
+    ]  # fmt: skip
+    meshes = []
+    for name, poses in (("sop", sop), ("sip", sip.poses)):
+        fitted = dc.replace(motion, poses=np.asarray(poses, np.float64), trans=np.asarray(trans, np.float64),
+                            betas=np.zeros(0)) if isinstance(motion, Motion) else motion  # fmt: skip
+        vertices, _ = posed_vertices(body, fitted)
+        folder = out_dir / f"meshes_{name}"
+        meshes += export_sequence(vertices, body.faces, folder, fmt="ply", every=every)
+        meshes += export_sequence(vertices, body.faces, folder, fmt="glb", every=every)
+    summary = {k: {m: float(np.mean(v)) for m, v in e.items()} for k, e in errors.items()}
+    return meshes, pictures, summary, timings

@@ -1,0 +1,3 @@
+"""Energy terms as residual functions for `jaxmocap.solve` (one module per sensor kind)."""
+
+from . import imu as imu

@@ -1,0 +1,238 @@
+"""The energies of the Sparse Inertial Poser as `jaxmocap.solve.Term`s (von Marcard §3.3).
+
+E_motion = w_ori E_ori + w_acc E_acc + w_anthro E_anthro   (eq. 3.5)
+
+- E_ori = 1/(T N_s) Σ_t Σ_s ‖e_ori‖², e_ori = log(R̃_s^g(x_t) (R_s^g(t))⁻¹)^∨ with the model
+  sensor orientation R̃_s^g(x_t) = R_b^g(x_t) R_s^b (eq. 3.6-3.8).
+- E_acc = 1/(T N_s) Σ_t Σ_s ‖ã^g(t) - a^g(t)‖², the model vertex acceleration
+  ã^g(t) = (p(t-1) - 2 p(t) + p(t+1)) / dt² (eq. 3.10) of the sensor point rigidly
+  attached to its bone, p = M_b^g(x) p^b (eq. 3.11), against the measured
+  a^g = R_s^g a^s - g^g (eq. 3.9, computed once by `global_acceleration`).
+- E_anthro = w_mahal 1/T Σ_t d_mahal(t)² + w_limit 1/T Σ_t ‖e_limit(t)‖² (eq. 3.14-3.16).
+
+Each term is a residual function `fn(params, data)`; the engine squares and sums it, so
+the weight of a `Term` is w / N_s for the sensor terms and w_anthro w_mahal, w_anthro w_limit
+for the prior terms (the 1/T common to all four terms does not change the minimiser and
+is left out: the reported costs are per-sequence sums, not means).
+
+Parameters (the engine's per-frame pytree): "pose" (T, 24, 3) axis-angle, a rotation key
+(the term functions see (T, 24, 3, 3) local rotation matrices), and for E_acc also
+"trans" (T, 3). Data (one sequence; `InertialData`): measured orientations and
+accelerations with NaN for dropped samples (masked out), the calibration (sensor-to-bone
+rotations, sensor points in their bone frames, the shaped rest joints) and the prior.
+
+The Jacobians are taken by forward-mode AD through the same kinematic chain; at δ = 0 and
+for the left-multiplicative update this is exactly the analytic form of eq. 3.17-3.29
+(Adjoint of the parent chain times the generator), with no hand-written derivative to
+keep in sync. The block-diagonal / block-banded structure of eq. 3.30-3.31 is declared
+through `Term.bandwidth` (0 for E_ori, E_anthro; 1 for E_acc) and exploited by the
+engine's banded solver.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax.numpy as jnp
+from jax import Array
+
+from ..body.model import SMPL_PARENTS
+from ..priors.pose_prior import PosePrior
+from ..rotation import matrix_to_axis_angle
+from ..solve import Term, nan_mask, second_difference
+
+__all__ = [
+    "GRAVITY_REACTION",
+    "InertialData",
+    "global_acceleration",
+    "OrientationResidual",
+    "AccelerationResidual",
+    "MahalanobisResidual",
+    "JointLimitResidual",
+    "orientation_term",
+    "acceleration_term",
+    "mahalanobis_term",
+    "joint_limit_term",
+]
+
+#: g^g of eq. 3.9 as our accelerometers see it: the reaction to gravity, +9.81 m/s² along
+#: the world's up axis y (an accelerometer at rest reads R^T (0, 9.81, 0)).
+GRAVITY_REACTION = (0.0, 9.81, 0.0)
+
+
+class InertialData(eqx.Module):
+    """Everything the inertial energies read for one sequence (T frames, S sensors).
+
+    orientation: (T, S, 3, 3) measured R_s^g in the model frame (eq. 3.2 applied); NaN = dropped.
+    acceleration: (T, S, 3) measured a^g, world frame, gravity removed (eq. 3.9); NaN = dropped.
+    sensor_to_bone: (S, 3, 3) R_s^b (eq. 3.3).
+    sensor_point: (S, 3) p^b, the sensor's vertex relative to its bone's joint, bone frame.
+    rest_joints: (24, 3) the shaped rest joints J(β) of the body.
+    prior: the pose prior (μ, W, limits).
+    """
+
+    orientation: Array
+    acceleration: Array
+    sensor_to_bone: Array
+    sensor_point: Array
+    rest_joints: Array
+    prior: PosePrior
+
+    @property
+    def num_frames(self) -> int:
+        return self.orientation.shape[-4]
+
+    @property
+    def num_sensors(self) -> int:
+        return self.orientation.shape[-3]
+
+
+def global_acceleration(orientation: Array, acceleration: Array) -> Array:
+    """a^g = R_s^g a^s - g^g (eq. 3.9): (..., 3, 3), (..., 3) -> (..., 3)."""
+    g = jnp.asarray(GRAVITY_REACTION, acceleration.dtype)
+    return jnp.einsum("...ab,...b->...a", orientation, acceleration) - g
+
+
+def _mul(a: Array, b: Array) -> Array:
+    """a @ b for (..., 3, 3) as broadcast products and sums.
+
+    XLA-CPU runs batched 3x3 `dot_general`s one tiny matrix at a time; as elementwise
+    arithmetic they fuse into one loop, which made the 300 JVPs of an SIP linearisation
+    several times faster (benchmarks/sip_speed.py).
+    """
+    return jnp.sum(a[..., :, :, None] * b[..., None, :, :], axis=-2)
+
+
+def _apply(a: Array, v: Array) -> Array:
+    """a @ v for (..., 3, 3) and (..., 3)."""
+    return jnp.sum(a * v[..., None, :], axis=-1)
+
+
+def _global_rotations(local: Array, rest_joints: Array, parents, needed=None) -> tuple[dict, dict]:
+    """Global rotations R_b^g and joint positions of the joints in `needed` and their
+    ancestors (all joints by default), as dicts {joint: (T, 3, 3)}, {joint: (T, 3)}.
+
+    Von Marcard eq. 2.29-2.32, root at J_0; equal to `body.forward_kinematics`.
+    """
+    J = len(parents)
+    keep = set(range(J)) if needed is None else set()
+    for j in needed or ():
+        while j >= 0:
+            keep.add(j)
+            j = parents[j]
+    rest = rest_joints.astype(local.dtype)
+    R, p = {0: local[:, 0]}, {0: jnp.broadcast_to(rest[0], local.shape[:1] + (3,))}
+    for j in range(1, J):
+        if j not in keep:
+            continue
+        q = parents[j]
+        R[j] = _mul(R[q], local[:, j])
+        p[j] = p[q] + _apply(R[q], rest[j] - rest[q])
+    return R, p
+
+
+def log_rotation(R: Array) -> Array:
+    """log(R)^∨ for rotations with angle θ < π - 0.05, cheap and AD-safe: (..., 3, 3) -> (..., 3).
+
+    θ = acos((tr R - 1)/2), ω = θ / (2 sin θ) (R - Rᵀ)^∨ (von Marcard eq. 2.15-2.16), with
+    its Taylor series near θ = 0. Joint angles (limited to < 170°) and the small residual
+    rotations of E_ori stay clear of π; `rotation.matrix_to_axis_angle` is the general one.
+    """
+    v = jnp.stack([R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]], -1)
+    c = jnp.clip(0.5 * (R[..., 0, 0] + R[..., 1, 1] + R[..., 2, 2] - 1.0), -1.0 + 1e-6, 1.0)
+    s2 = 0.25 * jnp.sum(v * v, -1)  # sin² θ
+    small = s2 < 1e-6
+    s = jnp.sqrt(jnp.where(small, 1.0, s2))
+    theta = jnp.arctan2(s, c)
+    factor = jnp.where(small, 0.5 + s2 / 12.0, theta / (2.0 * s))
+    return factor[..., None] * v
+
+
+class OrientationResidual(eqx.Module):
+    """e_ori(x_t) = log(R_b^g(x_t) R_s^b (R_s^g(t))⁻¹)^∨ per frame and sensor (eq. 3.7): (T, S, 3)."""
+
+    bones: tuple[int, ...] = eqx.field(static=True)
+    parents: tuple[int, ...] = eqx.field(static=True, default=SMPL_PARENTS)
+
+    def __call__(self, params, data: InertialData) -> Array:
+        R, _ = _global_rotations(params["pose"], data.rest_joints, self.parents, self.bones)
+        R_bone = jnp.stack([R[b] for b in self.bones], 1)
+        R_model = _mul(R_bone, data.sensor_to_bone.astype(R_bone.dtype))  # eq. 3.6
+        R_meas = data.orientation.astype(R_bone.dtype)
+        return matrix_to_axis_angle(_mul(R_model, jnp.swapaxes(R_meas, -1, -2)))
+
+
+class AccelerationResidual(eqx.Module):
+    """e_acc(t) = ã^g(x_{t-1}, x_t, x_{t+1}) - a^g(t) (eq. 3.10-3.12): (T, S, 3), bandwidth 1.
+
+    The sensor point moves rigidly with its bone, p = R_b^g(x) p^b + J_b(x) + trans (eq. 3.11).
+    """
+
+    bones: tuple[int, ...] = eqx.field(static=True)
+    fps: float = eqx.field(static=True)
+    parents: tuple[int, ...] = eqx.field(static=True, default=SMPL_PARENTS)
+
+    def __call__(self, params, data: InertialData) -> Array:
+        R, J = _global_rotations(params["pose"], data.rest_joints, self.parents, self.bones)
+        R_bone = jnp.stack([R[b] for b in self.bones], 1)
+        p = _apply(R_bone, data.sensor_point.astype(R_bone.dtype)) + jnp.stack([J[b] for b in self.bones], 1)
+        if "trans" in params:
+            p = p + params["trans"][:, None, :]
+        a_model = second_difference(p) * (self.fps**2)
+        return a_model - data.acceleration.astype(a_model.dtype)
+
+
+def _joint_angles(local: Array) -> Array:
+    """x_t: the 69 axis-angle coordinates of joints 1..23, (T, 24, 3, 3) -> (T, 69)."""
+    return log_rotation(local[:, 1:]).reshape(local.shape[0], -1)
+
+
+class MahalanobisResidual(eqx.Module):
+    """W (x_t - μ) with Wᵀ W = Σ⁻¹, so ‖·‖² = d_mahal(t)² (eq. 3.14): (T, 69)."""
+
+    def __call__(self, params, data: InertialData) -> Array:
+        return data.prior.mahalanobis_residual(_joint_angles(params["pose"]))
+
+
+class JointLimitResidual(eqx.Module):
+    """e_limit(t) = min(x_t - l_lower, 0) + max(x_t - l_upper, 0) (eq. 3.15): (T, 23, 3)."""
+
+    def __call__(self, params, data: InertialData) -> Array:
+        x = _joint_angles(params["pose"])
+        return data.prior.limit_residual(x).reshape(x.shape[0], 23, 3)
+
+
+def _sensor_mask(key: str):
+    def mask(data: InertialData) -> Array:
+        value = getattr(data, key)
+        return nan_mask(value, axis=(-2, -1) if key == "orientation" else -1)
+
+    mask.__name__ = f"{key}_mask"
+    mask.__qualname__ = f"_sensor_mask.{key}"
+    return mask
+
+
+_ORI_MASK = _sensor_mask("orientation")
+_ACC_MASK = _sensor_mask("acceleration")
+
+
+def orientation_term(bones, num_sensors: int | None = None, w_ori=1.0, loss=None) -> Term:
+    """w_ori E_ori (eq. 3.8) as a `Term`: weight w_ori / N_s, per frame, NaN-masked."""
+    n = len(bones) if num_sensors is None else num_sensors
+    return Term("ori", OrientationResidual(tuple(int(b) for b in bones)), w_ori / n, 0, loss, _ORI_MASK)
+
+
+def acceleration_term(bones, fps: float, num_sensors: int | None = None, w_acc=0.05, loss=None) -> Term:
+    """w_acc E_acc (eq. 3.13) as a `Term`: weight w_acc / N_s, frames t-1..t+1, NaN-masked."""
+    n = len(bones) if num_sensors is None else num_sensors
+    fn = AccelerationResidual(tuple(int(b) for b in bones), float(fps))
+    return Term("acc", fn, w_acc / n, 1, loss, _ACC_MASK)
+
+
+def mahalanobis_term(w_anthro=1.0, w_mahal=0.003) -> Term:
+    """w_anthro w_mahal Σ_t d_mahal(t)² (eq. 3.14, 3.16) as a `Term`."""
+    return Term("mahal", MahalanobisResidual(), w_anthro * w_mahal, 0)
+
+
+def joint_limit_term(w_anthro=1.0, w_limit=0.1) -> Term:
+    """w_anthro w_limit Σ_t ‖e_limit(t)‖² (eq. 3.15, 3.16) as a `Term`."""
+    return Term("limit", JointLimitResidual(), w_anthro * w_limit, 0)

@@ -1,0 +1,364 @@
+"""The inertial posers of von Marcard ch. 3: IT, SOP and SIP, as compositions of terms.
+
+- **SOP** (Sparse Orientation Poser): E_ori + E_anthro over 6 IMUs, frame by frame, each
+  frame started from the previous frame's result (§3.4.1).
+- **IT** (Inertial Tracker): the same with every available IMU (13 or 17, §3.4.3).
+- **SIP** (Sparse Inertial Poser): E_ori + E_acc + E_anthro over the whole sequence at once
+  (eq. 3.4-3.5), started from SOP (§3.4.1), minimised by Levenberg-Marquardt.
+
+No solver code lives here: each method builds a `jaxmocap.solve.Problem` from the terms of
+`jaxmocap.energies.imu` and calls `solve` / `solve_batch`. Weights (`SIPWeights`) default
+to the thesis's (§3.4.1); a weight of 0 drops its term, for ablations.
+
+Calibration (§3.2.3, `calibrate`): readings are assumed in the model frame already
+(M_i^g applied, eq. 3.2); the sensor-to-bone rotations R_s^b = R_b^g(x₀)ᵀ R_s^g(0) (eq. 3.3)
+and the sensor points p^b = R_b^g(x₀)ᵀ (v_s(x₀) - J_b(x₀)) come from the first frame and
+the known initial pose x₀, as in the thesis, where initial poses came with the datasets.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Sequence
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax import Array
+
+from ..body.kinematics import forward, shaped_joints
+from ..body.model import Body
+from ..energies.imu import (
+    InertialData,
+    acceleration_term,
+    global_acceleration,
+    joint_limit_term,
+    mahalanobis_term,
+    orientation_term,
+)
+from ..priors.pose_prior import PosePrior, default_pose_prior
+from ..solve import Problem, Solution, solve, solve_batch
+
+__all__ = [
+    "SIPWeights",
+    "InertialSetup",
+    "calibrate",
+    "from_scenario",
+    "from_dip",
+    "inertial_problem",
+    "orientation_poser",
+    "inertial_tracker",
+    "sparse_orientation_poser",
+    "sparse_inertial_poser",
+    "SIPResult",
+    "stack_setups",
+    "sparse_inertial_poser_batch",
+]
+
+
+@dataclasses.dataclass(frozen=True)
+class SIPWeights:
+    """Weights of eq. 3.5 and 3.16 (defaults: von Marcard §3.4.1). 0 switches a term off."""
+
+    ori: float = 1.0
+    acc: float = 0.05
+    anthro: float = 1.0
+    mahal: float = 0.003
+    limit: float = 0.1
+
+    def replace(self, **changes) -> SIPWeights:
+        return dataclasses.replace(self, **changes)
+
+
+class InertialSetup(eqx.Module):
+    """One calibrated sequence: the data the energies read plus the static sensor layout.
+
+    data: `InertialData` (measurements, calibration, prior).
+    bones: static, the bone carrying each sensor.
+    fps: static frame rate.
+    pose0: (24, 3) the known initial pose x₀ (axis-angle); trans0: (3,) its translation.
+    """
+
+    data: InertialData
+    pose0: Array
+    trans0: Array
+    bones: tuple[int, ...] = eqx.field(static=True)
+    fps: float = eqx.field(static=True)
+
+    @property
+    def num_frames(self) -> int:
+        return self.data.num_frames
+
+    def subset(self, sensors: Sequence[int]) -> InertialSetup:
+        """The same sequence seen by the sensors with indices `sensors` only."""
+        idx = np.asarray(sensors)
+        d = self.data
+        data = InertialData(
+            d.orientation[:, idx], d.acceleration[:, idx], d.sensor_to_bone[idx], d.sensor_point[idx],
+            d.rest_joints, d.prior,
+        )  # fmt: skip
+        return InertialSetup(data, self.pose0, self.trans0, tuple(self.bones[i] for i in idx), self.fps)
+
+
+def calibrate(
+    body: Body,
+    bones: Sequence[int],
+    vertices: Sequence[int],
+    orientation,
+    acceleration,
+    pose0,
+    fps: float,
+    betas=None,
+    trans0=None,
+    prior: PosePrior | None = None,
+    acceleration_frame: str = "sensor",
+    dtype=None,
+) -> InertialSetup:
+    """Calibrate raw IMU readings against a known initial pose (eq. 3.2-3.3, 3.9, 3.11).
+
+    Args:
+        body: the actor's body model; betas (B,) its shape.
+        bones, vertices: per sensor, the carrying bone (joint index) and the mesh vertex.
+        orientation: (T, S, 3, 3) measured R_s^g, already in the model frame (eq. 3.2).
+        acceleration: (T, S, 3) accelerometer readings a^s in the sensor frame
+            (`acceleration_frame="sensor"`, eq. 3.9 applied here) or a^g already in the
+            world frame without gravity (`"global"`, DIP's layout).
+        pose0: (24, 3) the pose at frame 0; trans0 (3,) its translation (default 0).
+        fps: frame rate of the readings.
+        prior: pose prior (default: the shipped one).
+    Returns:
+        An `InertialSetup` for the methods below.
+    """
+    if acceleration_frame not in ("sensor", "global"):
+        raise ValueError(f"acceleration_frame must be 'sensor' or 'global', got {acceleration_frame!r}.")
+    orientation = jnp.asarray(orientation)
+    dtype = orientation.dtype if dtype is None else dtype
+    orientation = orientation.astype(dtype)
+    acceleration = jnp.asarray(acceleration, dtype)
+    T, S = orientation.shape[:2]
+    if orientation.shape != (T, S, 3, 3) or acceleration.shape != (T, S, 3):
+        raise ValueError(
+            f"orientation must be (T, S, 3, 3) and acceleration (T, S, 3); got {orientation.shape} "
+            f"and {acceleration.shape}."
+        )
+    if len(bones) != S or len(vertices) != S:
+        raise ValueError(f"{S} sensors in the readings but {len(bones)} bones and {len(vertices)} vertices.")
+    pose0 = jnp.asarray(pose0, dtype)
+    trans0 = jnp.zeros(3, dtype) if trans0 is None else jnp.asarray(trans0, dtype)
+    betas = jnp.zeros((body.num_betas,), dtype) if betas is None else jnp.asarray(betas, dtype)
+    out = forward(body, pose0, betas, trans0)
+    bones_idx, verts_idx = np.asarray(bones), np.asarray(vertices)
+    R_b0 = out.joint_rotations[bones_idx]  # R_b^g(x₀)
+    R_s0 = orientation[0]
+    if not bool(jnp.all(jnp.isfinite(R_s0))):
+        raise ValueError("frame 0 has dropped orientation samples; calibration needs every sensor at frame 0.")
+    sensor_to_bone = jnp.swapaxes(R_b0, -1, -2) @ R_s0  # eq. 3.3
+    rel = out.vertices[verts_idx] - out.joints[bones_idx]
+    sensor_point = jnp.einsum("sba,sb->sa", R_b0, rel)  # R_b0ᵀ (v - J_b)
+    acc = global_acceleration(orientation, acceleration) if acceleration_frame == "sensor" else acceleration
+    prior = default_pose_prior(dtype) if prior is None else prior
+    rest = shaped_joints(body, betas)
+    data = InertialData(orientation, acc, sensor_to_bone, sensor_point, rest, prior)
+    return InertialSetup(data, pose0, trans0, tuple(int(b) for b in bones), float(fps))
+
+
+def from_scenario(scenario, index: int, body: Body, person: int = 0, truth_init: bool = True, **kw) -> InertialSetup:
+    """Calibrate sequence `index` of a `jaxmocap.sensors.Scenario` (measured IMU readings).
+
+    x₀ is the true pose at frame 0 (the thesis's "initial pose provided with the dataset").
+    """
+    seq = scenario.sequence(index)
+    p = person
+    return calibrate(
+        body, seq["imu_bones"], seq["imu_vertices"], seq["imu_ori"][p], seq["imu_acc"][p],
+        seq["poses"][p][0], scenario.config.fps, betas=seq["betas"][p], trans0=seq["trans"][p][0], **kw,
+    )  # fmt: skip
+
+
+def from_dip(path_or_dict, body: Body, bones, vertices, pose0=None, fps: float = 60.0, sensors=None, **kw) -> InertialSetup:
+    """Calibrate a DIP-IMU-layout pickle (keys imu_ori (T, S, 3, 3), imu_acc (T, S, 3) global).
+
+    DIP stores accelerations in the world frame with gravity removed, so eq. 3.9 is
+    already applied. `pose0` defaults to the file's first `gt` pose (SMPL axis-angle).
+    `sensors` picks a subset (e.g. DIP's 17 → 6: [7, 8, 11, 12, 0, 2]).
+    """
+    if isinstance(path_or_dict, dict):
+        d = path_or_dict
+    else:
+        from ..sensors.scenario import load_dip
+
+        d = load_dip(path_or_dict)
+    ori, acc = np.asarray(d["imu_ori"]), np.asarray(d["imu_acc"])
+    if sensors is not None:
+        ori, acc = ori[:, sensors], acc[:, sensors]
+    if pose0 is None:
+        if "gt" not in d:
+            raise ValueError("the file has no 'gt' poses; pass pose0, the known initial pose.")
+        pose0 = np.asarray(d["gt"])[0].reshape(24, 3)
+    return calibrate(body, bones, vertices, ori, acc, pose0, fps, acceleration_frame="global", **kw)
+
+
+def inertial_problem(setup: InertialSetup, weights: SIPWeights = SIPWeights(), acceleration: bool = True) -> Problem:
+    """E_motion (eq. 3.5) for `setup` as a `Problem`; terms with weight 0 are left out."""
+    S = len(setup.bones)
+    w = weights
+    f = lambda x: jnp.asarray(x, jnp.float32)  # noqa: E731  array weights: ablations do not recompile
+    terms = []
+    if w.ori > 0:
+        terms.append(orientation_term(setup.bones, S, f(w.ori)))
+    if acceleration and w.acc > 0:
+        terms.append(acceleration_term(setup.bones, setup.fps, S, f(w.acc)))
+    if w.anthro > 0 and w.mahal > 0:
+        terms.append(mahalanobis_term(f(w.anthro), f(w.mahal)))
+    if w.anthro > 0 and w.limit > 0:
+        terms.append(joint_limit_term(f(w.anthro), f(w.limit)))
+    if not terms:
+        raise ValueError(f"every term is switched off ({weights}); nothing to minimise.")
+    return Problem(terms, rotations=("pose",))
+
+
+def _frame_data(data: InertialData, t) -> InertialData:
+    """Frame t of `data` as a one-frame sequence."""
+    take = lambda x: jax.lax.dynamic_slice_in_dim(x, t, 1, axis=0)  # noqa: E731
+    return eqx.tree_at(lambda d: (d.orientation, d.acceleration), data, (take(data.orientation), take(data.acceleration)))
+
+
+def orientation_poser(
+    setup: InertialSetup,
+    weights: SIPWeights = SIPWeights(),
+    init=None,
+    sequential: bool = True,
+    max_steps: int = 20,
+    rtol: float = 1e-6,
+    atol: float = 1e-10,
+) -> tuple[Array, Array]:
+    """E_ori + E_anthro per frame: the pose of every frame (SOP with 6 IMUs, IT with all).
+
+    Args:
+        setup: the calibrated sequence.
+        weights: `SIPWeights` (w_acc is ignored).
+        init: (24, 3) start of the first frame (default: x₀).
+        sequential: True (the thesis): frame t starts from frame t-1's result, one
+            frame after the other (`lax.scan`). False: every frame starts from `init`
+            and all frames are solved at once (`solve_batch`), much faster, and equally
+            good when the sensors pin the pose down (IT on 13 or 17 IMUs).
+        max_steps: LM iterations per frame.
+    Returns:
+        (poses (T, 24, 3) axis-angle, per-frame `optx.RESULTS` codes (T,)).
+    """
+    problem = inertial_problem(setup, weights, acceleration=False)
+    data = setup.data
+    x0 = setup.pose0 if init is None else jnp.asarray(init, setup.pose0.dtype)
+    T = setup.num_frames
+    kw = dict(max_steps=max_steps, rtol=rtol, atol=atol)
+    if not sequential:
+        batch = jax.vmap(lambda t: _frame_data(data, t))(jnp.arange(T))
+        params = {"pose": jnp.broadcast_to(x0, (T, 1) + x0.shape)}
+        sol = solve_batch(problem, params, batch, **kw)
+        return sol.value["pose"][:, 0], sol.result
+    return _sequential(problem, data, x0, **kw)
+
+
+@eqx.filter_jit
+def _sequential(problem, data, x0, **kw):
+    def step(pose, t):
+        sol = solve(problem, {"pose": pose[None]}, _frame_data(data, t), **kw)
+        new = sol.value["pose"][0]
+        return new, (new, sol.result)
+
+    _, (poses, results) = jax.lax.scan(step, x0, jnp.arange(data.num_frames))
+    return poses, results
+
+
+def sparse_orientation_poser(setup: InertialSetup, weights: SIPWeights = SIPWeights(), **kw) -> tuple[Array, Array]:
+    """SOP (§3.4.2): `orientation_poser`, sequential, on the sensors of `setup` (6 IMUs)."""
+    return orientation_poser(setup, weights, **kw)
+
+
+def inertial_tracker(setup: InertialSetup, weights: SIPWeights = SIPWeights(), **kw) -> tuple[Array, Array]:
+    """IT (§3.4.3): `orientation_poser` with every available IMU (13 or 17)."""
+    return orientation_poser(setup, weights, **kw)
+
+
+class SIPResult(eqx.Module):
+    """Outcome of `sparse_inertial_poser`.
+
+    poses (T, 24, 3), trans (T, 3): the fitted trajectory (translation is up to the
+    constant and linear drift accelerations cannot see); init: the SOP poses it started
+    from; solution: the engine's `Solution` (result code, steps, per-term costs).
+    """
+
+    poses: Array
+    trans: Array
+    init: Array
+    solution: Solution
+
+
+def sparse_inertial_poser(
+    setup: InertialSetup,
+    weights: SIPWeights = SIPWeights(),
+    init: Array | None = None,
+    init_trans: Array | None = None,
+    max_steps: int = 20,
+    rtol: float = 1e-6,
+    atol: float = 1e-10,
+    sop_steps: int = 20,
+) -> SIPResult:
+    """SIP (eq. 3.4-3.5): every frame at once, all three terms, started from SOP.
+
+    Args:
+        setup: the calibrated sequence.
+        weights: `SIPWeights`; `acc=0` gives a whole-sequence SOP.
+        init: (T, 24, 3) initial poses (default: `sparse_orientation_poser(setup, weights)`).
+        init_trans: (T, 3) initial translation (default: x₀'s translation on every frame).
+        max_steps: LM iterations (the thesis reports 20 cost evaluations).
+    Returns:
+        `SIPResult`.
+    """
+    if init is None:
+        init, _ = sparse_orientation_poser(setup, weights, max_steps=sop_steps)
+    T = setup.num_frames
+    trans = jnp.broadcast_to(setup.trans0, (T, 3)) if init_trans is None else jnp.asarray(init_trans)
+    problem = inertial_problem(setup, weights, acceleration=True)
+    params = {"pose": jnp.asarray(init, setup.pose0.dtype)}
+    if "acc" in [t.name for t in problem.terms]:
+        # Only E_acc sees the translation; without it, it stays where it started.
+        params["trans"] = trans.astype(setup.pose0.dtype)
+    sol = solve(problem, params, setup.data, max_steps=max_steps, rtol=rtol, atol=atol)
+    return SIPResult(sol.value["pose"], sol.value.get("trans", trans), jnp.asarray(init), sol)
+
+
+def stack_setups(setups: Sequence[InertialSetup]) -> InertialSetup:
+    """B calibrated sequences of equal length and sensor layout as one batched setup."""
+    first = setups[0]
+    for s in setups[1:]:
+        if s.bones != first.bones or s.fps != first.fps or s.num_frames != first.num_frames:
+            raise ValueError(
+                "stack_setups needs equal sensor bones, fps and frame counts; pad sequences first "
+                f"(got bones {s.bones} vs {first.bones}, {s.num_frames} vs {first.num_frames} frames)."
+            )
+    return jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), *setups)
+
+
+def sparse_inertial_poser_batch(
+    setups: InertialSetup,
+    init: Array,
+    init_trans: Array | None = None,
+    weights: SIPWeights = SIPWeights(),
+    frame_mask: Array | None = None,
+    max_steps: int = 20,
+    rtol: float = 1e-6,
+    atol: float = 1e-10,
+) -> Solution:
+    """SIP on a batch (`stack_setups`) in one vmapped solve; init (B, T, 24, 3).
+
+    Returns the engine's batched `Solution` (value["pose"], value["trans"], per-sequence
+    result codes and costs); `frame_mask` (B, T) marks real frames of padded sequences.
+    """
+    B, T = init.shape[:2]
+    trans = jnp.broadcast_to(setups.trans0[:, None], (B, T, 3)) if init_trans is None else jnp.asarray(init_trans)
+    problem = inertial_problem(setups, weights, acceleration=True)
+    dtype = setups.pose0.dtype
+    params = {"pose": jnp.asarray(init, dtype), "trans": trans.astype(dtype)}
+    return solve_batch(problem, params, setups.data, frame_mask, max_steps=max_steps, rtol=rtol, atol=atol)

@@ -1,0 +1,211 @@
+"""Pose accuracy metrics of von Marcard §2.5.2: MPJPE (eq. 2.72) and MPJAE (eq. 2.73-2.74).
+
+- MPJPE d_pos = 1/(N_T N_J) Σ_t Σ_j ‖p_j(t) - p̃_j(t)‖, optionally after a per-frame
+  Procrustes alignment (a rigid motion, no scale: "a global rigid body motion", §2.5.2),
+  which IMU-only methods need since they cannot observe global position and heading.
+- MPJAE d_ori = 1/(N_T N_J) Σ_t Σ_j ‖log(R̃_j(t) R_j(t)⁻¹)^∨‖, on *global* joint
+  orientations (the orientation of each bone in the world frame).
+
+Joint sets (SMPL joint names): §3.4.3 (TotalCapture) evaluates MPJPE on hips, knees,
+ankles, neck, head, shoulders, elbows and wrists, and MPJAE on hips, knees, neck,
+shoulders and elbows; §3.4.2 (TNT15) MPJPE on 13 virtual markers, the joints of hips,
+knees, ankles, shoulders, elbows, wrists and neck. Every function returns per-frame,
+per-joint errors; the `summary` helpers average them per sequence.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+
+import jax.numpy as jnp
+import numpy as np
+from jax import Array
+
+from .body.model import SMPL_JOINT_NAMES
+from .rotation import geodesic_angle
+
+__all__ = [
+    "JOINT_SETS",
+    "joint_indices",
+    "procrustes_align",
+    "position_errors",
+    "angle_errors",
+    "mpjpe",
+    "mpjae",
+    "pose_errors",
+    "summary",
+    "plot_error_curves",
+    "plot_per_joint",
+]
+
+_LR = lambda *names: tuple(f"{s}_{n}" for n in names for s in ("left", "right"))  # noqa: E731
+
+#: Joint sets of the thesis, as SMPL joint names.
+JOINT_SETS: dict[str, tuple[str, ...]] = {
+    # §3.4.3, TotalCapture MPJPE: hips, knees, ankles, neck, head, shoulders, elbows, wrists.
+    "totalcapture_mpjpe": (*_LR("hip", "knee", "ankle"), "neck", "head", *_LR("shoulder", "elbow", "wrist")),
+    # §3.4.3, TotalCapture MPJAE: hips, knees, neck, shoulders, elbows.
+    "totalcapture_mpjae": (*_LR("hip", "knee"), "neck", *_LR("shoulder", "elbow")),
+    # §3.4.2, TNT15 virtual markers: hips, knees, ankles, shoulders, elbows, wrists, neck.
+    "tnt15_mpjpe": (*_LR("hip", "knee", "ankle", "shoulder", "elbow", "wrist"), "neck"),
+    "all": SMPL_JOINT_NAMES,
+}
+
+
+def joint_indices(joints: str | Sequence[str] | Sequence[int] | None) -> np.ndarray:
+    """Indices of a named set (`JOINT_SETS`), a list of names or indices; None = all 24."""
+    if joints is None:
+        return np.arange(len(SMPL_JOINT_NAMES))
+    if isinstance(joints, str):
+        if joints not in JOINT_SETS:
+            raise ValueError(f"Unknown joint set {joints!r}; choose from {sorted(JOINT_SETS)}.")
+        joints = JOINT_SETS[joints]
+    out = []
+    for j in joints:
+        if isinstance(j, str):
+            if j not in SMPL_JOINT_NAMES:
+                raise ValueError(f"No joint {j!r}; SMPL joints are {list(SMPL_JOINT_NAMES)}.")
+            out.append(SMPL_JOINT_NAMES.index(j))
+        else:
+            out.append(int(j))
+    return np.asarray(out)
+
+
+def procrustes_align(pred: Array, true: Array, scale: bool = False) -> Array:
+    """pred (..., J, 3) moved by the rigid motion (and scale) that best fits it to true.
+
+    Kabsch/Umeyama per leading index: R, t (s) = argmin Σ_j ‖s R p̃_j + t - p_j‖².
+    """
+    pred, true = jnp.asarray(pred), jnp.asarray(true)
+    mp, mt = pred.mean(-2, keepdims=True), true.mean(-2, keepdims=True)
+    a, b = pred - mp, true - mt
+    H = jnp.einsum("...ja,...jb->...ab", a, b)  # Σ a bᵀ
+    U, S, Vt = jnp.linalg.svd(H)
+    d = jnp.sign(jnp.linalg.det(jnp.einsum("...ab,...bc->...ac", U, Vt)))
+    D = jnp.ones_like(S).at[..., -1].set(d)
+    R = jnp.einsum("...ba,...b,...cb->...ac", Vt, D, U)  # V D Uᵀ
+    s = jnp.sum(S * D, -1) / jnp.sum(a * a, axis=(-2, -1)) if scale else jnp.ones(pred.shape[:-2], pred.dtype)
+    return s[..., None, None] * jnp.einsum("...ab,...jb->...ja", R, a) + mt
+
+
+def position_errors(pred_joints, true_joints, joints="totalcapture_mpjpe", align: str = "procrustes") -> Array:
+    """‖p_j(t) - p̃_j(t)‖ per frame and joint of the set, metres: (..., T, J) -> (..., T, N_J).
+
+    align: "procrustes" (per-frame rigid alignment on the evaluated joints, §2.5.2),
+    "root" (pelvis positions subtracted) or "none".
+    """
+    idx = joint_indices(joints)
+    pred, true = jnp.asarray(pred_joints), jnp.asarray(true_joints)
+    if align == "root":
+        pred, true = pred - pred[..., :1, :], true - true[..., :1, :]
+    pred, true = pred[..., idx, :], true[..., idx, :]
+    if align == "procrustes":
+        pred = procrustes_align(pred, true)
+    elif align not in ("root", "none"):
+        raise ValueError(f"align must be 'procrustes', 'root' or 'none', got {align!r}.")
+    return jnp.linalg.norm(pred - true, axis=-1)
+
+
+def angle_errors(pred_rotations, true_rotations, joints="totalcapture_mpjae") -> Array:
+    """‖log(R̃_j R_jᵀ)^∨‖ per frame and joint (eq. 2.74), degrees: (..., T, J, 3, 3) -> (..., T, N_J)."""
+    idx = joint_indices(joints)
+    pred, true = jnp.asarray(pred_rotations)[..., idx, :, :], jnp.asarray(true_rotations)[..., idx, :, :]
+    return jnp.degrees(geodesic_angle(pred, true))
+
+
+def mpjpe(pred_joints, true_joints, joints="totalcapture_mpjpe", align="procrustes", mask=None) -> Array:
+    """MPJPE (eq. 2.72) in millimetres over frames (mask (T,) selects frames) and joints."""
+    e = position_errors(pred_joints, true_joints, joints, align) * 1000.0
+    return _mean(e, mask)
+
+
+def mpjae(pred_rotations, true_rotations, joints="totalcapture_mpjae", mask=None) -> Array:
+    """MPJAE (eq. 2.73) in degrees over frames and joints."""
+    return _mean(angle_errors(pred_rotations, true_rotations, joints), mask)
+
+
+def _mean(e, mask):
+    if mask is None:
+        return e.mean(axis=(-2, -1))
+    m = jnp.asarray(mask, e.dtype)[..., None]
+    return (e * m).sum(axis=(-2, -1)) / (m.sum(axis=(-2, -1)) * e.shape[-1])
+
+
+def pose_errors(body, pred_poses, true_poses, betas=None, pred_trans=None, true_trans=None,
+                position_joints="totalcapture_mpjpe", angle_joints="totalcapture_mpjae") -> dict:
+    """Per-frame errors of a pose trajectory against the truth on `body` (forward kinematics).
+
+    Returns a dict of NumPy arrays: "mpjpe" (T, N_J) mm after Procrustes, "mpjpe_root"
+    (T, N_J) mm root-aligned without rotation, "mpjae" (T, N_J') degrees.
+    """
+    from .body.kinematics import forward
+
+    pred = forward(body, pred_poses, betas, pred_trans)
+    true = forward(body, true_poses, betas, true_trans)
+    return {
+        "mpjpe": np.asarray(position_errors(pred.joints, true.joints, position_joints, "procrustes")) * 1000.0,
+        "mpjpe_root": np.asarray(position_errors(pred.joints, true.joints, position_joints, "root")) * 1000.0,
+        "mpjae": np.asarray(angle_errors(pred.joint_rotations, true.joint_rotations, angle_joints)),
+    }
+
+
+def summary(errors: dict) -> dict:
+    """Per-sequence mean ± std (over frames and joints) of each per-frame error array."""
+    return {k: {"mean": float(np.mean(v)), "std": float(np.std(v))} for k, v in errors.items()}
+
+
+def plot_error_curves(curves: dict, path, fps: float = 30.0, ylabel: str = "MPJAE [°]", title: str = "") -> Path:
+    """Per-frame error (mean over joints) of several methods over time, one line each.
+
+    curves: {method name: (T,) or (T, N_J) errors}.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(8, 3.2))
+    for name, e in curves.items():
+        e = np.asarray(e)
+        e = e.mean(-1) if e.ndim == 2 else e
+        ax.plot(np.arange(len(e)) / fps, e, label=f"{name} (mean {e.mean():.1f})", lw=1.4)
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel(ylabel)
+    ax.set_title(title, fontsize=10)
+    ax.grid(alpha=0.3)
+    ax.legend(frameon=False, fontsize=9)
+    fig.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+def plot_per_joint(errors: dict, joint_names: Sequence[str], path, ylabel: str = "MPJAE [°]", title: str = "") -> Path:
+    """Grouped bars: mean error per joint for each method. errors: {method: (T, N_J) or (N_J,)}."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    names = list(joint_names)
+    fig, ax = plt.subplots(figsize=(max(6, 0.6 * len(names)), 3.4))
+    width = 0.8 / max(len(errors), 1)
+    x = np.arange(len(names))
+    for i, (method, e) in enumerate(errors.items()):
+        e = np.asarray(e)
+        e = e.mean(0) if e.ndim == 2 else e
+        ax.bar(x + (i - (len(errors) - 1) / 2) * width, e, width, label=method)
+    ax.set_xticks(x, [n.replace("_", " ") for n in names], rotation=45, ha="right", fontsize=8)
+    ax.set_ylabel(ylabel)
+    ax.set_title(title, fontsize=10)
+    ax.grid(alpha=0.3, axis="y")
+    ax.legend(frameon=False, fontsize=9)
+    fig.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
