@@ -35,6 +35,7 @@ import equinox as eqx
 import jax.numpy as jnp
 from jax import Array
 
+from ..body.kinematics import chain_transforms, mat3_apply, mat3_mul
 from ..body.model import SMPL_PARENTS
 from ..priors.pose_prior import PosePrior
 from ..rotation import matrix_to_axis_angle
@@ -92,44 +93,6 @@ def global_acceleration(orientation: Array, acceleration: Array) -> Array:
     return jnp.einsum("...ab,...b->...a", orientation, acceleration) - g
 
 
-def _mul(a: Array, b: Array) -> Array:
-    """a @ b for (..., 3, 3) as broadcast products and sums.
-
-    XLA-CPU runs batched 3x3 `dot_general`s one tiny matrix at a time; as elementwise
-    arithmetic they fuse into one loop, which made the 300 JVPs of an SIP linearisation
-    several times faster (benchmarks/sip_speed.py).
-    """
-    return jnp.sum(a[..., :, :, None] * b[..., None, :, :], axis=-2)
-
-
-def _apply(a: Array, v: Array) -> Array:
-    """a @ v for (..., 3, 3) and (..., 3)."""
-    return jnp.sum(a * v[..., None, :], axis=-1)
-
-
-def _global_rotations(local: Array, rest_joints: Array, parents, needed=None) -> tuple[dict, dict]:
-    """Global rotations R_b^g and joint positions of the joints in `needed` and their
-    ancestors (all joints by default), as dicts {joint: (T, 3, 3)}, {joint: (T, 3)}.
-
-    Von Marcard eq. 2.29-2.32, root at J_0; equal to `body.forward_kinematics`.
-    """
-    J = len(parents)
-    keep = set(range(J)) if needed is None else set()
-    for j in needed or ():
-        while j >= 0:
-            keep.add(j)
-            j = parents[j]
-    rest = rest_joints.astype(local.dtype)
-    R, p = {0: local[:, 0]}, {0: jnp.broadcast_to(rest[0], local.shape[:1] + (3,))}
-    for j in range(1, J):
-        if j not in keep:
-            continue
-        q = parents[j]
-        R[j] = _mul(R[q], local[:, j])
-        p[j] = p[q] + _apply(R[q], rest[j] - rest[q])
-    return R, p
-
-
 def log_rotation(R: Array) -> Array:
     """log(R)^∨ for rotations with angle θ < π - 0.05, cheap and AD-safe: (..., 3, 3) -> (..., 3).
 
@@ -154,11 +117,11 @@ class OrientationResidual(eqx.Module):
     parents: tuple[int, ...] = eqx.field(static=True, default=SMPL_PARENTS)
 
     def __call__(self, params, data: InertialData) -> Array:
-        R, _ = _global_rotations(params["pose"], data.rest_joints, self.parents, self.bones)
+        R, _ = chain_transforms(self.parents, params["pose"], data.rest_joints, self.bones)
         R_bone = jnp.stack([R[b] for b in self.bones], 1)
-        R_model = _mul(R_bone, data.sensor_to_bone.astype(R_bone.dtype))  # eq. 3.6
+        R_model = mat3_mul(R_bone, data.sensor_to_bone.astype(R_bone.dtype))  # eq. 3.6
         R_meas = data.orientation.astype(R_bone.dtype)
-        return matrix_to_axis_angle(_mul(R_model, jnp.swapaxes(R_meas, -1, -2)))
+        return matrix_to_axis_angle(mat3_mul(R_model, jnp.swapaxes(R_meas, -1, -2)))
 
 
 class AccelerationResidual(eqx.Module):
@@ -172,9 +135,9 @@ class AccelerationResidual(eqx.Module):
     parents: tuple[int, ...] = eqx.field(static=True, default=SMPL_PARENTS)
 
     def __call__(self, params, data: InertialData) -> Array:
-        R, J = _global_rotations(params["pose"], data.rest_joints, self.parents, self.bones)
+        R, J = chain_transforms(self.parents, params["pose"], data.rest_joints, self.bones)
         R_bone = jnp.stack([R[b] for b in self.bones], 1)
-        p = _apply(R_bone, data.sensor_point.astype(R_bone.dtype)) + jnp.stack([J[b] for b in self.bones], 1)
+        p = mat3_apply(R_bone, data.sensor_point.astype(R_bone.dtype)) + jnp.stack([J[b] for b in self.bones], 1)
         if "trans" in params:
             p = p + params["trans"][:, None, :]
         a_model = second_difference(p) * (self.fps**2)
