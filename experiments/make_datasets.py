@@ -128,7 +128,7 @@ def summary_png(name: str, s, path: Path) -> None:
         else:
             ax.barh(range(len(a["length"])), a["length"])
             ax.set_yticks(range(len(a["length"])))
-            ax.set_yticklabels([x[:28] for x in s.meta["names"]], fontsize=6)
+            ax.set_yticklabels([Path(x).name[:28] for x in s.meta["names"]], fontsize=6)
             ax.set(title=f"{name}: frames per sequence", xlabel="frames")
     fig.tight_layout()
     tmp = path.with_name(path.name + ".tmp.png")
