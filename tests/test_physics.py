@@ -242,3 +242,26 @@ def test_batch_shapes(scene):
     np.testing.assert_allclose(np.asarray(out2.ground).reshape(B, -1), np.asarray(out.ground))
     with pytest.raises(ValueError, match="expected"):
         check(scene, np.zeros((B, 23, 3)), np.zeros((B, 3)))
+
+
+def test_ground_term_plugs_into_the_solve_engine():
+    """The physics residuals are engine `Term`s: LM lifts a sunk body out of the floor."""
+
+    from jaxmocap.physics import Ground, ground_support_residual
+    from jaxmocap.solve import Problem, Term, solve
+
+    body = default_body("low")
+    ground = Ground(0.0)
+    rest = np.asarray(forward(body, np.zeros((24, 3))).vertices)
+    soles = np.argsort(rest[:, 1])[:40]  # the lowest vertices: the soles
+    pose0 = np.zeros((2, 24, 3))
+    trans0 = np.tile([0.0, -rest[:, 1].min() - 0.03, 0.0], (2, 1))  # 3 cm into the floor
+    data = {"pose": jnp.asarray(pose0), "trans": jnp.asarray(trans0)}
+    problem = Problem([
+        Term("ground", ground_support_residual(body, ground, soles), weight=1e2),
+        Term("stay", lambda p, d: jnp.concatenate([(p["pose"] - d["pose"]).reshape(2, -1), p["trans"] - d["trans"]], -1), weight=1e-2),
+    ])
+    sol = solve(problem, {"pose": data["pose"], "trans": data["trans"]}, data, max_steps=20)
+    lifted = np.asarray(forward(body, sol.value["pose"], None, sol.value["trans"]).vertices)
+    assert lifted[:, soles, 1].min() > -1e-3  # was -30 mm
+    assert np.isfinite(np.asarray(sol.cost)).all()
