@@ -107,16 +107,18 @@ def matrix_to_quaternion(matrix: Array) -> Array:
     r = jnp.sqrt(jnp.maximum(four_sq, 1e-12))  # 2|q_k|
     d21, d02, d10 = m[..., 2, 1] - m[..., 1, 2], m[..., 0, 2] - m[..., 2, 0], m[..., 1, 0] - m[..., 0, 1]
     s21, s02, s10 = m[..., 2, 1] + m[..., 1, 2], m[..., 0, 2] + m[..., 2, 0], m[..., 1, 0] + m[..., 0, 1]
-    candidates = jnp.stack(
-        [
-            jnp.stack([r[..., 0], d21 / r[..., 0], d02 / r[..., 0], d10 / r[..., 0]], -1),
-            jnp.stack([d21 / r[..., 1], r[..., 1], s10 / r[..., 1], s02 / r[..., 1]], -1),
-            jnp.stack([d02 / r[..., 2], s10 / r[..., 2], r[..., 2], s21 / r[..., 2]], -1),
-            jnp.stack([d10 / r[..., 3], s02 / r[..., 3], s21 / r[..., 3], r[..., 3]], -1),
-        ],
-        -2,
-    ) * 0.5
-    q = jnp.take_along_axis(candidates, best[..., None, None], axis=-2)[..., 0, :]
+    candidates = [
+        jnp.stack([r[..., 0], d21 / r[..., 0], d02 / r[..., 0], d10 / r[..., 0]], -1),
+        jnp.stack([d21 / r[..., 1], r[..., 1], s10 / r[..., 1], s02 / r[..., 1]], -1),
+        jnp.stack([d02 / r[..., 2], s10 / r[..., 2], r[..., 2], s21 / r[..., 2]], -1),
+        jnp.stack([d10 / r[..., 3], s02 / r[..., 3], s21 / r[..., 3], r[..., 3]], -1),
+    ]
+    # Elementwise selects rather than a gather: they fuse, where XLA-CPU runs gathers
+    # element by element (this map sits inside every E_ori Jacobian).
+    q = candidates[3]
+    for k in (2, 1, 0):
+        q = jnp.where((best == k)[..., None], candidates[k], q)
+    q = 0.5 * q
     q = q / jnp.linalg.norm(q, axis=-1, keepdims=True)
     return jnp.where(q[..., :1] < 0, -q, q)
 
