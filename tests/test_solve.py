@@ -201,7 +201,9 @@ def test_lm_never_accepts_a_cost_increase():
     for steps in range(1, 9):  # max_steps is a traced loop bound for "lm": one compilation
         sol = solve(CHAIN, init, data, method="lm", max_steps=steps, rtol=0.0, atol=0.0)
         costs.append(float(sol.cost))
-    assert all(b <= a for a, b in zip(costs, costs[1:])), costs
+    # A rejected step leaves the cost unchanged, but costs[0] comes from `Problem.cost`
+    # and the rest from the solver's own evaluation: allow their last-bit difference.
+    assert all(b <= a * (1 + 1e-12) for a, b in zip(costs, costs[1:])), costs
     assert costs[-1] < 1e-2 * costs[0]
 
 
