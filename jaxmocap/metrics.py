@@ -160,12 +160,12 @@ def plot_error_curves(curves: dict, path, fps: float = 30.0, ylabel: str = "MPJA
 
     curves: {method name: (T,) or (T, N_J) errors}.
     """
-    import matplotlib
+    from matplotlib.figure import Figure
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from .viz.plot import save_figure
 
-    fig, ax = plt.subplots(figsize=(8, 3.2))
+    fig = Figure(figsize=(8, 3.2))
+    ax = fig.subplots()
     for name, e in curves.items():
         e = np.asarray(e)
         e = e.mean(-1) if e.ndim == 2 else e
@@ -175,23 +175,20 @@ def plot_error_curves(curves: dict, path, fps: float = 30.0, ylabel: str = "MPJA
     ax.set_title(title, fontsize=10)
     ax.grid(alpha=0.3)
     ax.legend(frameon=False, fontsize=9)
+    fig.set_dpi(120)
     fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path)
 
 
 def plot_per_joint(errors: dict, joint_names: Sequence[str], path, ylabel: str = "MPJAE [°]", title: str = "") -> Path:
     """Grouped bars: mean error per joint for each method. errors: {method: (T, N_J) or (N_J,)}."""
-    import matplotlib
+    from matplotlib.figure import Figure
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from .viz.plot import save_figure
 
     names = list(joint_names)
-    fig, ax = plt.subplots(figsize=(max(6, 0.6 * len(names)), 3.4))
+    fig = Figure(figsize=(max(6, 0.6 * len(names)), 3.4))
+    ax = fig.subplots()
     width = 0.8 / max(len(errors), 1)
     x = np.arange(len(names))
     for i, (method, e) in enumerate(errors.items()):
@@ -203,9 +200,6 @@ def plot_per_joint(errors: dict, joint_names: Sequence[str], path, ylabel: str =
     ax.set_title(title, fontsize=10)
     ax.grid(alpha=0.3, axis="y")
     ax.legend(frameon=False, fontsize=9)
+    fig.set_dpi(120)
     fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path)

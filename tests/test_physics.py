@@ -13,7 +13,7 @@ import pytest
 import trimesh
 
 from jaxmocap.body import default_body, forward
-from jaxmocap.motion import Motion, save_motion
+from jaxmocap.motion import save_motion
 from jaxmocap.physics import (
     Ground,
     ObjectSDF,

@@ -23,7 +23,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
-from ..body.kinematics import forward_kinematics, shaped_joints
+from ..body.kinematics import forward_kinematics
 from ..body.model import Body
 from ..rotation import axis_angle_to_matrix, matrix_to_quaternion
 from .mjcf import FOOT_BONES, BodyGeometry, Ground, RigidObject, fit_body_geometry, scene_mjcf
@@ -108,7 +108,7 @@ def make_scene(
     ground = Ground() if ground is None else ground
     xml = scene_mjcf(geometry, ground, objects)
     m = mujoco.MjModel.from_xml_string(xml)
-    K, O = geometry.num_geoms, len(objects)
+    K = geometry.num_geoms
     gid = lambda name: mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_GEOM, name)  # noqa: E731
     parts = [(o, f"{obj.name}_part{i}") for o, obj in enumerate(objects) for i in range(len(obj.parts))]
     P = len(parts)

@@ -14,7 +14,6 @@ penetration over contact frames. Contact heat maps threshold per-vertex distance
 from __future__ import annotations
 
 import numpy as np
-from jax import Array
 
 from .checker import Scene
 from .mjcf import Ground

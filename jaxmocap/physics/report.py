@@ -177,14 +177,14 @@ def format_report(report: PlausibilityReport) -> str:
 
 def plot_report(report: PlausibilityReport, path) -> Path:
     """PNG: lowest point (mesh and capsules) and penetration over time, foot contacts below."""
-    import matplotlib
+    from matplotlib.figure import Figure
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from ..viz.plot import save_figure
 
     T = len(report.lowest_mesh)
     t = np.arange(T) / report.fps
-    fig, (ax0, ax1) = plt.subplots(2, 1, figsize=(10, 6), sharex=True, gridspec_kw={"height_ratios": [3, 1]})
+    fig = Figure(figsize=(10, 6), dpi=110)
+    ax0, ax1 = fig.subplots(2, 1, sharex=True, gridspec_kw={"height_ratios": [3, 1]})
     ax0.plot(t, 1e3 * report.lowest_mesh, lw=1.2, label="lowest vertex (mesh)")
     ax0.plot(t, 1e3 * report.lowest_capsules, lw=1.0, ls="--", label="lowest capsule (MJX)")
     pen = np.maximum(-report.lowest_mesh, 0)
@@ -202,8 +202,4 @@ def plot_report(report: PlausibilityReport, path) -> Path:
     ax1.set_xlabel("time (s)")
     ax1.set_title("foot contact", fontsize=9)
     fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path)

@@ -64,7 +64,11 @@ _VIEWS = {
 }
 
 
-def _save(fig: Figure, path) -> Path:
+def save_figure(fig: Figure, path) -> Path:
+    """Write a pyplot-free `Figure` as PNG (parents created) and return the path.
+
+    Plots build `matplotlib.figure.Figure` directly, so no global backend is touched.
+    """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     FigureCanvasAgg(fig)
@@ -158,7 +162,7 @@ def plot_pose(
     if title:
         ax.set_title(title)
     if path is not None:
-        return _save(ax.figure if fig is None else fig, path)
+        return save_figure(ax.figure if fig is None else fig, path)
     return ax
 
 
@@ -309,7 +313,7 @@ def plot_body(
         title or f"Posed body: {len(vertices)} vertices, {len(faces)} faces, height {height:.2f} m",
         fontsize=11,
     )
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def _heading(joints, joint_names) -> np.ndarray | None:
@@ -460,4 +464,4 @@ def plot_sequence(
     ax_curve.tick_params(labelsize=8)
     duration = f"{time[-1] - time[0]:.2f} s" if fps else f"{T} frames"
     fig.suptitle(title or f"Motion: {T} frames, {duration}", fontsize=12, fontweight="bold")
-    return _save(fig, path)
+    return save_figure(fig, path)
