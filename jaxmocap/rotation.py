@@ -28,6 +28,7 @@ __all__ = [
     "sixd_to_matrix",
     "geodesic_angle",
     "rotation_about_axis",
+    "left_jacobian_inverse",
 ]
 
 # Below this θ² the Taylor branch is used; its truncation error (θ⁶ terms) is far below
@@ -82,6 +83,25 @@ def axis_angle_to_matrix(omega: Array) -> Array:
     K = hat(omega)
     eye = jnp.eye(3, dtype=omega.dtype)
     return eye + a[..., None, None] * K + b[..., None, None] * (K @ K)
+
+
+def left_jacobian_inverse(omega: Array) -> Array:
+    """J_l⁻¹(ω) = I - ½ ω^ + c(θ) ω^², c = (1 - (θ/2) cot(θ/2)) / θ²  (..., 3) -> (..., 3, 3).
+
+    The derivative of the logarithm under a left perturbation: log(exp(δ^) exp(ω^))^∨ =
+    ω + J_l⁻¹(ω) δ + O(δ²) (von Marcard §2.1.2, used for the analytic Jacobians of
+    eq. 3.17-3.29). Finite for θ < 2π (c(π) = 1/π²); Taylor series below θ² = 10⁻²,
+    where float32 would lose c to cancellation.
+    """
+    theta2 = jnp.sum(omega * omega, axis=-1)
+    small = theta2 < 1e-2
+    safe2 = jnp.where(small, jnp.ones_like(theta2), theta2)
+    half = 0.5 * jnp.sqrt(safe2)
+    exact = (1.0 - half * jnp.cos(half) / jnp.sin(half)) / safe2
+    c = jnp.where(small, 1.0 / 12.0 + theta2 / 720.0 + theta2**2 / 30240.0, exact)
+    K = hat(omega)
+    eye = jnp.eye(3, dtype=omega.dtype)
+    return eye - 0.5 * K + c[..., None, None] * (K @ K)
 
 
 def rotation_about_axis(axis: Array, angle: Array) -> Array:

@@ -106,3 +106,18 @@ def test_batch_shapes(batch):
     assert rot.matrix_to_axis_angle(R).shape == (*batch, 3)
     assert rot.geodesic_angle(R, R).shape == batch
     np.testing.assert_allclose(rot.geodesic_angle(R, R), 0.0, atol=1e-7)
+
+
+@pytest.mark.parametrize("name", ["zero", "tiny", "small", "generic", "large"])
+def test_left_jacobian_inverse_is_the_derivative_of_log(name):
+    """log(exp(δ^) exp(ω^))^∨ = ω + J_l⁻¹(ω) δ + O(δ²), by forward-mode AD, float64 and float32."""
+    w = jnp.asarray(CASES[name])
+
+    def composed(d):
+        return rot.matrix_to_axis_angle(rot.axis_angle_to_matrix(d) @ rot.axis_angle_to_matrix(w))
+
+    reference = jax.jacfwd(composed)(jnp.zeros(3))
+    np.testing.assert_allclose(rot.left_jacobian_inverse(w), reference, atol=1e-9)
+    np.testing.assert_allclose(rot.left_jacobian_inverse(w.astype(jnp.float32)), reference, atol=2e-6)
+    g = jax.grad(lambda v: jnp.sum(rot.left_jacobian_inverse(v)))(w)
+    assert bool(jnp.all(jnp.isfinite(g)))

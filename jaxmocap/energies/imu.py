@@ -21,25 +21,35 @@ Parameters (the engine's per-frame pytree): "pose" (T, 24, 3) axis-angle, a rota
 accelerations with NaN for dropped samples (masked out), the calibration (sensor-to-bone
 rotations, sensor points in their bone frames, the shaped rest joints) and the prior.
 
-The Jacobians are taken by forward-mode AD through the same kinematic chain; at δ = 0 and
-for the left-multiplicative update this is exactly the analytic form of eq. 3.17-3.29
-(Adjoint of the parent chain times the generator), with no hand-written derivative to
-keep in sync. The block-diagonal / block-banded structure of eq. 3.30-3.31 is declared
-through `Term.bandwidth` (0 for E_ori, E_anthro; 1 for E_acc) and exploited by the
-engine's banded solver.
+Each residual also supplies its analytic Jacobian (eq. 3.17-3.29) for the solver's
+left-multiplicative update R_j ← exp(δ_j^) R_j: a perturbation of joint j rotates every
+descendant about joint j by ω = R_parent(j)^g δ_j in the world frame, so
+
+- orientation: ∂e_ori/∂δ_j = J_l⁻¹(e_ori) R_parent(j)^g            (eq. 3.17-3.21)
+- sensor point: ∂p/∂δ_j = -[p - J_j]_× R_parent(j)^g, ∂p/∂trans = I   (eq. 3.22-3.26)
+- prior: ∂x_j/∂δ_j = J_l⁻¹(x_j) for the joint's own angles            (eq. 3.27-3.29)
+
+with J_l⁻¹ the inverse left Jacobian of SO(3) (`rotation.left_jacobian_inverse`); only
+sensor bones' ancestors enter. tests/test_inertial.py checks each against forward-mode
+AD. The block-diagonal / block-banded structure of eq. 3.30-3.31 is declared through
+`Term.bandwidth` (0 for E_ori, E_anthro; 1 for E_acc) and `Term.reads` (which joints a
+term sees), and exploited by the engine's banded solver: joints no sensor hangs on (hands,
+feet) are seen by the per-frame prior only and are eliminated frame by frame.
 """
 
 from __future__ import annotations
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 from jax import Array
 
 from ..body.kinematics import chain_transforms, mat3_apply, mat3_mul
 from ..body.model import SMPL_PARENTS
 from ..priors.pose_prior import PosePrior
-from ..rotation import matrix_to_axis_angle
+from ..rotation import hat, left_jacobian_inverse, matrix_to_axis_angle
 from ..solve import Term, nan_mask, second_difference
+from ..solve.structured import _shift
 
 __all__ = [
     "GRAVITY_REACTION",
@@ -123,6 +133,17 @@ class OrientationResidual(eqx.Module):
         R_meas = data.orientation.astype(R_bone.dtype)
         return matrix_to_axis_angle(mat3_mul(R_model, jnp.swapaxes(R_meas, -1, -2)))
 
+    @property
+    def reads(self):
+        return (("pose", _ancestors(self.parents, self.bones)),)
+
+    def jacobian(self, params, data: InertialData) -> dict[str, Array]:
+        """∂e_ori/∂δ_j = J_l⁻¹(e) R_parent(j)^g for j on the sensor's chain: pose (T, 1, S, 3, J, 3)."""
+        R, _ = chain_transforms(self.parents, params["pose"], data.rest_joints, self.bones)
+        Jl = left_jacobian_inverse(self(params, data))  # (T, S, 3, 3)
+        blocks = _chain_blocks(self.parents, self.bones, R, lambda s, Rp: mat3_mul(Jl[:, s], Rp))
+        return {"pose": blocks[:, None]}
+
 
 class AccelerationResidual(eqx.Module):
     """e_acc(t) = ã^g(x_{t-1}, x_t, x_{t+1}) - a^g(t) (eq. 3.10-3.12): (T, S, 3), bandwidth 1.
@@ -143,25 +164,103 @@ class AccelerationResidual(eqx.Module):
         a_model = second_difference(p) * (self.fps**2)
         return a_model - data.acceleration.astype(a_model.dtype)
 
+    @property
+    def reads(self):
+        return (("pose", _ancestors(self.parents, self.bones)), ("trans", None))
+
+    def jacobian(self, params, data: InertialData) -> dict[str, Array]:
+        """fps² (1, -2, 1)_d ∂p_{t+d}/∂x_{t+d}: pose (T, 3, S, 3, J, 3), trans (T, 3, S, 3, 3)."""
+        pose = params["pose"]
+        R, J = chain_transforms(self.parents, pose, data.rest_joints, self.bones)
+        R_bone = jnp.stack([R[b] for b in self.bones], 1)
+        p = mat3_apply(R_bone, data.sensor_point.astype(R_bone.dtype)) + jnp.stack([J[b] for b in self.bones], 1)
+
+        def block(s, Rp, j):
+            return -mat3_mul(hat(p[:, s] - J[j]), Rp)
+
+        P = _chain_blocks(self.parents, self.bones, R, block, with_joint=True)  # (T, S, 3, J, 3)
+        eye = jnp.broadcast_to(jnp.eye(3, dtype=pose.dtype), p.shape + (3,))
+        out = {"pose": P}
+        if "trans" in params:
+            out["trans"] = eye
+        # Row t reads frames t-1, t, t+1 with weights fps² (1, -2, 1) (eq. 3.10).
+        c = self.fps**2
+        return {k: jnp.stack([c * _shift(v, 1), -2.0 * c * v, c * _shift(v, -1)], 1) for k, v in out.items()}
+
+
+def _ancestors(parents, bones) -> tuple[int, ...]:
+    """The bones and all their ancestors, sorted."""
+    keep = set()
+    for j in bones:
+        while j >= 0:
+            keep.add(int(j))
+            j = parents[j]
+    return tuple(sorted(keep))
+
+
+def _chain_blocks(parents, bones, R, block, with_joint=False) -> Array:
+    """Stack block(s, R_parent(j)^g[, j]) (T, 3, 3) for every sensor s and every joint j
+    on its bone's chain (zero elsewhere) into (T, S, 3, J, 3)."""
+    some = next(iter(R.values()))
+    T, dtype = some.shape[0], some.dtype
+    eye = jnp.broadcast_to(jnp.eye(3, dtype=dtype), (T, 3, 3))
+    zero = jnp.zeros((T, 3, 3), dtype)
+    chains = [set(_ancestors(parents, (b,))) for b in bones]
+    per_joint = []
+    for j in range(len(parents)):
+        Rp = eye if parents[j] < 0 else R.get(parents[j])
+        per_s = [
+            (block(s, Rp, j) if with_joint else block(s, Rp)) if j in chains[s] else zero
+            for s in range(len(bones))
+        ]
+        per_joint.append(jnp.stack(per_s, 1))  # (T, S, 3, 3)
+    return jnp.stack(per_joint, -2)
+
 
 def _joint_angles(local: Array) -> Array:
     """x_t: the 69 axis-angle coordinates of joints 1..23, (T, 24, 3, 3) -> (T, 69)."""
     return log_rotation(local[:, 1:]).reshape(local.shape[0], -1)
 
 
+#: The prior terms read the 23 non-root joints.
+_PRIOR_READS = (("pose", tuple(range(1, 24))),)
+
+
 class MahalanobisResidual(eqx.Module):
     """W (x_t - μ) with Wᵀ W = Σ⁻¹, so ‖·‖² = d_mahal(t)² (eq. 3.14): (T, 69)."""
 
+    reads = _PRIOR_READS
+
     def __call__(self, params, data: InertialData) -> Array:
         return data.prior.mahalanobis_residual(_joint_angles(params["pose"]))
+
+    def jacobian(self, params, data: InertialData) -> dict[str, Array]:
+        """∂r/∂δ_j = W_[:, j] J_l⁻¹(x_j): pose (T, 1, 69, 24, 3)."""
+        x = _joint_angles(params["pose"])
+        Jl = left_jacobian_inverse(x.reshape(x.shape[0], 23, 3))
+        W = data.prior.whitening.astype(x.dtype).reshape(69, 23, 3)
+        blocks = jnp.einsum("mja,tjab->tmjb", W, Jl)
+        return {"pose": jnp.pad(blocks, ((0, 0), (0, 0), (1, 0), (0, 0)))[:, None]}
 
 
 class JointLimitResidual(eqx.Module):
     """e_limit(t) = min(x_t - l_lower, 0) + max(x_t - l_upper, 0) (eq. 3.15): (T, 23, 3)."""
 
+    reads = _PRIOR_READS
+
     def __call__(self, params, data: InertialData) -> Array:
         x = _joint_angles(params["pose"])
         return data.prior.limit_residual(x).reshape(x.shape[0], 23, 3)
+
+    def jacobian(self, params, data: InertialData) -> dict[str, Array]:
+        """∂e_j/∂δ_j = 1[x_j outside the box] J_l⁻¹(x_j): pose (T, 1, 23, 3, 24, 3)."""
+        x = _joint_angles(params["pose"])
+        T = x.shape[0]
+        # e_limit is elementwise in x: its derivative is the JVP with a unit tangent.
+        _, slope = jax.jvp(data.prior.limit_residual, (x,), (jnp.ones_like(x),))
+        Jl = left_jacobian_inverse(x.reshape(T, 23, 3)) * slope.reshape(T, 23, 3, 1)
+        onehot = jnp.eye(23, 24, k=1, dtype=x.dtype)  # joint j of the 23 is joint j+1 of 24
+        return {"pose": jnp.einsum("tjab,jk->tjakb", Jl, onehot)[:, None]}
 
 
 def _sensor_mask(key: str):
@@ -181,21 +280,24 @@ _ACC_MASK = _sensor_mask("acceleration")
 def orientation_term(bones, num_sensors: int | None = None, w_ori=1.0, loss=None) -> Term:
     """w_ori E_ori (eq. 3.8) as a `Term`: weight w_ori / N_s, per frame, NaN-masked."""
     n = len(bones) if num_sensors is None else num_sensors
-    return Term("ori", OrientationResidual(tuple(int(b) for b in bones)), w_ori / n, 0, loss, _ORI_MASK)
+    fn = OrientationResidual(tuple(int(b) for b in bones))
+    return Term("ori", fn, w_ori / n, 0, loss, _ORI_MASK, fn.reads, fn.jacobian)
 
 
 def acceleration_term(bones, fps: float, num_sensors: int | None = None, w_acc=0.05, loss=None) -> Term:
     """w_acc E_acc (eq. 3.13) as a `Term`: weight w_acc / N_s, frames t-1..t+1, NaN-masked."""
     n = len(bones) if num_sensors is None else num_sensors
     fn = AccelerationResidual(tuple(int(b) for b in bones), float(fps))
-    return Term("acc", fn, w_acc / n, 1, loss, _ACC_MASK)
+    return Term("acc", fn, w_acc / n, 1, loss, _ACC_MASK, fn.reads, fn.jacobian)
 
 
 def mahalanobis_term(w_anthro=1.0, w_mahal=0.003) -> Term:
     """w_anthro w_mahal Σ_t d_mahal(t)² (eq. 3.14, 3.16) as a `Term`."""
-    return Term("mahal", MahalanobisResidual(), w_anthro * w_mahal, 0)
+    fn = MahalanobisResidual()
+    return Term("mahal", fn, w_anthro * w_mahal, 0, None, None, fn.reads, fn.jacobian)
 
 
 def joint_limit_term(w_anthro=1.0, w_limit=0.1) -> Term:
     """w_anthro w_limit Σ_t ‖e_limit(t)‖² (eq. 3.15, 3.16) as a `Term`."""
-    return Term("limit", JointLimitResidual(), w_anthro * w_limit, 0)
+    fn = JointLimitResidual()
+    return Term("limit", fn, w_anthro * w_limit, 0, None, None, fn.reads, fn.jacobian)

@@ -69,6 +69,32 @@ class FrameLayout(eqx.Module):
         """n, unknowns per frame."""
         return sum(self.sizes)
 
+    def columns(self, reads) -> tuple[int, ...]:
+        """Per-frame indices into the (T, n) unknowns named by a `Term.reads` (None: all).
+
+        `reads` pairs a parameter key with indices along its first per-frame axis (e.g.
+        joints of a (24, 3) pose) or None for the whole key; unknown keys are skipped.
+        """
+        if reads is None:
+            return tuple(range(self.size))
+        offsets = np.cumsum((0,) + self.sizes)
+        cols = set()
+        for key, index in reads:
+            if key not in self.keys:
+                continue
+            i = self.keys.index(key)
+            shape = self.shapes[i]
+            if not shape:
+                cols.add(int(offsets[i]))
+                continue
+            per = int(np.prod(shape[1:]))
+            rows = range(shape[0]) if index is None else index
+            for r in rows:
+                if not 0 <= r < shape[0]:
+                    raise ValueError(f"reads index {r} out of range for parameter {key!r} of per-frame shape {shape}.")
+                cols.update(range(int(offsets[i]) + r * per, int(offsets[i]) + (r + 1) * per))
+        return tuple(sorted(cols))
+
     def ravel(self, params: dict) -> Array:
         """dict of (T, ...) -> (T, n)."""
         return jnp.concatenate([params[k].reshape(params[k].shape[0], -1) for k in self.keys], axis=1)

@@ -155,6 +155,17 @@ class Term(eqx.Module):
         loss: robust loss applied per observation (last axis), or None for ρ(s) = s.
         mask: `mask(data) -> bool` broadcastable to the residual's shape without its
             last axis (e.g. (T, N_s) for (T, N_s, 3) residuals); False rows are dropped.
+        reads: the per-frame unknowns `fn` depends on, as (parameter key, indices along
+            the key's first per-frame axis, or None for all of it) pairs; None: every
+            unknown. The solver differentiates only these, and unknowns that no
+            frame-coupling term reads are eliminated frame by frame before the banded
+            factorisation (e.g. the hands and feet in SIP, seen by the prior only).
+        jacobian: optional analytic Jacobian, `jacobian(params, data)` -> {key: array
+            (T, 2b+1, *e.shape[1:], *per-frame shape of key)}: ∂e_t/∂δ_{t+d}, d = -b..b,
+            of `fn`'s raw output e (before weight, loss and mask; zero where t+d leaves
+            the sequence), w.r.t. the tangent δ of each parameter (for rotation keys the
+            left perturbation R ← exp(δ^) R). Keys left out are zero. Without it the
+            solver takes the blocks by forward-mode AD.
     """
 
     name: str = eqx.field(static=True)
@@ -163,17 +174,34 @@ class Term(eqx.Module):
     bandwidth: int = eqx.field(static=True, default=0)
     loss: RobustLoss | None = None
     mask: Callable[[Any], Array] | None = eqx.field(static=True, default=None)
+    reads: tuple[tuple[str, tuple[int, ...] | None], ...] | None = eqx.field(static=True, default=None)
+    jacobian: Callable[[Any, Any], dict[str, Array]] | None = eqx.field(static=True, default=None)
 
     def __check_init__(self):
         if not isinstance(self.bandwidth, int) or self.bandwidth < 0:
             raise ValueError(f"Term {self.name!r}: bandwidth must be an int >= 0, got {self.bandwidth!r}.")
+        if self.reads is not None and not all(
+            isinstance(r, tuple) and len(r) == 2 and isinstance(r[0], str) for r in self.reads
+        ):
+            raise ValueError(f"Term {self.name!r}: reads must be (key, indices or None) pairs, got {self.reads!r}.")
+
+    def raw(self, params, data, raw_data) -> Array:
+        """`fn`'s output e; NaN-free data for a masked term, the raw data otherwise."""
+        # Only a masked term gets NaN-free data: an unmasked NaN must surface as a NaN
+        # cost (a failed solve) rather than be silently read as 0.
+        return self.fn(params, data if self.mask is not None else raw_data)
+
+    def raw_jacobian(self, params, data, raw_data) -> dict[str, Array]:
+        """The analytic Jacobian of `raw` (see `jacobian`)."""
+        return self.jacobian(params, data if self.mask is not None else raw_data)
 
     def residual(self, params, data, raw_data, frame_mask: Array | None) -> Array:
         """Weighted, masked (square-root robust) residual, flattened to (T, m)."""
-        # Only a masked term gets NaN-free data: an unmasked NaN must surface as a NaN
-        # cost (a failed solve) rather than be silently read as 0.
-        e = self.fn(params, data if self.mask is not None else raw_data)
         T = jtu.tree_leaves(params)[0].shape[0]
+        return self.finish(self.raw(params, data, raw_data), raw_data, frame_mask, T)
+
+    def finish(self, e: Array, raw_data, frame_mask: Array | None, T: int) -> Array:
+        """e -> √w · mask · robust(e), flattened to (T, m); row t depends on e_t only."""
         if e.ndim < 2 or e.shape[0] != T:
             raise ValueError(
                 f"Term {self.name!r} returned shape {e.shape}; expected (T={T}, ..., d): "

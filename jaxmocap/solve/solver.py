@@ -34,11 +34,12 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import lineax as lx
+import numpy as np
 import optimistix as optx
 from jax import Array
 
 from .manifold import FrameLayout, from_manifold, reproject, retract, to_manifold
-from .residuals import Problem
+from .residuals import Problem, _sanitise
 from .structured import (
     BandedNormalCholesky,
     factor_banded,
@@ -81,12 +82,12 @@ def result_message(result) -> str:
     return optx.RESULTS._index_to_message[int(result)] or "successful"
 
 
-def _residual_fn(delta: Array, args) -> dict[str, Array]:
+def _residual_fn(delta: Array, args, pad: bool = True) -> dict[str, Array]:
     """Weighted residuals at x₀ ⊕ δ; δ is (T, n). Padded frames are pinned to δ = 0."""
     problem, layout, anchor, data, frame_mask = args
     x = retract(anchor, layout.unravel(delta), problem.rotations)
     res = problem.residuals_on_manifold(x, data, frame_mask)
-    if frame_mask is not None:
+    if pad and frame_mask is not None:
         # Padded frames have no residual; pinning their δ keeps JᵀJ non-singular and
         # decoupled from the real frames, at zero cost.
         res[_PADDING] = jnp.where(frame_mask[:, None], jnp.zeros_like(delta), delta)
@@ -255,13 +256,99 @@ class _LMState(eqx.Module):
     result: Array
 
 
-def _linearise(args, bw, T, n, dtype, factor_dtype):
-    """Residuals at δ = 0 and their Jacobian blocks, JᵀJ band and Jᵀr (eq. 2.58)."""
-    r, lin = jax.linearize(lambda d: _residual_fn(d, args), jnp.zeros((T, n), dtype))
-    blocks = jacobian_blocks(lin, T, n, dtype, bw)
-    H = normal_blocks(blocks, bw, factor_dtype)
-    leaves = jax.tree_util.tree_leaves(r)
-    g = jt_vector(blocks, bw, leaves, factor_dtype)
+class _Structure(eqx.Module):
+    """Static bookkeeping of a linearisation: terms in residual order, bandwidths, the
+    columns each term reads, and the per-frame order "coupled unknowns first"."""
+
+    names: tuple[str, ...] = eqx.field(static=True)
+    bandwidths: tuple[int, ...] = eqx.field(static=True)
+    columns: tuple[tuple[int, ...], ...] = eqx.field(static=True)
+    perm: tuple[int, ...] | None = eqx.field(static=True)  # None: identity order
+    coupled: int = eqx.field(static=True)
+
+    @classmethod
+    def of(cls, problem: Problem, layout, with_padding: bool) -> "_Structure":
+        terms = {t.name: t for t in problem.terms}
+        names = tuple(sorted(list(terms) + ([_PADDING] if with_padding else [])))
+        bw = tuple(terms[k].bandwidth if k in terms else 0 for k in names)
+        cols = tuple(layout.columns(terms[k].reads if k in terms else None) for k in names)
+        coupled = sorted(set().union(*[c for c, b in zip(cols, bw) if b > 0]))
+        n = layout.size
+        if not coupled or len(coupled) == n:
+            return cls(names, bw, cols, None, n)
+        # Unknowns that no frame-coupling term reads are eliminated frame by frame.
+        perm = tuple(coupled) + tuple(sorted(set(range(n)) - set(coupled)))
+        return cls(names, bw, cols, perm, len(coupled))
+
+    def to_solver_order(self, x: Array) -> Array:
+        return x if self.perm is None else x[..., np.asarray(self.perm)]
+
+    def from_solver_order(self, x: Array) -> Array:
+        return x if self.perm is None else x[..., np.argsort(self.perm)]
+
+
+def _term_blocks(term, x, clean, data, frame_mask, layout, T, dtype):
+    """Residual (T, m) and blocks (T, 2b+1, m, n) of a term with an analytic Jacobian.
+
+    The term supplies ∂e/∂δ of its raw output; weight, robust loss and masks (which act
+    row by row) are applied by pushing each column through their linearisation.
+    """
+    e = term.raw(x, clean, data)
+    jac = term.raw_jacobian(x, clean, data)
+    C = 2 * term.bandwidth + 1
+    parts = []
+    for key, size in zip(layout.keys, layout.sizes):
+        if key in jac:
+            parts.append(jnp.asarray(jac[key], dtype).reshape((T, C) + e.shape[1:] + (size,)))
+        else:
+            parts.append(jnp.zeros((T, C) + e.shape[1:] + (size,), dtype))
+    J = jnp.concatenate(parts, -1)  # (T, C, *e, n)
+    e = e.astype(dtype)
+    if term.loss is None:
+        # finish is then linear, r = √w · keep · e: its Jacobian is r's of a unit e.
+        r = term.finish(e, data, frame_mask, T)
+        row_scale = term.finish(jnp.ones_like(e), data, frame_mask, T)  # (T, m)
+        return r, row_scale[:, None, :, None] * J.reshape(T, C, -1, J.shape[-1])
+    r, lin = jax.linearize(lambda e_: term.finish(e_, data, frame_mask, T), e)
+    tangents = jnp.moveaxis(jnp.moveaxis(J, -1, 0), 2, 1)  # (n, C, T, *e)
+    cols = jax.vmap(jax.vmap(lin))(tangents)  # (n, C, T, m)
+    return r, jnp.transpose(cols, (2, 1, 3, 0))
+
+
+def _linearise(args, st: _Structure, T, n, dtype, factor_dtype):
+    """Residuals at δ = 0 and their Jacobian blocks, JᵀJ band and Jᵀr (eq. 2.58).
+
+    Terms with an analytic `jacobian` supply their blocks directly; the others (and the
+    padding pins) are differentiated by frame colouring over the columns they read.
+    Blocks, JᵀJ and Jᵀr are in the solver's order (coupled unknowns first).
+    """
+    problem, layout, anchor, data, frame_mask = args
+    terms = {t.name: t for t in problem.terms}
+    clean = _sanitise(data)
+    r, blocks = {}, {}
+    for name in st.names:
+        t = terms.get(name)
+        if t is not None and t.jacobian is not None:
+            r[name], blocks[name] = _term_blocks(t, anchor, clean, data, frame_mask, layout, T, dtype)
+        elif name == _PADDING:
+            free = ~frame_mask
+            r[name] = jnp.zeros((T, n), dtype)
+            blocks[name] = (free[:, None, None, None] * jnp.eye(n, dtype=dtype)).astype(dtype)
+    auto = [k for k in st.names if k not in blocks]
+    if auto:
+        sub = Problem([terms[k] for k in auto], problem.rotations)
+        sub_args = (sub, layout, anchor, data, frame_mask)
+        res, lin = jax.linearize(lambda d: _residual_fn(d, sub_args, pad=False), jnp.zeros((T, n), dtype))
+        idx = [st.names.index(k) for k in auto]
+        auto_blocks = jacobian_blocks(
+            lin, T, n, dtype, tuple(st.bandwidths[i] for i in idx), [st.columns[i] for i in idx]
+        )
+        for k, J in zip(auto, auto_blocks):
+            r[k], blocks[k] = res[k], J
+    leaves = [r[k] for k in st.names]
+    J = [st.to_solver_order(blocks[k]) for k in st.names]
+    H = normal_blocks(J, st.bandwidths, factor_dtype, coupled=None if st.perm is None else st.coupled)
+    g = jt_vector(J, st.bandwidths, leaves, factor_dtype)
     cost = 0.5 * sum(jnp.sum(x.astype(factor_dtype) ** 2) for x in leaves)
     return cost, H, g
 
@@ -272,12 +359,13 @@ def _marquardt(args, bw, delta0, rtol, atol, max_steps, factor_dtype, marquardt)
     T, n = delta0.shape
     dtype = delta0.dtype
     lam_max = 1e10
+    st = _Structure.of(problem, layout, frame_mask is not None)
     R = optx.RESULTS
 
     def with_anchor(x):
         return (problem, layout, x, data, frame_mask)
 
-    cost0, H0, g0 = _linearise(args, bw, T, n, dtype, factor_dtype)
+    cost0, H0, g0 = _linearise(args, st, T, n, dtype, factor_dtype)
     init = _LMState(
         x0, cost0, H0, g0, jnp.asarray(10.0, factor_dtype), jnp.asarray(0),
         ~jnp.isfinite(cost0), jnp.where(jnp.isfinite(cost0), R.successful._value, R.nonlinear_divergence._value),
@@ -285,7 +373,7 @@ def _marquardt(args, bw, delta0, rtol, atol, max_steps, factor_dtype, marquardt)
 
     def body(s: _LMState) -> _LMState:
         factor = factor_banded(s.H, s.lam, marquardt=marquardt)
-        delta = -solve_banded(factor, s.g).astype(dtype)
+        delta = -st.from_solver_order(solve_banded(factor, s.g)).astype(dtype)
         x_new = reproject(retract(s.anchor, layout.unravel(delta), problem.rotations), problem.rotations)
         res_new = jax.tree_util.tree_leaves(_residual_fn(jnp.zeros_like(delta), with_anchor(x_new)))
         cost_new = 0.5 * sum(jnp.sum(x.astype(factor_dtype) ** 2) for x in res_new)
@@ -300,7 +388,7 @@ def _marquardt(args, bw, delta0, rtol, atol, max_steps, factor_dtype, marquardt)
         converged = converged | (s.lam > lam_max)  # no descent left at any damping
 
         def relinearise(_):
-            return _linearise(with_anchor(x_new), bw, T, n, dtype, factor_dtype)
+            return _linearise(with_anchor(x_new), st, T, n, dtype, factor_dtype)
 
         def keep(_):
             return s.cost, s.H, s.g

@@ -36,6 +36,7 @@ import jax.numpy as jnp
 import jax.scipy.linalg as jsl
 import jax.tree_util as jtu
 import lineax as lx
+import numpy as np
 from jax import Array
 
 __all__ = [
@@ -61,12 +62,13 @@ def _shift(x: Array, d: int) -> Array:
     return jnp.concatenate([x[-d:], zeros], 0)
 
 
-def jacobian_blocks(mv, T: int, n: int, dtype, bandwidths) -> list[Array]:
+def jacobian_blocks(mv, T: int, n: int, dtype, bandwidths, columns=None) -> list[Array]:
     """Every non-zero Jacobian block of a frame-banded linear map, by colouring.
 
-    Leaves are grouped by bandwidth b and each group gets its own (2b+1)·n JVPs, with
-    the other leaves' outputs dead code that XLA removes: per-frame terms cost n JVPs,
-    not (2·max b + 1)·n.
+    Leaves are grouped by bandwidth b and each group gets its own (2b+1)·k JVPs, k the
+    number of per-frame columns its leaves read (`columns`, default all n), with the
+    other leaves' outputs dead code that XLA removes: per-frame terms cost k JVPs, not
+    (2·max b + 1)·n.
 
     Args:
         mv: linear map (T, n) -> pytree of leaves (T, ...), leaf ℓ's row t depending on
@@ -74,44 +76,76 @@ def jacobian_blocks(mv, T: int, n: int, dtype, bandwidths) -> list[Array]:
         T, n: frames and unknowns per frame.
         dtype: dtype of the input.
         bandwidths: b_ℓ per output leaf (in `jtu.tree_leaves` order).
+        columns: per leaf, the per-frame columns it depends on (None: all); the blocks
+            of the other columns are returned as zeros without being computed.
     Returns:
         One array per leaf, (T, 2b_ℓ+1, m_ℓ, n): block [t, d] = ∂r_t/∂x_{t+d},
         d = -b_ℓ .. b_ℓ (zero where t+d is outside the sequence).
     """
     eye = jnp.eye(n, dtype=dtype)
     t = jnp.arange(T)
+    columns = [None] * len(bandwidths) if columns is None else list(columns)
     blocks = [None] * len(bandwidths)
     for b in sorted(set(bandwidths)):
         members = [i for i, bi in enumerate(bandwidths) if bi == b]
+        cols = sorted(set().union(*[range(n) if columns[i] is None else columns[i] for i in members]))
         C = 2 * b + 1
         colour = t % C
+        unit = eye[np.asarray(cols)]  # (k, n)
 
-        def per_colour(c, members=members, colour=colour):
-            # Tangents (n, T, n): e_k on every frame of colour c.
-            tangents = (colour == c)[None, :, None].astype(dtype) * eye[:, None, :]
+        def per_colour(c, members=members, colour=colour, unit=unit):
+            # Tangents (k, T, n): e_j on every frame of colour c, for each read column j.
+            tangents = (colour == c)[None, :, None].astype(dtype) * unit[:, None, :]
             leaves = jtu.tree_leaves(jax.vmap(mv)(tangents))
-            return [leaves[i].reshape(n, T, -1) for i in members]
+            return [leaves[i].reshape(len(cols), T, -1) for i in members]
 
         # lax.map over colours bounds live memory to one colour's JVP outputs at a time.
-        outs = jax.lax.map(per_colour, jnp.arange(C))  # (C, n, T, m) per member
+        outs = jax.lax.map(per_colour, jnp.arange(C))  # (C, k, T, m) per member
         for i, leaf in zip(members, outs):
-            per_frame = jnp.transpose(leaf, (2, 0, 3, 1))  # (T, C, m, n)
+            per_frame = jnp.transpose(leaf, (2, 0, 3, 1))  # (T, C, m, k)
+            if len(cols) < n:
+                # Embed the k computed columns among n (the others are zero).
+                pos = np.full(n, len(cols))
+                pos[np.asarray(cols)] = np.arange(len(cols))
+                zero = jnp.zeros(per_frame.shape[:-1] + (1,), per_frame.dtype)
+                per_frame = jnp.concatenate([per_frame, zero], -1)[..., pos]
             blocks[i] = jnp.stack([per_frame[t, (t + d) % C] for d in range(-b, b + 1)], axis=1)
     return blocks
 
 
-def normal_blocks(blocks: list[Array], bandwidths, dtype) -> list[Array]:
-    """Upper block band of JᵀJ: H[e][s] = H_{s, s+e}, e = 0 .. 2·max(b), each (T, n, n)."""
+def normal_blocks(blocks: list[Array], bandwidths, dtype, coupled: int | None = None) -> list[Array]:
+    """Upper block band of JᵀJ: H[e][s] = H_{s, s+e}, e = 0 .. 2·max(b).
+
+    H[0] is (T, n, n). With `coupled` = n_c, the unknowns are ordered coupled first and
+    every frame-coupling leaf (b > 0) reads the first n_c only, so H[e >= 1] is
+    (T, n_c, n_c) and those leaves add to H[0]'s top-left corner only.
+
+    H[e][s] = Σ_ℓ Σ_d J_ℓ[s-d, d]ᵀ J_ℓ[s-d, d+e]: the shifted factors of every leaf and
+    offset are stacked along the contracted axis so that each H[e] is one batched
+    product (on XLA-CPU the cost of a batched product is nearly independent of its
+    contracted length, so this is several times faster than one product per pair).
+    """
     B = max(bandwidths)
     T, n = blocks[0].shape[0], blocks[0].shape[-1]
-    H = [jnp.zeros((T, n, n), dtype) for _ in range(2 * B + 1)]
-    for J, b in zip(blocks, bandwidths):
-        J = J.astype(dtype)
-        for e in range(2 * b + 1):
+    nc = n if coupled is None else coupled
+    H = []
+    for e in range(2 * B + 1):
+        width = n if e == 0 else nc
+        left, right = [], []
+        for J, b in zip(blocks, bandwidths):
+            if 2 * b < e:
+                continue
+            J = J.astype(dtype)
+            if b > 0 and nc < n:
+                J = J[..., :nc]
+                if e == 0:
+                    J = jnp.pad(J, [(0, 0)] * (J.ndim - 1) + [(0, n - nc)])
             for d in range(-b, b + 1 - e):
                 # Row t = s - d couples frames s = t + d and s + e = t + d + e.
-                Q = jnp.einsum("tmi,tmj->tij", J[:, d + b], J[:, d + e + b])
-                H[e] = H[e] + _shift(Q, d)
+                left.append(_shift(J[:, d + b], d))
+                right.append(_shift(J[:, d + e + b], d))
+        H.append(jnp.einsum("tmi,tmj->tij", jnp.concatenate(left, 1), jnp.concatenate(right, 1)))
+        assert H[-1].shape[-1] == width
     return H
 
 
@@ -130,22 +164,29 @@ _F32_SHIFT = 1e-5
 
 
 class BandedFactor(eqx.Module):
-    """Cholesky factor of a block-tridiagonal (super-block) matrix, plus Jacobi scale."""
+    """Factor of JᵀJ + λI: local unknowns eliminated per frame, then a block-tridiagonal
+    (super-block) Cholesky of the coupled ones' Schur complement, plus the Jacobi scale."""
 
-    L: Array  # (K, N, N) lower factors of the Schur complements
+    L: Array  # (K, N, N) inverses of the lower Cholesky factors of the Schur complements
     W: Array  # (K, N, N) L_k⁻¹ U_k (last one unused)
     scale: Array  # (T, n) diag(H)^(-1/2)
+    L_local: Array | None  # (T, n_l, n_l) Cholesky factor of H_ll per frame
+    X: Array | None  # (T, n_l, n_c) L_ll⁻¹ H_lc
     group: int = eqx.field(static=True)
 
 
 def factor_banded(H: list[Array], damping: Array | float = 0.0, marquardt: bool = False) -> BandedFactor:
     """Factorise JᵀJ + λ I (or JᵀJ + λ diag(JᵀJ), `marquardt`, eq. 2.54) from its band.
 
-    Frames are grouped in super-blocks of g = max(1, 2b) so the band becomes
+    H as from `normal_blocks`: H[0] (T, n, n); H[e >= 1] (T, n_c, n_c) couple only the
+    first n_c unknowns of each frame. The other n_l = n - n_c ("local") unknowns are
+    eliminated frame by frame (batched, exact: S = H_cc - H_cl H_ll⁻¹ H_lc), then frames
+    are grouped in super-blocks of g = max(1, 2b) so the band of S becomes
     block-tridiagonal; the tail is padded with identity frames.
     """
     Hd = H[0]
     T, n, _ = Hd.shape
+    nc = H[1].shape[-1] if len(H) > 1 else n
     dtype = Hd.dtype
     eye = jnp.eye(n, dtype=dtype)
     if marquardt:
@@ -158,14 +199,21 @@ def factor_banded(H: list[Array], damping: Array | float = 0.0, marquardt: bool 
     # Jacobi scaling s_i = diag(H)^(-1/2) (1 for empty columns) conditions the factor.
     diag = jnp.diagonal(Hd, axis1=-2, axis2=-1)
     scale = jnp.where(diag > 0, jax.lax.rsqrt(jnp.where(diag > 0, diag, 1.0)), 1.0)
-    Hs = [Hd * scale[:, :, None] * scale[:, None, :]]
+    Hd = Hd * scale[:, :, None] * scale[:, None, :]
     if jnp.finfo(dtype).bits < 64:
         # In float32 the scaled matrix (unit diagonal) loses definiteness to rounding when
         # JᵀJ is ill-conditioned (measured: NaN factors on the SIP problem); a shift of
         # a few ulps of its unit diagonal restores it at the cost of a slightly damped step.
-        Hs[0] = Hs[0] + _F32_SHIFT * eye
-    for e in range(1, len(H)):
-        Hs.append(H[e] * scale[:, :, None] * _shift(scale, -e)[:, None, :])
+        Hd = Hd + _F32_SHIFT * eye
+    L_local = X = None
+    if nc < n:
+        L_local = jnp.linalg.cholesky(Hd[:, nc:, nc:])
+        X = jsl.solve_triangular(L_local, Hd[:, nc:, :nc], lower=True)  # (T, n_l, n_c)
+        Hd = Hd[:, :nc, :nc] - jnp.einsum("tlc,tld->tcd", X, X)
+    sc = scale[:, :nc]
+    Hs = [Hd] + [H[e] * sc[:, :, None] * _shift(sc, -e)[:, None, :] for e in range(1, len(H))]
+    n = nc
+    eye = jnp.eye(n, dtype=dtype)
     g = max(1, len(H) - 1)
     K = -(-T // g)
     pad = K * g - T
@@ -191,41 +239,55 @@ def factor_banded(H: list[Array], damping: Array | float = 0.0, marquardt: bool 
     D = jnp.concatenate(D_rows, -2)  # (K, N, N)
     U = jnp.concatenate(U_rows, -2)
     if g == 1 and len(H) == 1:
-        L = jnp.linalg.cholesky(D)
-        return BandedFactor(L, jnp.zeros_like(L), scale, g)
+        L_inv = jsl.solve_triangular(jnp.linalg.cholesky(D), jnp.broadcast_to(jnp.eye(D.shape[-1], dtype=dtype), D.shape), lower=True)
+        return BandedFactor(L_inv, jnp.zeros_like(L_inv), scale, L_local, X, g)
 
     def step(W_prev, DU):
         Dk, Uk = DU
         S = Dk - W_prev.T @ W_prev
-        Lk = jnp.linalg.cholesky(S)
-        Wk = jsl.solve_triangular(Lk, Uk, lower=True)
-        return Wk, (Lk, Wk)
+        # The inverse factor turns both substitutions of `solve_banded` into products,
+        # which XLA-CPU runs several times faster than triangular solves in a scan.
+        Lk_inv = jsl.solve_triangular(jnp.linalg.cholesky(S), eye_N, lower=True)
+        Wk = Lk_inv @ Uk
+        return Wk, (Lk_inv, Wk)
 
+    eye_N = jnp.eye(D.shape[-1], dtype=dtype)
     _, (L, W) = jax.lax.scan(step, jnp.zeros_like(D[0]), (D, U))
-    return BandedFactor(L, W, scale, g)
+    return BandedFactor(L, W, scale, L_local, X, g)
 
 
 def solve_banded(factor: BandedFactor, rhs: Array) -> Array:
     """Solve (JᵀJ + λI) x = rhs with a `BandedFactor`.  rhs (T, n) -> (T, n)."""
     T, n = rhs.shape
     K, N, _ = factor.L.shape
-    b = (rhs.astype(factor.L.dtype) * factor.scale).reshape(-1)
-    b = jnp.concatenate([b, jnp.zeros((K * N - T * n,), b.dtype)]).reshape(K, N)
+    b = rhs.astype(factor.L.dtype) * factor.scale
+    if factor.X is not None:
+        nc = factor.X.shape[-1]
+        z_local = jsl.solve_triangular(factor.L_local, b[:, nc:, None], lower=True)[..., 0]
+        b = b[:, :nc] - jnp.einsum("tlc,tl->tc", factor.X, z_local)
+    nc = b.shape[1]
+    b = b.reshape(-1)
+    b = jnp.concatenate([b, jnp.zeros((K * N - T * nc,), b.dtype)]).reshape(K, N)
+
     def forward(z_prev, LWb):
-        Lk, Wk_prev, bk = LWb
-        z = jsl.solve_triangular(Lk, bk - Wk_prev.T @ z_prev, lower=True)
+        Lk_inv, Wk_prev, bk = LWb
+        z = Lk_inv @ (bk - Wk_prev.T @ z_prev)
         return z, z
 
     W_prev = jnp.concatenate([jnp.zeros_like(factor.W[:1]), factor.W[:-1]], 0)
     _, z = jax.lax.scan(forward, jnp.zeros((N,), b.dtype), (factor.L, W_prev, b))
 
     def backward(x_next, LWz):
-        Lk, Wk, zk = LWz
-        x = jsl.solve_triangular(Lk.T, zk - Wk @ x_next, lower=False)
+        Lk_inv, Wk, zk = LWz
+        x = Lk_inv.T @ (zk - Wk @ x_next)
         return x, x
 
     _, x = jax.lax.scan(backward, jnp.zeros((N,), b.dtype), (factor.L, factor.W, z), reverse=True)
-    x = x.reshape(-1)[: T * n].reshape(T, n)
+    x = x.reshape(-1)[: T * nc].reshape(T, nc)
+    if factor.X is not None:
+        rest = z_local - jnp.einsum("tlc,tc->tl", factor.X, x)
+        x_local = jsl.solve_triangular(jnp.swapaxes(factor.L_local, -1, -2), rest[..., None], lower=False)[..., 0]
+        x = jnp.concatenate([x, x_local], 1)
     return (x * factor.scale).astype(rhs.dtype)
 
 
