@@ -8,6 +8,10 @@ single-core MATLAB. Here "20 iterations" means 20 LM trial steps (each one cost
 evaluation; accepted steps also rebuild the Jacobian), forced by rtol = atol = 0 so the
 solver never stops early. The SOP initialisation is computed once and not timed (it is
 reported separately). float32 (x64 off), the default of the methods.
+
+Baseline (same process, same problem and start): the engine without the SIP terms'
+analytic Jacobians and `reads`, i.e. Jacobian blocks by forward-mode AD over all 75
+unknowns per frame and no per-frame elimination (`--no-baseline` skips it).
 """
 
 from __future__ import annotations
@@ -45,6 +49,7 @@ def main(argv=None) -> int:
     p.add_argument("--batch-frames", type=int, default=100, help="frames per sequence in the batch test")
     p.add_argument("--suffix", default="", help="results/sip_speed_<suffix>.json (e.g. gpu)")
     p.add_argument("--min-seconds", type=float, default=2.0)
+    p.add_argument("--no-baseline", action="store_true", help="skip the AD-Jacobian baseline")
     args = p.parse_args(argv)
 
     from jaxmocap.methods import inertial
@@ -68,6 +73,19 @@ def main(argv=None) -> int:
                   seconds_per_iteration=single["median_s"] / args.iters)  # fmt: skip
     print(f"SIP {args.frames} frames x {args.iters} LM steps: {single['median_s']:.3f} s "
           f"(compile + first {single['compile_and_first_call_s']:.1f} s); SOP {sop_timing['median_s']:.2f} s")
+    baseline = None
+    if not args.no_baseline:
+        from jaxmocap.solve import Problem, Term, solve
+
+        analytic = inertial.inertial_problem(setup)
+        plain = Problem(
+            [Term(t.name, t.fn, t.weight, t.bandwidth, t.loss, t.mask) for t in analytic.terms], analytic.rotations
+        )
+        params = {"pose": sop, "trans": jnp.broadcast_to(setup.trans0, (args.frames, 3))}
+        baseline = time_call(lambda: solve(plain, params, setup.data, **it), min_seconds=1e-9, max_repeats=1)
+        single["ratio_to_baseline"] = single["median_s"] / baseline["median_s"]
+        print(f"baseline (AD Jacobians, no elimination): {baseline['median_s']:.3f} s, "
+              f"ratio {single['ratio_to_baseline']:.3f}")
 
     short = _setup(args.batch_frames, seed=1)
     sop_short, _ = inertial.sparse_orientation_poser(short)
@@ -91,6 +109,7 @@ def main(argv=None) -> int:
         "thesis": {"frames": 1000, "cost_evaluations": 20, "seconds": 450.0, "setup": "single-core MATLAB, i7 3.5 GHz"},
         "sop_init": sop_timing,
         "sip_single": single,
+        "baseline_ad_jacobians": baseline,
         "batch_frames": args.batch_frames,
         "batch": batches,
         "peak_memory_bytes": peak_memory_bytes(),

@@ -363,3 +363,14 @@ def test_clear_errors():
     bad = Problem([Term("flat", lambda p, d: jnp.zeros((3,)))])
     with pytest.raises(ValueError, match="one row per frame"):
         bad.cost({"x": jnp.zeros((4, 1))}, None)
+
+
+def test_reads_name_columns_and_are_validated():
+    layout = FrameLayout.of({"pose": jnp.zeros((2, 24, 3)), "trans": jnp.zeros((2, 3))})
+    assert layout.columns((("pose", (0, 2)), ("trans", None))) == (0, 1, 2, 6, 7, 8, 72, 73, 74)
+    assert layout.columns(None) == tuple(range(75))
+    assert layout.columns((("missing", None),)) == ()
+    with pytest.raises(ValueError, match="out of range"):
+        layout.columns((("pose", (24,)),))
+    with pytest.raises(ValueError, match="pairs"):
+        Term("a", e_ori, reads=("pose",))

@@ -6,8 +6,11 @@ Backends behind one call (`method=`):
   structured solver: δ = -(JᵀJ + λI)⁻¹ Jᵀr (eq. 2.52, `damping="levenberg"`, default) or
   -(JᵀJ + λ diag(JᵀJ))⁻¹ Jᵀr (eq. 2.54, `damping="marquardt"`), λ₀ = 10, ×10 on a
   rejected step, ×0.1 on an accepted one; rotations re-anchored after every accepted
-  step, ω ← log(exp(δ^) R(ω))^∨ (eq. 2.56-2.60). The Jacobian blocks and JᵀJ are built
-  once per accepted iterate; a rejected step only refactorises with the new λ. It is
+  step, ω ← log(exp(δ^) R(ω))^∨ (eq. 2.56-2.60). The Jacobian blocks (a term's own
+  analytic `Term.jacobian`, else forward-mode AD by frame colouring over the columns
+  the term `reads`) and JᵀJ are built once per accepted iterate; a rejected step only
+  refactorises with the new λ (under `vmap` both branches run: each sequence of a
+  batch relinearises on every step). It is
   the default: the seeds' algorithm, and the cheapest per iteration. Levenberg damping
   is the default because on the SIP-shaped problem (benchmarks/solver_scaling.py, T = 20)
   Marquardt's diag(JᵀJ) scaling let the weakly observed joints (seen by the 0.003-weight

@@ -13,10 +13,15 @@ the Jacobian is block-banded and JᵀJ has block bandwidth 2b (von Marcard eq. 3
    e = 0..2b, in `factor_dtype` (float64 when the problem is float32 and x64 is on:
    the 1/dt² of the acceleration term squares into H's condition number), after a
    symmetric Jacobi scaling diag(H)^(-1/2) that removes the bad scaling between terms.
-3. **Block-tridiagonal Cholesky.** Grouping g = 2b consecutive frames into one
-   super-block makes H block-tridiagonal; `lax.scan` factorises it
-   (S_k = D_k - W_{k-1}ᵀW_{k-1}, L_k = chol(S_k), W_k = L_k⁻¹U_k) and solves by forward
-   and backward substitution. Cost O(T (gn)³), memory O(T g n²).
+3. **Per-frame elimination.** Unknowns that only per-frame terms read ("local", e.g.
+   the hands and feet in SIP, which only the prior sees) are ordered last and
+   eliminated frame by frame, S = H_cc - H_cl H_ll⁻¹ H_lc, batched over frames; the
+   band shrinks to the n_c coupled unknowns (51 of 75 in SIP).
+4. **Block-tridiagonal Cholesky.** Grouping g = 2b consecutive frames into one
+   super-block makes S block-tridiagonal; `lax.scan` factorises it
+   (S_k = D_k - W_{k-1}ᵀW_{k-1}, L_k = chol(S_k), W_k = L_k⁻¹U_k, keeping L_k⁻¹) and
+   solves by forward and backward substitution (products with L_k⁻¹). Cost
+   O(T (g n_c)³ + T n_l³), memory O(T g n²).
 
 `BandedNormalCholesky` wraps this as a lineax solver, so it plugs into
 `optx.LevenbergMarquardt(linear_solver=...)` / `optx.GaussNewton(linear_solver=...)`.
