@@ -90,7 +90,7 @@ def run(frames: int, out: Path, seed: int = 0, max_steps: int = 20, max_clips: i
         t1 = time.perf_counter()
         seq = sc6.sequence(i)
         n = int(sc6["length"][i])
-        truth, truth_trans = seq["poses"][0], seq["trans"][0]
+        truth = seq["poses"][0]
         rec = {"clip": clip, "activity": CLIPS[clip], "frames": n, "methods": {}}
         err = {}
         setup = I.from_scenario(sc6, i, body)

@@ -49,7 +49,7 @@ from ..body.model import SMPL_PARENTS
 from ..priors.pose_prior import PosePrior
 from ..rotation import hat, left_jacobian_inverse, matrix_to_axis_angle
 from ..solve import Term, nan_mask, second_difference
-from ..solve.structured import _shift
+from ..solve.structured import shift_frames
 
 __all__ = [
     "GRAVITY_REACTION",
@@ -185,7 +185,7 @@ class AccelerationResidual(eqx.Module):
             out["trans"] = eye
         # Row t reads frames t-1, t, t+1 with weights fps² (1, -2, 1) (eq. 3.10).
         c = self.fps**2
-        return {k: jnp.stack([c * _shift(v, 1), -2.0 * c * v, c * _shift(v, -1)], 1) for k, v in out.items()}
+        return {k: jnp.stack([c * shift_frames(v, 1), -2.0 * c * v, c * shift_frames(v, -1)], 1) for k, v in out.items()}
 
 
 def _ancestors(parents, bones) -> tuple[int, ...]:

@@ -51,10 +51,11 @@ __all__ = [
     "factor_banded",
     "solve_banded",
     "jt_vector",
+    "shift_frames",
 ]
 
 
-def _shift(x: Array, d: int) -> Array:
+def shift_frames(x: Array, d: int) -> Array:
     """y[s] = x[s - d] along axis 0, zero where s - d is out of range."""
     if d == 0:
         return x
@@ -131,11 +132,10 @@ def normal_blocks(blocks: list[Array], bandwidths, dtype, coupled: int | None = 
     contracted length, so this is several times faster than one product per pair).
     """
     B = max(bandwidths)
-    T, n = blocks[0].shape[0], blocks[0].shape[-1]
+    n = blocks[0].shape[-1]
     nc = n if coupled is None else coupled
     H = []
     for e in range(2 * B + 1):
-        width = n if e == 0 else nc
         left, right = [], []
         for J, b in zip(blocks, bandwidths):
             if 2 * b < e:
@@ -147,10 +147,9 @@ def normal_blocks(blocks: list[Array], bandwidths, dtype, coupled: int | None = 
                     J = jnp.pad(J, [(0, 0)] * (J.ndim - 1) + [(0, n - nc)])
             for d in range(-b, b + 1 - e):
                 # Row t = s - d couples frames s = t + d and s + e = t + d + e.
-                left.append(_shift(J[:, d + b], d))
-                right.append(_shift(J[:, d + e + b], d))
+                left.append(shift_frames(J[:, d + b], d))
+                right.append(shift_frames(J[:, d + e + b], d))
         H.append(jnp.einsum("tmi,tmj->tij", jnp.concatenate(left, 1), jnp.concatenate(right, 1)))
-        assert H[-1].shape[-1] == width
     return H
 
 
@@ -161,7 +160,7 @@ def jt_vector(blocks: list[Array], bandwidths, residuals: list[Array], dtype) ->
     for J, b, r in zip(blocks, bandwidths, residuals):
         r = r.reshape(T, -1).astype(dtype)
         for d in range(-b, b + 1):
-            g = g + _shift(jnp.einsum("tmi,tm->ti", J[:, d + b].astype(dtype), r), d)
+            g = g + shift_frames(jnp.einsum("tmi,tm->ti", J[:, d + b].astype(dtype), r), d)
     return g
 
 
@@ -216,7 +215,7 @@ def factor_banded(H: list[Array], damping: Array | float = 0.0, marquardt: bool 
         X = jsl.solve_triangular(L_local, Hd[:, nc:, :nc], lower=True)  # (T, n_l, n_c)
         Hd = Hd[:, :nc, :nc] - jnp.einsum("tlc,tld->tcd", X, X)
     sc = scale[:, :nc]
-    Hs = [Hd] + [H[e] * sc[:, :, None] * _shift(sc, -e)[:, None, :] for e in range(1, len(H))]
+    Hs = [Hd] + [H[e] * sc[:, :, None] * shift_frames(sc, -e)[:, None, :] for e in range(1, len(H))]
     n = nc
     eye = jnp.eye(n, dtype=dtype)
     g = max(1, len(H) - 1)
