@@ -192,7 +192,6 @@ def _solve_core(
     dtype = params0[layout.keys[0]].dtype
     x0 = to_manifold(params0, problem.rotations)
     args = (problem, layout, x0, data, frame_mask)
-    bw = _bandwidths(problem, frame_mask is not None)
     delta0 = jnp.zeros((T, n), dtype)
     if method != "lm" and jax.config.jax_enable_x64:
         # optimistix 0.1 keeps its damping λ in float64 when x64 is on and then fails to
@@ -200,10 +199,11 @@ def _solve_core(
         delta0 = delta0.astype(jnp.float64)
     if method == "lm":
         value, result, steps = _marquardt(
-            args, bw, delta0, rtol, atol, max_steps, factor_dtype, damping == "marquardt"
+            args, delta0, rtol, atol, max_steps, factor_dtype, damping == "marquardt"
         )
     elif method in ("optx_lm", "optx_gn"):
         if linear_solver == "banded":
+            bw = _bandwidths(problem, frame_mask is not None)
             linear_solver = BandedNormalCholesky(bandwidths=bw, factor_dtype=factor_dtype)
         cls = optx.LevenbergMarquardt if method == "optx_lm" else optx.GaussNewton
         kwargs = {} if isinstance(linear_solver, str) and linear_solver == "dense" else {"linear_solver": linear_solver}
@@ -356,7 +356,7 @@ def _linearise(args, st: _Structure, T, n, dtype, factor_dtype):
     return cost, H, g
 
 
-def _marquardt(args, bw, delta0, rtol, atol, max_steps, factor_dtype, marquardt):
+def _marquardt(args, delta0, rtol, atol, max_steps, factor_dtype, marquardt):
     """Von Marcard's LM (λ₀ = 10, ×10 / ×0.1, eq. 2.52 or 2.54) with re-anchoring (eq. 2.60)."""
     problem, layout, x0, data, frame_mask = args
     T, n = delta0.shape
