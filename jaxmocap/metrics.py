@@ -49,6 +49,9 @@ JOINT_SETS: dict[str, tuple[str, ...]] = {
     "totalcapture_mpjae": (*_LR("hip", "knee"), "neck", *_LR("shoulder", "elbow")),
     # §3.4.2, TNT15 virtual markers: hips, knees, ankles, shoulders, elbows, wrists, neck.
     "tnt15_mpjpe": (*_LR("hip", "knee", "ankle", "shoulder", "elbow", "wrist"), "neck"),
+    # §3.4.2, TNT15 MPJAE: the validation IMUs (thighs, upper arms), i.e. the global
+    # orientations of these bones (a fixed sensor-to-bone offset cancels in the geodesic).
+    "tnt15_mpjae": _LR("hip", "shoulder"),
     "all": SMPL_JOINT_NAMES,
 }
 

@@ -16,6 +16,7 @@ def test_joint_sets_match_the_thesis():
     assert len(metrics.JOINT_SETS["totalcapture_mpjpe"]) == 14
     assert len(metrics.JOINT_SETS["totalcapture_mpjae"]) == 9
     assert len(metrics.JOINT_SETS["tnt15_mpjpe"]) == 13  # the 13 virtual markers of §3.4.2
+    assert len(metrics.JOINT_SETS["tnt15_mpjae"]) == 4  # validation IMUs: thighs, upper arms
     with pytest.raises(ValueError, match="Unknown joint set"):
         metrics.joint_indices("nope")
 
