@@ -53,6 +53,7 @@ __all__ = [
     "sparse_inertial_poser",
     "SIPResult",
     "stack_setups",
+    "pad_setups",
     "sparse_inertial_poser_batch",
 ]
 
@@ -339,6 +340,30 @@ def stack_setups(setups: Sequence[InertialSetup]) -> InertialSetup:
                 f"(got bones {s.bones} vs {first.bones}, {s.num_frames} vs {first.num_frames} frames)."
             )
     return jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), *setups)
+
+
+def pad_setups(setups: Sequence[InertialSetup], length: int | None = None) -> tuple[InertialSetup, Array]:
+    """Sequences of any lengths as one batch: (stacked setup, (B, T) frame mask).
+
+    Readings are padded to `length` (default: the longest) by repeating their last
+    frame; padded frames drop out of every term of `sparse_inertial_poser_batch` (pass
+    the mask as `frame_mask`) and keep their initial pose.
+    """
+    T = max(s.num_frames for s in setups) if length is None else int(length)
+    padded = []
+    for s in setups:
+        extra = T - s.num_frames
+        if extra < 0:
+            raise ValueError(f"length={T} is shorter than a sequence of {s.num_frames} frames.")
+
+        def rep(x, extra=extra):
+            return jnp.concatenate([x, jnp.repeat(x[-1:], extra, axis=0)], 0) if extra else x
+
+        d = s.data
+        data = eqx.tree_at(lambda d: (d.orientation, d.acceleration), d, (rep(d.orientation), rep(d.acceleration)))
+        padded.append(InertialSetup(data, s.pose0, s.trans0, s.bones, s.fps))
+    mask = jnp.arange(T)[None, :] < jnp.asarray([s.num_frames for s in setups])[:, None]
+    return stack_setups(padded), mask
 
 
 def sparse_inertial_poser_batch(

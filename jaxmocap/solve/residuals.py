@@ -185,15 +185,18 @@ class Term(eqx.Module):
         ):
             raise ValueError(f"Term {self.name!r}: reads must be (key, indices or None) pairs, got {self.reads!r}.")
 
-    def raw(self, params, data, raw_data) -> Array:
-        """`fn`'s output e; NaN-free data for a masked term, the raw data otherwise."""
+    def _input(self, data, raw_data):
         # Only a masked term gets NaN-free data: an unmasked NaN must surface as a NaN
         # cost (a failed solve) rather than be silently read as 0.
-        return self.fn(params, data if self.mask is not None else raw_data)
+        return data if self.mask is not None else raw_data
+
+    def raw(self, params, data, raw_data) -> Array:
+        """`fn`'s output e (`data`: NaN-free, `raw_data`: as given)."""
+        return self.fn(params, self._input(data, raw_data))
 
     def raw_jacobian(self, params, data, raw_data) -> dict[str, Array]:
         """The analytic Jacobian of `raw` (see `jacobian`)."""
-        return self.jacobian(params, data if self.mask is not None else raw_data)
+        return self.jacobian(params, self._input(data, raw_data))
 
     def residual(self, params, data, raw_data, frame_mask: Array | None) -> Array:
         """Weighted, masked (square-root robust) residual, flattened to (T, m)."""
