@@ -126,12 +126,15 @@ class OrientationResidual(eqx.Module):
     bones: tuple[int, ...] = eqx.field(static=True)
     parents: tuple[int, ...] = eqx.field(static=True, default=SMPL_PARENTS)
 
-    def __call__(self, params, data: InertialData) -> Array:
+    def _chain_and_residual(self, params, data: InertialData):
         R, _ = chain_transforms(self.parents, params["pose"], data.rest_joints, self.bones)
         R_bone = jnp.stack([R[b] for b in self.bones], 1)
         R_model = mat3_mul(R_bone, data.sensor_to_bone.astype(R_bone.dtype))  # eq. 3.6
         R_meas = data.orientation.astype(R_bone.dtype)
-        return matrix_to_axis_angle(mat3_mul(R_model, jnp.swapaxes(R_meas, -1, -2)))
+        return R, matrix_to_axis_angle(mat3_mul(R_model, jnp.swapaxes(R_meas, -1, -2)))
+
+    def __call__(self, params, data: InertialData) -> Array:
+        return self._chain_and_residual(params, data)[1]
 
     @property
     def reads(self):
@@ -139,8 +142,8 @@ class OrientationResidual(eqx.Module):
 
     def jacobian(self, params, data: InertialData) -> dict[str, Array]:
         """∂e_ori/∂δ_j = J_l⁻¹(e) R_parent(j)^g for j on the sensor's chain: pose (T, 1, S, 3, J, 3)."""
-        R, _ = chain_transforms(self.parents, params["pose"], data.rest_joints, self.bones)
-        Jl = left_jacobian_inverse(self(params, data))  # (T, S, 3, 3)
+        R, e = self._chain_and_residual(params, data)
+        Jl = left_jacobian_inverse(e)  # (T, S, 3, 3)
         blocks = _chain_blocks(self.parents, self.bones, R, lambda s, Rp: mat3_mul(Jl[:, s], Rp))
         return {"pose": blocks[:, None]}
 
@@ -155,10 +158,15 @@ class AccelerationResidual(eqx.Module):
     fps: float = eqx.field(static=True)
     parents: tuple[int, ...] = eqx.field(static=True, default=SMPL_PARENTS)
 
-    def __call__(self, params, data: InertialData) -> Array:
-        R, J = chain_transforms(self.parents, params["pose"], data.rest_joints, self.bones)
+    def _chain_and_points(self, pose, data: InertialData):
+        """Chain rotations and joints, and the sensor points without translation (T, S, 3)."""
+        R, J = chain_transforms(self.parents, pose, data.rest_joints, self.bones)
         R_bone = jnp.stack([R[b] for b in self.bones], 1)
         p = mat3_apply(R_bone, data.sensor_point.astype(R_bone.dtype)) + jnp.stack([J[b] for b in self.bones], 1)
+        return R, J, p
+
+    def __call__(self, params, data: InertialData) -> Array:
+        _, _, p = self._chain_and_points(params["pose"], data)
         if "trans" in params:
             p = p + params["trans"][:, None, :]
         a_model = second_difference(p) * (self.fps**2)
@@ -171,9 +179,7 @@ class AccelerationResidual(eqx.Module):
     def jacobian(self, params, data: InertialData) -> dict[str, Array]:
         """fps² (1, -2, 1)_d ∂p_{t+d}/∂x_{t+d}: pose (T, 3, S, 3, J, 3), trans (T, 3, S, 3, 3)."""
         pose = params["pose"]
-        R, J = chain_transforms(self.parents, pose, data.rest_joints, self.bones)
-        R_bone = jnp.stack([R[b] for b in self.bones], 1)
-        p = mat3_apply(R_bone, data.sensor_point.astype(R_bone.dtype)) + jnp.stack([J[b] for b in self.bones], 1)
+        R, J, p = self._chain_and_points(pose, data)
 
         def block(s, Rp, j):
             return -mat3_mul(hat(p[:, s] - J[j]), Rp)
