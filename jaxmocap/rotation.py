@@ -28,6 +28,7 @@ __all__ = [
     "sixd_to_matrix",
     "geodesic_angle",
     "rotation_about_axis",
+    "left_jacobian",
     "left_jacobian_inverse",
 ]
 
@@ -102,6 +103,23 @@ def left_jacobian_inverse(omega: Array) -> Array:
     K = hat(omega)
     eye = jnp.eye(3, dtype=omega.dtype)
     return eye - 0.5 * K + c[..., None, None] * (K @ K)
+
+
+def left_jacobian(omega: Array) -> Array:
+    """J_l(ω) = I + a(θ) ω^ + b(θ) ω^², a = (1 - cos θ)/θ², b = (θ - sin θ)/θ³  (..., 3) -> (..., 3, 3).
+
+    exp((ω + δ)^) ≈ exp((J_l(ω) δ)^) exp(ω^); also the V matrix of SE(3)'s exponential,
+    t = J_l(φ) ρ. Taylor series below θ² = 10⁻² (finite values and gradients at 0).
+    """
+    theta2 = jnp.sum(omega * omega, axis=-1)
+    small = theta2 < 1e-2
+    safe2 = jnp.where(small, jnp.ones_like(theta2), theta2)
+    theta = jnp.sqrt(safe2)
+    a = jnp.where(small, 0.5 - theta2 / 24.0 + theta2**2 / 720.0, (1.0 - jnp.cos(theta)) / safe2)
+    b = jnp.where(small, 1.0 / 6.0 - theta2 / 120.0 + theta2**2 / 5040.0, (theta - jnp.sin(theta)) / (safe2 * theta))
+    K = hat(omega)
+    eye = jnp.eye(3, dtype=omega.dtype)
+    return eye + a[..., None, None] * K + b[..., None, None] * (K @ K)
 
 
 def rotation_about_axis(axis: Array, angle: Array) -> Array:

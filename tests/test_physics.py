@@ -1,9 +1,11 @@
 """Physical plausibility: MJX checker against MuJoCo C, metrics, energies, report, CLI.
 
 One scene (low-res default body, a box object) is built per module; every `check` call
-uses batches of B frames so the MJX kernel compiles once.
+uses batches of B frames so the MJX kernel compiles once. The energies are engine terms
+on rotation matrices: with the IMU terms in one problem, and rebuilt without retracing.
 """
 
+import equinox as eqx
 import jax
 import jax.flatten_util
 import jax.numpy as jnp
@@ -12,7 +14,9 @@ import numpy as np
 import pytest
 import trimesh
 
-from jaxmocap.body import default_body, forward
+from jaxmocap.body import default_body, forward, shaped_joints
+from jaxmocap.energies.imu import InertialData, orientation_term
+from jaxmocap.energies.posed import CombinedData
 from jaxmocap.motion import save_motion
 from jaxmocap.physics import (
     Ground,
@@ -21,14 +25,18 @@ from jaxmocap.physics import (
     check,
     detect_foot_contact,
     foot_skating,
-    ground_support_residual,
+    GroundSupportResidual,
+    PhysicsData,
+    ground_support_term,
     make_scene,
     object_penetration,
     penetration_summary,
     pose_bones,
 )
 from jaxmocap.physics.metrics import FOOT_POINTS, bone_min_distance, foot_contact
-from jaxmocap.rotation import matrix_to_quaternion
+from jaxmocap.priors import default_pose_prior
+from jaxmocap.rotation import axis_angle_to_matrix, geodesic_angle, matrix_to_quaternion
+from jaxmocap.solve import Problem, Term, solve
 
 B = 8  # frames per check call (one compile)
 TOL_C = 1e-9  # |MJX - MuJoCo C| plane-capsule distance, metres (float64 on both sides)
@@ -178,7 +186,11 @@ def test_ground_residual_gradients_and_descent(body):
     trans = np.zeros((1, 3))
     trans[:, 1] = -rest[..., 1].min(-1) - 0.05  # 5 cm below the floor
     params = {"pose": jnp.asarray(pose), "trans": jnp.asarray(trans)}
-    r = ground_support_residual(body, ground)
+    term, data = GroundSupportResidual(), PhysicsData(body=body, ground=ground)
+
+    def r(p):  # the term sees rotation matrices; differentiate w.r.t. axis-angle here
+        return term({"pose": axis_angle_to_matrix(p["pose"]), "trans": p["trans"]}, data)
+
     flat = jax.jit(lambda p: r(p).ravel())
     jf, jr = jax.jit(jax.jacfwd(flat))(params), jax.jit(jax.jacrev(flat))(params)
     for key in params:
@@ -244,24 +256,128 @@ def test_batch_shapes(scene):
         check(scene, np.zeros((B, 23, 3)), np.zeros((B, 3)))
 
 
+def _stay(params, data):
+    """Keep the translation near data["trans0"]: (T, 3)."""
+    return params["trans"] - data["trans0"]
+
+
 def test_ground_term_plugs_into_the_solve_engine():
-    """The physics residuals are engine `Term`s: LM lifts a sunk body out of the floor."""
-
-    from jaxmocap.physics import Ground, ground_support_residual
-    from jaxmocap.solve import Problem, Term, solve
-
+    """The physics residuals are engine `Term`s on rotation matrices: LM lifts a sunk
+    body out of the floor."""
     body = default_body("low")
-    ground = Ground(0.0)
     rest = np.asarray(forward(body, np.zeros((24, 3))).vertices)
     soles = np.argsort(rest[:, 1])[:40]  # the lowest vertices: the soles
-    pose0 = np.zeros((2, 24, 3))
-    trans0 = np.tile([0.0, -rest[:, 1].min() - 0.03, 0.0], (2, 1))  # 3 cm into the floor
-    data = {"pose": jnp.asarray(pose0), "trans": jnp.asarray(trans0)}
+    pose0 = jnp.zeros((2, 24, 3))
+    trans0 = jnp.asarray(np.tile([0.0, -rest[:, 1].min() - 0.03, 0.0], (2, 1)))  # 3 cm into the floor
+    R0 = axis_angle_to_matrix(pose0)
+    data = CombinedData((PhysicsData(body=body, ground=Ground(0.0)), {"pose0": R0, "trans0": trans0}))
     problem = Problem([
-        Term("ground", ground_support_residual(body, ground, soles), weight=1e2),
-        Term("stay", lambda p, d: jnp.concatenate([(p["pose"] - d["pose"]).reshape(2, -1), p["trans"] - d["trans"]], -1), weight=1e-2),
-    ])
-    sol = solve(problem, {"pose": data["pose"], "trans": data["trans"]}, data, max_steps=20)
+        ground_support_term(soles, weight=1e2),
+        Term("stay", lambda p, d: jnp.concatenate([(p["pose"] - d["pose0"]).reshape(2, -1), _stay(p, d)], -1), weight=1e-2),
+    ], rotations=("pose",))  # fmt: skip
+    sol = solve(problem, {"pose": pose0, "trans": trans0}, data, max_steps=20)
     lifted = np.asarray(forward(body, sol.value["pose"], None, sol.value["trans"]).vertices)
     assert lifted[:, soles, 1].min() > -1e-3  # was -30 mm
     assert np.isfinite(np.asarray(sol.cost)).all()
+
+
+#: Trace count of `_CountingGround` (Python runs `__call__` only while JAX traces).
+TRACES = [0]
+
+
+class _CountingGround(GroundSupportResidual):
+    def __call__(self, params, data):
+        TRACES[0] += 1
+        return super().__call__(params, data)
+
+
+_IMU_BONES = tuple(range(24))  # a sensor on every bone: the orientations fix the pose
+
+
+def _imu_ground(body, seed, sink):
+    """Truth poses (3 frames), their bone orientations as IMU data, a floor `sink` m above
+    the truth's lowest vertex (at trans 0), and a start at the zero pose."""
+    rng = np.random.default_rng(seed)
+    T = 3
+    pose = jnp.asarray(rng.normal(scale=0.3, size=(T, 24, 3)))
+    truth = forward(body, pose)
+    S = len(_IMU_BONES)
+    inertial = InertialData(
+        orientation=truth.joint_rotations[:, list(_IMU_BONES)],
+        acceleration=jnp.zeros((T, S, 3)),
+        sensor_to_bone=jnp.broadcast_to(jnp.eye(3), (S, 3, 3)),
+        sensor_point=jnp.zeros((S, 3)),
+        rest_joints=shaped_joints(body, jnp.zeros(body.num_betas)),
+        prior=default_pose_prior(jnp.float64),
+    )
+    ground = Ground(float(truth.vertices[..., 1].min()) + sink)
+    trans0 = jnp.zeros((T, 3))
+    data = CombinedData((inertial, PhysicsData(body=body, ground=ground), {"trans0": trans0}))
+    problem = Problem([
+        orientation_term(_IMU_BONES, w_ori=1.0),
+        Term("ground", _CountingGround(), 1e2),
+        Term("stay", _stay, 1e-4),
+    ], rotations=("pose",))  # fmt: skip
+    return problem, {"pose": jnp.zeros((T, 24, 3)), "trans": trans0}, data, pose
+
+
+def _fit(body, params, data):
+    """Largest orientation error (rad) and lowest vertex height above the floor (m)."""
+    out = forward(body, params["pose"], None, params["trans"])
+    ori = float(geodesic_angle(out.joint_rotations[:, list(_IMU_BONES)], data.orientation).max())
+    return ori, float(data.ground.signed_distance(out.vertices).min())
+
+
+@pytest.fixture(scope="module")
+def body64():
+    return default_body("low").astype(jnp.float64)
+
+
+def test_imu_and_ground_terms_in_one_problem(body64):
+    """E_ori (rotation matrices, `InertialData`) and ground support (posed vertices,
+    `PhysicsData`) in ONE problem: the pose follows the IMUs, the body rises 3 cm."""
+    problem, params0, data, truth = _imu_ground(body64, seed=0, sink=0.03)
+    assert _fit(body64, params0, data)[0] > 0.5  # the start is far from the IMUs
+    assert _fit(body64, {"pose": truth, "trans": params0["trans"]}, data)[1] == pytest.approx(-0.03)
+    sol = solve(problem, params0, data, max_steps=30)
+    ori, height = _fit(body64, sol.value, data)
+    assert ori < 1e-3  # radians: the orientation term was minimised
+    assert height > -1e-3  # metres: the ground term was too (the truth at trans 0: -30 mm)
+    assert float(sol.costs["ori"]) < 1e-6 and float(sol.costs["ground"]) < 1e-6
+
+
+def test_rebuilt_problem_with_new_data_does_not_retrace(body64):
+    """A new `Problem` with equal term configurations and new data of the same shapes
+    (other poses, other floor height) reuses the compiled solve: no term is retraced."""
+    problem, params0, data, _ = _imu_ground(body64, seed=0, sink=0.03)
+    solve(problem, params0, data, max_steps=30)
+    traced = TRACES[0]
+    assert traced > 0
+    problem, params0, data, _ = _imu_ground(body64, seed=1, sink=0.05)
+    sol = solve(problem, params0, data, max_steps=30)
+    assert TRACES[0] == traced
+    ori, height = _fit(body64, sol.value, data)  # and the new data were used
+    assert ori < 1e-3 and height > -1e-3
+    assert float(sol.value["trans"][:, 1].max()) == pytest.approx(0.05, abs=2e-3)  # the lowest frame rose 5 cm
+
+
+def test_mjx_ground_term_on_rotation_matrices(scene):
+    """The MJX variant reads the scene as data and rotation matrices as the pose: it
+    equals the checker's plane-capsule penetration, with forward-mode derivatives."""
+    from jaxmocap.physics import MJXGroundResidual
+
+    pose, trans = _standing(scene, 0.02)
+    poses, trans = np.repeat(pose, B, 0), jnp.asarray(np.repeat(trans, B, 0))
+    R = axis_angle_to_matrix(jnp.asarray(poses))
+    data = PhysicsData(scene=scene)
+
+    def f(t):
+        return MJXGroundResidual()({"pose": R, "trans": t}, data)[..., 0]
+
+    up = jnp.zeros_like(trans).at[:, 1].set(1.0)
+    r, dr = eqx.filter_jit(lambda t: jax.jvp(f, (t,), (up,)))(trans)
+    expected = np.maximum(-_check(scene, poses, trans, np.tile(FAR, (B, 1))).ground, 0.0)
+    np.testing.assert_allclose(np.asarray(r), expected, atol=1e-9)
+    assert float(r.max()) == pytest.approx(0.02, abs=1e-9)
+    sunk = np.asarray(r) > 1e-6
+    assert sunk.any() and np.allclose(np.asarray(dr)[sunk], -1.0) and np.allclose(np.asarray(dr)[~sunk], 0.0)

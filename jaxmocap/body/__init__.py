@@ -7,6 +7,7 @@ from .io import save_body as save_body
 from .kinematics import BodyOutput as BodyOutput
 from .kinematics import forward as forward
 from .kinematics import forward_kinematics as forward_kinematics
+from .kinematics import forward_rotations as forward_rotations
 from .kinematics import shaped_joints as shaped_joints
 from .model import SMPL_JOINT_NAMES as SMPL_JOINT_NAMES
 from .model import SMPL_PARENTS as SMPL_PARENTS

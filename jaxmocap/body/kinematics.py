@@ -17,11 +17,11 @@ from jax import Array
 from ..rotation import axis_angle_to_matrix
 from .model import Body
 
-__all__ = ["BodyOutput", "forward", "forward_kinematics", "chain_transforms", "mat3_apply", "mat3_mul", "shaped_joints", "as_float_array"]
+__all__ = ["BodyOutput", "forward", "forward_rotations", "forward_kinematics", "chain_transforms", "mat3_apply", "mat3_mul", "shaped_joints", "as_float_array"]
 
 
 class BodyOutput(eqx.Module):
-    """Result of `forward`: posed vertices, joints and global joint rotations."""
+    """Result of `forward` / `forward_rotations`: posed vertices, joints and global joint rotations."""
 
     vertices: Array  # (..., V, 3)
     joints: Array  # (..., J, 3) posed joint centres, translation included
@@ -112,17 +112,16 @@ def shaped_joints(body: Body, betas: Array) -> Array:
     return joint_template + jnp.einsum("jck,...k->...jc", joint_shapedirs, betas)
 
 
-def _check_inputs(body: Body, pose, betas, trans) -> tuple[Array, Array, Array]:
-    pose = jnp.asarray(pose)
-    dtype = pose.dtype if jnp.issubdtype(pose.dtype, jnp.floating) else body.dtype
+def _check_inputs(body: Body, local_rotations, betas, trans) -> tuple[Array, Array, Array]:
+    local_rotations = jnp.asarray(local_rotations)
+    dtype = local_rotations.dtype if jnp.issubdtype(local_rotations.dtype, jnp.floating) else body.dtype
     J = body.num_joints
-    if pose.ndim < 2 or pose.shape[-2:] != (J, 3):
+    if local_rotations.ndim < 3 or local_rotations.shape[-3:] != (J, 3, 3):
         raise ValueError(
-            f"pose has shape {pose.shape}; expected (..., {J}, 3) axis-angle vectors, one per "
-            f"joint of this {body.kind} body. Reshape a flat (..., {3 * J}) pose with "
-            f"pose.reshape(*pose.shape[:-1], {J}, 3)."
+            f"local_rotations has shape {local_rotations.shape}; expected (..., {J}, 3, 3) "
+            f"rotation matrices, one per joint of this {body.kind} body."
         )
-    pose = pose.astype(dtype)
+    local_rotations = local_rotations.astype(dtype)
     betas = jnp.zeros((body.num_betas,), dtype) if betas is None else as_float_array(betas, dtype, "betas")
     if betas.ndim < 1 or betas.shape[-1] > body.num_betas:
         raise ValueError(
@@ -133,14 +132,14 @@ def _check_inputs(body: Body, pose, betas, trans) -> tuple[Array, Array, Array]:
     if trans.ndim < 1 or trans.shape[-1] != 3:
         raise ValueError(f"trans has shape {trans.shape}; expected (..., 3).")
     try:
-        batch = np.broadcast_shapes(pose.shape[:-2], betas.shape[:-1], trans.shape[:-1])
+        batch = np.broadcast_shapes(local_rotations.shape[:-3], betas.shape[:-1], trans.shape[:-1])
     except ValueError:
         raise ValueError(
-            f"batch shapes do not broadcast: pose {pose.shape[:-2]}, betas {betas.shape[:-1]}, "
+            f"batch shapes do not broadcast: pose {local_rotations.shape[:-3]}, betas {betas.shape[:-1]}, "
             f"trans {trans.shape[:-1]}."
         ) from None
     return (
-        jnp.broadcast_to(pose, (*batch, J, 3)),
+        jnp.broadcast_to(local_rotations, (*batch, J, 3, 3)),
         jnp.broadcast_to(betas, (*batch, betas.shape[-1])),
         jnp.broadcast_to(trans, (*batch, 3)),
     )
@@ -163,13 +162,10 @@ def _skin(body: Body, transforms: Array, v_posed: Array) -> Array:
 
 
 def forward(body: Body, pose, betas=None, trans=None) -> BodyOutput:
-    """The SMPL function M(β, θ) + translation.
+    """The SMPL function M(β, θ) + translation, θ as axis-angle vectors.
 
-    Huang eq. 2.1-2.4: T(β, θ) = T̄ + B_s(β) + B_p(θ), joints J(β) = 𝒥 (T̄ + B_s(β)),
-    pose blend shapes linear in vec(R(θ_j) - I) for the J-1 non-root joints, then linear
-    blend skinning v_i = Σ_j w_ij G_j(θ, J) G_j(0, J)⁻¹ t_i.
-
-    Computation happens in the dtype of `pose` (the body is cast if needed).
+    `forward_rotations` after `axis_angle_to_matrix`; computation happens in the dtype
+    of `pose` (the body is cast if needed).
 
     Args:
         body: the body model.
@@ -180,17 +176,46 @@ def forward(body: Body, pose, betas=None, trans=None) -> BodyOutput:
         BodyOutput with vertices (..., V, 3), joints (..., J, 3) and global
         joint_rotations (..., J, 3, 3); batch axes broadcast across the inputs.
     """
-    pose, betas, trans = _check_inputs(body, pose, betas, trans)
-    dtype = pose.dtype
+    pose = jnp.asarray(pose)
+    J = body.num_joints
+    if pose.ndim < 2 or pose.shape[-2:] != (J, 3):
+        raise ValueError(
+            f"pose has shape {pose.shape}; expected (..., {J}, 3) axis-angle vectors, one per "
+            f"joint of this {body.kind} body. Reshape a flat (..., {3 * J}) pose with "
+            f"pose.reshape(*pose.shape[:-1], {J}, 3)."
+        )
+    dtype = pose.dtype if jnp.issubdtype(pose.dtype, jnp.floating) else body.dtype
+    return forward_rotations(body, axis_angle_to_matrix(pose.astype(dtype)), betas, trans)
+
+
+def forward_rotations(body: Body, local_rotations, betas=None, trans=None) -> BodyOutput:
+    """The SMPL function M(β, θ) + translation, θ as local rotation matrices.
+
+    Huang eq. 2.1-2.4: T(β, θ) = T̄ + B_s(β) + B_p(θ), joints J(β) = 𝒥 (T̄ + B_s(β)),
+    pose blend shapes linear in vec(R(θ_j) - I) for the J-1 non-root joints, then linear
+    blend skinning v_i = Σ_j w_ij G_j(θ, J) G_j(0, J)⁻¹ t_i.
+
+    Computation happens in the dtype of `local_rotations` (the body is cast if needed).
+
+    Args:
+        body: the body model.
+        local_rotations: (..., J, 3, 3) joint rotations relative to the parent, root first.
+        betas: (..., B) shape coefficients, B <= body.num_betas (default: zeros).
+        trans: (..., 3) root translation in metres (default: zeros).
+    Returns:
+        BodyOutput with vertices (..., V, 3), joints (..., J, 3) and global
+        joint_rotations (..., J, 3, 3); batch axes broadcast across the inputs.
+    """
+    local, betas, trans = _check_inputs(body, local_rotations, betas, trans)
+    dtype = local.dtype
     if body.dtype != dtype:
         body = body.astype(dtype)
-    batch, V, nb = pose.shape[:-2], body.num_vertices, betas.shape[-1]
+    batch, V, nb = local.shape[:-3], body.num_vertices, betas.shape[-1]
     # Work on a flat batch of N samples: 2-D matrix products are what CPU and GPU BLAS
     # run fastest (a 3-D einsum against posedirs made XLA-CPU transpose it every call).
-    pose, betas, trans = pose.reshape(-1, body.num_joints, 3), betas.reshape(-1, nb), trans.reshape(-1, 3)
+    local, betas, trans = local.reshape(-1, body.num_joints, 3, 3), betas.reshape(-1, nb), trans.reshape(-1, 3)
 
-    local = axis_angle_to_matrix(pose)
-    pose_feature = (local[:, 1:] - jnp.eye(3, dtype=dtype)).reshape(len(pose), -1)
+    pose_feature = (local[:, 1:] - jnp.eye(3, dtype=dtype)).reshape(len(local), -1)
     v_posed = (
         body.v_template.reshape(-1)
         + betas @ body.shapedirs[:nb].reshape(nb, 3 * V)

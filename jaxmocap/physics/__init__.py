@@ -1,22 +1,30 @@
 """Physical plausibility: MuJoCo/MJX scene of the body, batched contact checks, metrics,
-physics-aware residuals and a report (ground penetration, floating, foot skating,
-human-object penetration). World y up, as everywhere in jaxmocap."""
+physics-aware residuals (engine terms on rotation matrices, body and scene as
+`PhysicsData`, composable with the IMU terms) and a report (ground penetration, floating,
+foot skating, human-object penetration). World y up, as everywhere in jaxmocap."""
 
 from .checker import ContactDistances as ContactDistances
 from .checker import Scene as Scene
 from .checker import check as check
 from .checker import contact_distances as contact_distances
+from .checker import contact_distances_posed as contact_distances_posed
 from .checker import make_scene as make_scene
 from .checker import pose_bones as pose_bones
+from .energies import FOOT_JOINTS as FOOT_JOINTS
+from .energies import FootStationarityResidual as FootStationarityResidual
+from .energies import GroundSupportResidual as GroundSupportResidual
+from .energies import MJXGroundResidual as MJXGroundResidual
+from .energies import ObjectPenetrationResidual as ObjectPenetrationResidual
 from .energies import ObjectSDF as ObjectSDF
+from .energies import PhysicsData as PhysicsData
 from .energies import detect_foot_contact as detect_foot_contact
 from .energies import foot_stationarity as foot_stationarity
-from .energies import foot_stationarity_residual as foot_stationarity_residual
+from .energies import foot_stationarity_term as foot_stationarity_term
 from .energies import ground_support as ground_support
-from .energies import ground_support_residual as ground_support_residual
-from .energies import mjx_ground_residual as mjx_ground_residual
+from .energies import ground_support_term as ground_support_term
+from .energies import mjx_ground_term as mjx_ground_term
 from .energies import object_penetration as object_penetration
-from .energies import object_penetration_residual as object_penetration_residual
+from .energies import object_penetration_term as object_penetration_term
 from .metrics import CONTACT_THRESHOLD as CONTACT_THRESHOLD
 from .metrics import PENETRATION_THRESHOLDS as PENETRATION_THRESHOLDS
 from .metrics import contact_heatmap as contact_heatmap

@@ -28,7 +28,15 @@ from ..body.model import Body
 from ..rotation import axis_angle_to_matrix, matrix_to_quaternion
 from .mjcf import FOOT_BONES, BodyGeometry, Ground, RigidObject, fit_body_geometry, scene_mjcf
 
-__all__ = ["Scene", "ContactDistances", "make_scene", "contact_distances", "check", "pose_bones"]
+__all__ = [
+    "Scene",
+    "ContactDistances",
+    "make_scene",
+    "contact_distances",
+    "contact_distances_posed",
+    "check",
+    "pose_bones",
+]
 
 
 class ContactDistances(eqx.Module):
@@ -154,12 +162,24 @@ def contact_distances(
     Returns:
         ContactDistances for this frame.
     """
+    rotations, joints = pose_bones(scene, pose, trans)
+    return contact_distances_posed(scene, rotations, joints, object_rotations, object_positions)
+
+
+def contact_distances_posed(
+    scene: Scene,
+    rotations: Array,
+    joints: Array,
+    object_rotations: Array | None = None,
+    object_positions: Array | None = None,
+) -> ContactDistances:
+    """`contact_distances` of one frame from its global bone rotations (J, 3, 3) and
+    joints (J, 3) (translation included, as `pose_bones` returns them)."""
     from mujoco import mjx
 
     g = scene.geometry
     K, O = g.num_geoms, scene.num_objects
     P = len(scene.part_object)
-    rotations, joints = pose_bones(scene, pose, trans)
     bone = np.asarray(g.bone)
     pos, quat = joints[bone], matrix_to_quaternion(rotations[bone])
     if O:

@@ -1,10 +1,21 @@
 """Physics-aware residuals: ground support, foot-contact stationarity, object non-penetration.
 
-Each energy has an unbatched-in-spirit kernel on posed points (vertices, joints) and a
-factory returning a residual `r(params, data) -> (T, ..., d)` in the convention of
-`jaxmocap.solve` (one row per frame, last axis one observation), with
-`params = {"pose": (T, 24, 3), "trans": (T, 3)}` and optional `data["betas"]` (B,).
-Weights are scales on the residuals (`Term(weight=...)`), never special cases.
+Each energy has a kernel on posed points (vertices, joints) and a residual module in the
+energy protocol of `jaxmocap.solve` (one row per frame, last axis one observation):
+
+- the residual is an `eqx.Module` whose fields are static configuration only (vertex ids,
+  joint ids, margins), so equal configurations compare and hash equal and a rebuilt
+  problem reuses the compiled solve;
+- `params["pose"]` reaches it as local rotation matrices (T, 24, 3, 3) (a rotation key of
+  the `Problem`), `params["trans"]` (T, 3) as given; the posed body comes from
+  `jaxmocap.energies.posed.posed_body`, one forward pass per evaluation shared by all terms;
+- body, ground, contact weights, object SDF and pose are data, read by attribute
+  (`PhysicsData`): new data of the same shapes does not recompile. IMU and physics terms
+  compose in one `Problem(..., rotations=("pose",))` with
+  `CombinedData((inertial_data, physics_data))`.
+
+`*_term` wraps a residual in a `Term` (name, weight, bandwidth, reads). Weights are scales
+on the residuals (`Term(weight=...)`), never special cases.
 
 Distances are analytic where they are better than MJX's:
 - ground: the signed distance of every vertex to the plane, n·v - h (exact, smooth,
@@ -12,13 +23,15 @@ Distances are analytic where they are better than MJX's:
 - objects: a signed distance field of the object mesh, precomputed on a grid from the
   trimesh triangles (exact point-triangle distances, sign by the generalised winding
   number) and trilinearly interpolated, so gradients are finite and continuous;
-- `mjx_ground_residual`: the same ground term through MJX's plane-capsule contacts, for
-  comparison (finite, piecewise-linear gradients; see tests and the closing note).
+- `MJXGroundResidual`: the same ground term through MJX's plane-capsule contacts, for
+  comparison (capsule-level rather than vertex-level; the plane-capsule distance is
+  exact, so its gradients are finite).
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import Any
 
 import equinox as eqx
 import jax
@@ -26,20 +39,27 @@ import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
-from ..body.kinematics import forward
-from ..body.model import Body
+from ..body.kinematics import forward_kinematics
+from ..body.model import SMPL_JOINT_NAMES, SMPL_PARENTS, Body
+from ..energies.posed import posed_body
+from ..solve import Term
 from .mjcf import Ground
 
 __all__ = [
+    "PhysicsData",
     "ground_support",
-    "ground_support_residual",
+    "GroundSupportResidual",
+    "ground_support_term",
     "detect_foot_contact",
     "foot_stationarity",
-    "foot_stationarity_residual",
+    "FootStationarityResidual",
+    "foot_stationarity_term",
     "ObjectSDF",
     "object_penetration",
-    "object_penetration_residual",
-    "mjx_ground_residual",
+    "ObjectPenetrationResidual",
+    "object_penetration_term",
+    "MJXGroundResidual",
+    "mjx_ground_term",
     "FOOT_JOINTS",
 ]
 
@@ -47,10 +67,37 @@ __all__ = [
 FOOT_JOINTS = ("left_ankle", "right_ankle", "left_foot", "right_foot")
 
 
-def _posed(body: Body, params: dict, data) -> tuple[Array, Array]:
-    betas = None if not isinstance(data, dict) else data.get("betas")
-    out = forward(body, params["pose"], betas, params["trans"])
-    return out.vertices, out.joints
+class PhysicsData(eqx.Module):
+    """What the physics residuals read from `data` (by attribute; None where unused).
+
+    body: the body model (ground, contact, object terms).
+    betas: (B,) or (T, B) shape; None for the mean shape.
+    ground: the plane (ground support).
+    contact_weights: (T-1, F) or (T, F) foot-contact weights of the steps t -> t+1
+        (`detect_foot_contact`; a last row is ignored).
+    sdf: the object's `ObjectSDF`; object_rotation (T, 3, 3) and object_position (T, 3)
+        its world-from-object pose per frame.
+    scene: the MJX `Scene` (`MJXGroundResidual`).
+    """
+
+    body: Body | None = None
+    betas: Array | None = None
+    ground: Ground | None = None
+    contact_weights: Array | None = None
+    sdf: ObjectSDF | None = None
+    object_rotation: Array | None = None
+    object_position: Array | None = None
+    scene: Any = None
+
+
+def _ids(ids) -> tuple[int, ...] | None:
+    return None if ids is None else tuple(int(i) for i in np.asarray(ids).reshape(-1))
+
+
+def _vertices(params, data, ids) -> Array:
+    """Posed vertices (T, N, 3) of `data.body` (the shared forward pass), subset `ids`."""
+    vertices = posed_body(params, data.body, getattr(data, "betas", None)).vertices
+    return vertices if ids is None else vertices[..., np.asarray(ids), :]
 
 
 # --- ground support ------------------------------------------------------------------
@@ -65,23 +112,25 @@ def ground_support(points: Array, ground: Ground, margin: float = 0.0) -> Array:
     return jax.nn.relu(margin - ground.signed_distance(points))
 
 
-def ground_support_residual(body: Body, ground: Ground, vertex_ids: Sequence[int] | None = None, margin: float = 0.0):
-    """Residual r(params, data) -> (T, N, 1): `ground_support` of the posed vertices.
+class GroundSupportResidual(eqx.Module):
+    """`ground_support` of the posed vertices against `data.ground`: (T, N, 1).
 
-    Args:
-        body: the body model; ground: the plane.
-        vertex_ids: restrict to these vertices (e.g. soles); default all.
-        margin: keep points this far above the plane (m).
+    vertex_ids: static, restrict to these vertices (e.g. soles); None for all.
+    margin: static, keep points this far above the plane (m).
+    Reads data.body, data.betas, data.ground.
     """
-    ids = None if vertex_ids is None else np.asarray(vertex_ids)
 
-    def residual(params, data=None):
-        vertices, _ = _posed(body, params, data)
-        if ids is not None:
-            vertices = vertices[..., ids, :]
-        return ground_support(vertices, ground, margin)[..., None]
+    vertex_ids: tuple[int, ...] | None = eqx.field(static=True, default=None, converter=_ids)
+    margin: float = eqx.field(static=True, default=0.0, converter=float)
 
-    return residual
+    def __call__(self, params, data) -> Array:
+        vertices = _vertices(params, data, self.vertex_ids)
+        return ground_support(vertices, data.ground, self.margin)[..., None]
+
+
+def ground_support_term(vertex_ids=None, margin: float = 0.0, weight=1.0, loss=None, name: str = "ground") -> Term:
+    """`GroundSupportResidual` as a per-frame `Term` (every joint reads: pose blend shapes)."""
+    return Term(name, GroundSupportResidual(vertex_ids, margin), weight, 0, loss)
 
 
 # --- foot contact ---------------------------------------------------------------------
@@ -126,25 +175,37 @@ def foot_stationarity(foot_positions: Array, weights: Array) -> Array:
     return weights[..., None] * (foot_positions[1:] - foot_positions[:-1])
 
 
-def foot_stationarity_residual(body: Body, weights, foot_joints: Sequence[str] = FOOT_JOINTS):
-    """Residual r(params, data) -> (T, F, 3), bandwidth 1 (row t: frames t and t+1).
+def _joint_ids(joints) -> tuple[int, ...]:
+    return tuple(SMPL_JOINT_NAMES.index(j) if isinstance(j, str) else int(j) for j in joints)
 
-    Args:
-        body: the body model.
-        weights: (T-1, F) contact weights (`detect_foot_contact` on the initial motion).
-        foot_joints: joint names of the F foot points.
-    The last row is zero padding so there is one row per frame.
+
+class FootStationarityResidual(eqx.Module):
+    """`foot_stationarity` of the posed foot joints: (T, F, 3), bandwidth 1 (row t:
+    frames t and t+1; the last row is zero padding so there is one row per frame).
+
+    joints: static, the F foot joint indices (default `FOOT_JOINTS`).
+    Reads data.body, data.betas, data.contact_weights.
     """
-    ids = np.asarray([body.joint_index(n) for n in foot_joints])
-    weights = jnp.asarray(weights)
 
-    def residual(params, data=None):
-        _, joints = _posed(body, params, data)
-        feet = joints[:, ids]
-        r = foot_stationarity(feet, weights.astype(feet.dtype))
+    joints: tuple[int, ...] = eqx.field(static=True, default=_joint_ids(FOOT_JOINTS), converter=_joint_ids)
+
+    def __call__(self, params, data) -> Array:
+        feet = posed_body(params, data.body, getattr(data, "betas", None)).joints[:, np.asarray(self.joints)]
+        weights = data.contact_weights[: feet.shape[0] - 1].astype(feet.dtype)
+        r = foot_stationarity(feet, weights)
         return jnp.concatenate([r, jnp.zeros_like(r[:1])], 0)
 
-    return residual
+
+def foot_stationarity_term(joints: Sequence[str | int] = FOOT_JOINTS, weight=1.0, loss=None, name: str = "contact") -> Term:
+    """`FootStationarityResidual` as a `Term`, bandwidth 1, reading the foot joints'
+    chains and the translation (joint names are SMPL's)."""
+    fn = FootStationarityResidual(joints)
+    chains = set()
+    for j in fn.joints:
+        while j >= 0:
+            chains.add(j)
+            j = SMPL_PARENTS[j]
+    return Term(name, fn, weight, 1, loss, reads=(("pose", tuple(sorted(chains))), ("trans", None)))
 
 
 # --- objects --------------------------------------------------------------------------
@@ -266,31 +327,51 @@ def object_penetration(points: Array, sdf: ObjectSDF, rotation: Array, position:
     return jax.nn.relu(margin - sdf(local))
 
 
-def object_penetration_residual(body: Body, sdf: ObjectSDF, vertex_ids: Sequence[int] | None = None):
-    """Residual r(params, data) -> (T, N, 1) with the object pose in data:
-    `data["object_rotation"]` (T, 3, 3) and `data["object_position"]` (T, 3)."""
-    ids = None if vertex_ids is None else np.asarray(vertex_ids)
+class ObjectPenetrationResidual(eqx.Module):
+    """`object_penetration` of the posed vertices against one rigid object: (T, N, 1).
 
-    def residual(params, data):
-        vertices, _ = _posed(body, params, data)
-        if ids is not None:
-            vertices = vertices[..., ids, :]
-        return object_penetration(vertices, sdf, data["object_rotation"], data["object_position"])[..., None]
+    vertex_ids: static, restrict to these vertices; None for all. margin: static (m).
+    Reads data.body, data.betas, data.sdf, data.object_rotation (T, 3, 3),
+    data.object_position (T, 3).
+    """
 
-    return residual
+    vertex_ids: tuple[int, ...] | None = eqx.field(static=True, default=None, converter=_ids)
+    margin: float = eqx.field(static=True, default=0.0, converter=float)
+
+    def __call__(self, params, data) -> Array:
+        vertices = _vertices(params, data, self.vertex_ids)
+        dtype = vertices.dtype
+        rotation, position = data.object_rotation.astype(dtype), data.object_position.astype(dtype)
+        return object_penetration(vertices, data.sdf, rotation, position, self.margin)[..., None]
+
+
+def object_penetration_term(vertex_ids=None, margin: float = 0.0, weight=1.0, loss=None, name: str = "object") -> Term:
+    """`ObjectPenetrationResidual` as a per-frame `Term`."""
+    return Term(name, ObjectPenetrationResidual(vertex_ids, margin), weight, 0, loss)
 
 
 # --- MJX variant -----------------------------------------------------------------------
 
 
-def mjx_ground_residual(scene):
-    """Ground support through MJX contacts: r(params, data) -> (T, K, 1) = max(0, -d_k),
-    d_k the plane-capsule distance of capsule k from `mjx.collision` (for comparison
-    with the analytic vertex term; see module docstring)."""
-    from .checker import contact_distances
+class MJXGroundResidual(eqx.Module):
+    """Ground support through MJX contacts: (T, K, 1) = max(0, -d_k), d_k the
+    plane-capsule distance of capsule k of `data.scene` (`mjx.collision`), for comparison
+    with the vertex term. The capsules are fitted to one shape: the scene's rest joints
+    are used, not data.body/betas. Reads data.scene.
+    """
 
-    def residual(params, data=None):
-        d = jax.vmap(lambda p, t: contact_distances(scene, p, t).ground)(params["pose"], params["trans"])
-        return jax.nn.relu(-d)[..., None]
+    def __call__(self, params, data) -> Array:
+        from .checker import contact_distances_posed
 
-    return residual
+        scene = data.scene
+        local = params["pose"]
+        rotations, joints = forward_kinematics(scene.parents, local, scene.geometry.rest_joints.astype(local.dtype))
+        if "trans" in params:
+            joints = joints + params["trans"][:, None, :]
+        d = jax.vmap(lambda R, p: contact_distances_posed(scene, R, p).ground)(rotations, joints)
+        return jax.nn.relu(-d.astype(local.dtype))[..., None]
+
+
+def mjx_ground_term(weight=1.0, loss=None, name: str = "mjx_ground") -> Term:
+    """`MJXGroundResidual` as a per-frame `Term`."""
+    return Term(name, MJXGroundResidual(), weight, 0, loss)

@@ -1,24 +1,35 @@
 """Batched least-squares engine: energies as residual terms, structured LM/GN, vmap.
 
 Every method in jaxmocap is "stack weighted residuals, minimise with Gauss-Newton /
-Levenberg-Marquardt" (von Marcard §2.3, §3.3.4). Compose `Term`s into a `Problem`, call
-`solve` (one sequence) or `solve_batch` (many, padded with masks).
+Levenberg-Marquardt" (von Marcard §2.3, §3.3.4). Declare the unknowns (per frame, per
+sequence, per window; vectors, angles, SO(3), SE(3)), compose `Term`s into a `Problem`,
+call `solve` (one sequence, through `optx.least_squares`) or `solve_batch` (many,
+padded with masks, per-member weights). Solves are differentiable (implicit adjoint).
 """
 
 from .batch import pad_sequences as pad_sequences
 from .batch import solve_batch as solve_batch
-from .manifold import FrameLayout as FrameLayout
-from .manifold import retract as retract
 from .residuals import Cauchy as Cauchy
 from .residuals import GemanMcClure as GemanMcClure
 from .residuals import Huber as Huber
+from .residuals import Params as Params
 from .residuals import Problem as Problem
 from .residuals import RobustLoss as RobustLoss
 from .residuals import Term as Term
 from .residuals import nan_mask as nan_mask
 from .residuals import second_difference as second_difference
 from .solver import METHODS as METHODS
+from .solver import Args as Args
 from .solver import Solution as Solution
+from .solver import VonMarcardLM as VonMarcardLM
+from .solver import linear_solver as linear_solver
 from .solver import result_message as result_message
 from .solver import solve as solve
-from .structured import BandedNormalCholesky as BandedNormalCholesky
+from .structured import StructuredCholesky as StructuredCholesky
+from .structured import shift_frames as shift_frames
+from .unknowns import Layout as Layout
+from .unknowns import Unknown as Unknown
+from .unknowns import Windows as Windows
+from .unknowns import frame as frame
+from .unknowns import sequence as sequence
+from .unknowns import window as window

@@ -17,9 +17,9 @@ import jax
 import jax.numpy as jnp
 from jax import Array
 
-from .solver import METHODS, Solution, _check, _solve_core
+from .solver import METHODS, Args, Solution, _check, _solve_core
 
-__all__ = ["pad_sequences", "solve_batch"]
+__all__ = ["pad_sequences", "solve_batch", "with_weights"]
 
 
 def pad_sequences(sequences: Sequence[Any], length: int | None = None) -> tuple[Any, Array]:
@@ -49,17 +49,29 @@ def pad_sequences(sequences: Sequence[Any], length: int | None = None) -> tuple[
     return stacked, mask
 
 
+def with_weights(problem, weights: dict | None):
+    """`problem` with the named terms' weights replaced (arrays: traced, no recompilation)."""
+    if not weights:
+        return problem
+    names = {t.name for t in problem.terms}
+    unknown = sorted(set(weights) - names)
+    if unknown:
+        raise ValueError(f"weights for terms {unknown} that the problem lacks; its terms are {sorted(names)}.")
+    terms = [eqx.tree_at(lambda t: t.weight, t, weights[t.name]) if t.name in weights else t for t in problem.terms]
+    return eqx.tree_at(lambda p: p.terms, problem, tuple(terms))
+
+
 def solve_batch(
     problem,
     params0: dict,
     data: Any,
     frame_mask: Array | None = None,
     *,
+    weights: dict[str, Array] | None = None,
     method: str = "lm",
     rtol: float | Array = 1e-6,
     atol: float | Array = 1e-8,
     max_steps: int = 100,
-    linear_solver="banded",
     factor_dtype: Any = None,
     dtype: Any = None,
     damping: str = "levenberg",
@@ -67,12 +79,15 @@ def solve_batch(
     """`solve` over a leading batch axis of `params0`, `data` and `frame_mask`.
 
     Args are those of `solve`, each with a leading batch axis B (`rtol` and `atol` may be
-    scalars or (B,) arrays: per-sequence tolerances). Returns a `Solution` whose every
-    field has the batch axis first: per-sequence value, result, num_steps, cost, costs.
+    scalars or (B,) arrays: per-sequence tolerances). `weights` maps term names to (B,)
+    weights, one per member: an ablation grid is a batch axis, one compilation.
+    Returns a `Solution` whose every field has the batch axis first.
     """
     if method not in METHODS:
         raise ValueError(f"method must be one of {METHODS}, got {method!r}.")
     leaves = jax.tree_util.tree_leaves(params0)
+    if not leaves:
+        raise ValueError("params0 is empty; give a dict of batched (B, ...) initial parameters.")
     B = jnp.shape(leaves[0])[0]
     first = jax.tree_util.tree_map(lambda x: x[0], params0)
     layout, _, _, dtype = _check(problem, first, None, None if frame_mask is None else frame_mask[0], dtype)
@@ -81,20 +96,22 @@ def solve_batch(
         factor_dtype = jnp.float64 if jax.config.jax_enable_x64 else dtype
     rtol = jnp.broadcast_to(jnp.asarray(rtol, dtype), (B,))
     atol = jnp.broadcast_to(jnp.asarray(atol, dtype), (B,))
+    weights = {k: jnp.broadcast_to(jnp.asarray(v, dtype), (B,)) for k, v in (weights or {}).items()}
+    with_weights(problem, weights and {k: v[0] for k, v in weights.items()})  # names checked here
     if frame_mask is not None:
         frame_mask = jnp.asarray(frame_mask, bool)
-    if method == "lm":
-        max_steps = jnp.asarray(max_steps)
+    max_steps = jnp.asarray(max_steps) if method == "lm" else int(max_steps)
     return _batch_jit(
-        problem, layout, params0, data, frame_mask, rtol, atol, max_steps, method=method,
-        linear_solver=linear_solver, factor_dtype=jnp.dtype(factor_dtype), damping=damping,
+        problem, layout, params0, data, frame_mask, weights, rtol, atol, max_steps, method=method,
+        factor_dtype=jnp.dtype(factor_dtype), damping=damping,
     )  # fmt: skip
 
 
 @eqx.filter_jit
-def _batch_jit(problem, layout, params0, data, frame_mask, rtol, atol, max_steps, **static):
-    def one(p, d, m, rt, at):
-        return _solve_core(problem, layout, p, d, m, rt, at, max_steps, **static)
+def _batch_jit(problem, layout, params0, data, frame_mask, weights, rtol, atol, max_steps, **static):
+    def one(p, d, m, w, rt, at):
+        args = Args(with_weights(problem, w), d, m, layout)
+        return _solve_core(args, p, rt, at, max_steps, solver=None, adjoint=None, **static)
 
     mask_axis = None if frame_mask is None else 0
-    return jax.vmap(one, in_axes=(0, 0, mask_axis, 0, 0))(params0, data, frame_mask, rtol, atol)
+    return jax.vmap(one, in_axes=(0, 0, mask_axis, 0, 0, 0))(params0, data, frame_mask, weights, rtol, atol)

@@ -38,12 +38,15 @@ import jax.numpy as jnp
 import jax.tree_util as jtu
 from jax import Array
 
+from .unknowns import Layout, Unknown, to_manifold
+
 __all__ = [
     "RobustLoss",
     "GemanMcClure",
     "Huber",
     "Cauchy",
     "Term",
+    "Params",
     "Problem",
     "second_difference",
     "nan_mask",
@@ -155,11 +158,16 @@ class Term(eqx.Module):
         loss: robust loss applied per observation (last axis), or None for ρ(s) = s.
         mask: `mask(data) -> bool` broadcastable to the residual's shape without its
             last axis (e.g. (T, N_s) for (T, N_s, 3) residuals); False rows are dropped.
-        reads: the per-frame unknowns `fn` depends on, as (parameter key, indices along
-            the key's first per-frame axis, or None for all of it) pairs; None: every
-            unknown. The solver differentiates only these, and unknowns that no
-            frame-coupling term reads are eliminated frame by frame before the banded
-            factorisation (e.g. the hands and feet in SIP, seen by the prior only).
+        reads: the unknowns `fn` depends on, as (parameter key, indices along the
+            first axis of the key's per-item shape, or None for all of it) pairs, e.g.
+            (("pose", (1, 2)), ("heading", None)); None: every per-frame unknown.
+            Per-sequence and per-window unknowns reach `fn` only if declared here (an
+            undeclared one raises a ValueError naming it). The solver differentiates
+            only what a term reads, and per-frame unknowns that no frame-coupling term
+            reads are eliminated frame by frame before the banded factorisation (e.g.
+            the hands and feet in SIP, seen by the prior only). A term that reads a
+            per-window unknown must have bandwidth 0 and return, for its rows at frame
+            t, one block per window slot (see `jaxmocap.solve.Windows.rows`).
         jacobian: optional analytic Jacobian, `jacobian(params, data)` -> {key: array
             (T, 2b+1, *e.shape[1:], *per-frame shape of key)}: ∂e_t/∂δ_{t+d}, d = -b..b,
             of `fn`'s raw output e (before weight, loss and mask; zero where t+d leaves
@@ -198,10 +206,13 @@ class Term(eqx.Module):
         """The analytic Jacobian of `raw` (see `jacobian`)."""
         return self.jacobian(params, self._input(data, raw_data))
 
-    def residual(self, params, data, raw_data, frame_mask: Array | None) -> Array:
+    def residual(self, params, data, raw_data, frame_mask: Array | None, T: int) -> Array:
         """Weighted, masked (square-root robust) residual, flattened to (T, m)."""
-        T = jtu.tree_leaves(params)[0].shape[0]
         return self.finish(self.raw(params, data, raw_data), raw_data, frame_mask, T)
+
+    def read_keys(self) -> set[str] | None:
+        """Keys named in `reads` (None: undeclared, every per-frame unknown)."""
+        return None if self.reads is None else {k for k, _ in self.reads}
 
     def finish(self, e: Array, raw_data, frame_mask: Array | None, T: int) -> Array:
         """e -> √w · mask · robust(e), flattened to (T, m); row t depends on e_t only."""
@@ -255,25 +266,59 @@ def _sanitise(data):
     return jtu.tree_map(clean, data)
 
 
-class Problem(eqx.Module):
-    """A least-squares problem: named terms over a per-frame parameter pytree.
+class Params(dict):
+    """The unknowns as a term function sees them (rotations as matrices), one evaluation.
 
-    Parameters are a dict of arrays, each (T, ...) with the frame axis first, e.g.
-    {"pose": (T, 24, 3), "trans": (T, 3)}. Keys listed in `rotations` hold axis-angle
-    vectors (..., 3) that the solvers update on SO(3) (see `manifold.py`); the term
-    functions receive them as rotation matrices (T, ..., 3, 3).
+    A dict of the per-frame unknowns and the per-sequence / per-window unknowns the
+    term declares in `reads`; reading an undeclared one raises a ValueError naming it.
+    `shared(key, compute)` memoises `compute()` across all terms of one evaluation, so
+    a posed body needed by several terms is computed once (`energies.posed`).
+    """
+
+    def __init__(self, values, hidden=(), term="", cache=None):
+        super().__init__(values)
+        self._hidden = dict(hidden)
+        self._term = term
+        self._cache = {} if cache is None else cache
+
+    def __missing__(self, key):
+        if key in self._hidden:
+            raise ValueError(
+                f"Term {self._term!r} reads the {self._hidden[key]} unknown {key!r} without "
+                f"declaring it: add ({key!r}, None) to the term's reads."
+            )
+        raise KeyError(key)
+
+    def shared(self, key, compute):
+        """compute(), evaluated once per residual evaluation for each `key`."""
+        if key not in self._cache:
+            self._cache[key] = compute()
+        return self._cache[key]
+
+
+class Problem(eqx.Module):
+    """A least-squares problem: named terms over a dict of unknowns.
+
+    Each unknown has a kind (per frame (T, ...), per sequence (...), per window
+    (W, ...)) and a manifold (vector, angle, SO(3), SE(3)); see `jaxmocap.solve.unknowns`.
+    Keys not declared in `unknowns` are per-frame vectors. Term functions receive
+    rotations as (..., 3, 3) matrices and rigid poses as (..., 4, 4) matrices.
+
+        Problem(terms, unknowns={"pose": frame("so3"), "heading": sequence("angle")})
 
     Attributes:
         terms: the energy terms; names must be unique.
-        rotations: parameter keys holding axis-angle rotations.
+        unknowns: {key: Unknown}; `rotations=("pose",)` is short for {"pose": frame("so3")}.
     """
 
     terms: tuple[Term, ...]
-    rotations: tuple[str, ...] = eqx.field(static=True, default=())
+    unknowns: tuple[tuple[str, Unknown], ...] = eqx.field(static=True, default=())
 
-    def __init__(self, terms, rotations=()):
+    def __init__(self, terms, unknowns=None, rotations=()):
         self.terms = tuple(terms)
-        self.rotations = tuple(rotations)
+        spec = {k: Unknown("frame", "so3") for k in rotations}
+        spec.update(unknowns or {})
+        self.unknowns = tuple(sorted(spec.items()))
 
     def __check_init__(self):
         names = [t.name for t in self.terms]
@@ -281,6 +326,36 @@ class Problem(eqx.Module):
             raise ValueError(f"Problem needs at least one term and unique term names, got {names}.")
         if any(n.startswith("_") for n in names):
             raise ValueError(f"Term names starting with '_' are reserved, got {names}.")
+        spec = dict(self.unknowns)
+        for key, u in spec.items():
+            if not isinstance(u, Unknown):
+                raise ValueError(f"unknowns[{key!r}] must be frame(), sequence() or window(...), got {u!r}.")
+            if u.kind == "frame":
+                continue
+            readers = [t for t in self.terms if t.reads is not None and key in t.read_keys()]
+            if not readers:
+                raise ValueError(
+                    f"no term reads the {u.kind} unknown {key!r}, so nothing determines it (a "
+                    f"singular border): declare it in the reads of the terms that use it, "
+                    f"e.g. reads=(({key!r}, None), ...), or remove it."
+                )
+            if u.kind == "window":
+                for t in readers:
+                    if t.bandwidth != 0:
+                        raise ValueError(
+                            f"Term {t.name!r} reads the per-window unknown {key!r} and has bandwidth "
+                            f"{t.bandwidth}; a term that reads windows must be per-frame (bandwidth 0). "
+                            "Split it into a window term and a frame-coupling term."
+                        )
+
+    @property
+    def spec(self) -> dict[str, Unknown]:
+        return dict(self.unknowns)
+
+    @property
+    def rotations(self) -> tuple[str, ...]:
+        """Keys stored as axis-angle rotations (SO(3))."""
+        return tuple(k for k, u in self.unknowns if u.manifold == "so3")
 
     @property
     def bandwidth(self) -> int:
@@ -291,17 +366,36 @@ class Problem(eqx.Module):
     def bandwidths(self) -> dict[str, int]:
         return {t.name: t.bandwidth for t in self.terms}
 
+    def layout(self, params: dict):
+        """The `Layout` of `params` under this problem's unknowns."""
+        return Layout.of(params, self.spec)
+
+    def views(self, x: dict) -> dict[str, Params]:
+        """Per term, the unknowns it may read (one shared cache)."""
+        spec = self.spec
+        cache = {}
+        kinds = {k: spec[k].kind if k in spec else "frame" for k in x}
+        out = {}
+        for t in self.terms:
+            declared = t.read_keys() or set()
+            visible = {k: v for k, v in x.items() if kinds[k] == "frame" or k in declared}
+            hidden = {k: "per-" + kinds[k] for k in x if k not in visible}
+            out[t.name] = Params(visible, hidden, t.name, cache)
+        return out
+
     def residuals(self, params, data, frame_mask: Array | None = None) -> dict[str, Array]:
-        """Weighted residuals per term at axis-angle `params`, each flattened to (T, m_term)."""
-        from .manifold import to_manifold
+        """Weighted residuals per term at stored `params`, each flattened to (T, m_term)."""
+        layout = self.layout(params)
+        return self.residuals_on_manifold(to_manifold(params, layout), data, frame_mask, layout.T)
 
-        return self.residuals_on_manifold(to_manifold(params, self.rotations), data, frame_mask)
-
-    def residuals_on_manifold(self, x, data, frame_mask: Array | None = None) -> dict[str, Array]:
-        """As `residuals`, with the rotation keys of `x` already rotation matrices."""
-        params = x
+    def residuals_on_manifold(self, x, data, frame_mask: Array | None = None, T: int | None = None) -> dict[str, Array]:
+        """As `residuals`, with `x` already in manifold form (rotations as matrices)."""
+        if T is None:
+            spec = self.spec
+            T = next(jnp.shape(v)[0] for k, v in x.items() if k not in spec or spec[k].kind == "frame")
         clean = _sanitise(data)
-        return {t.name: t.residual(params, clean, data, frame_mask) for t in self.terms}
+        views = self.views(x)
+        return {t.name: t.residual(views[t.name], clean, data, frame_mask, T) for t in self.terms}
 
     def costs(self, params, data, frame_mask: Array | None = None) -> dict[str, Array]:
         """Per-term costs ½ w Σ ρ(‖e‖²), the balance the solver struck."""

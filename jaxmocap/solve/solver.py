@@ -1,61 +1,61 @@
-"""`solve`: minimise a `Problem` over a sequence, returning plain per-problem arrays.
+"""`solve`: minimise a `Problem` through `optx.least_squares`, returning plain arrays.
 
-Backends behind one call (`method=`):
+One path for every backend: `solve` builds the residual function y ↦ r(y) of the stored
+parameters (axis-angle rotations, (ω, t) rigid poses, angles, vectors) and calls
+`optx.least_squares(fn, solver, params0, args, adjoint=optx.ImplicitAdjoint(...))`,
+so `throw=False` result codes, step limits, implicit differentiation and any optimistix
+least-squares solver come from optimistix. `args` carries the problem (terms with their
+weights), the data and the frame mask, so gradients flow to all of them.
 
-- ``"lm"`` — von Marcard's Levenberg-Marquardt (§2.3.2, §3.3.4), written here on the
-  structured solver: δ = -(JᵀJ + λI)⁻¹ Jᵀr (eq. 2.52, `damping="levenberg"`, default) or
-  -(JᵀJ + λ diag(JᵀJ))⁻¹ Jᵀr (eq. 2.54, `damping="marquardt"`), λ₀ = 10, ×10 on a
-  rejected step, ×0.1 on an accepted one; rotations re-anchored after every accepted
-  step, ω ← log(exp(δ^) R(ω))^∨ (eq. 2.56-2.60). The Jacobian blocks (a term's own
-  analytic `Term.jacobian`, else forward-mode AD by frame colouring over the columns
-  the term `reads`) and JᵀJ are built once per accepted iterate; a rejected step only
-  refactorises with the new λ (under `vmap` both branches run: each sequence of a
-  batch relinearises on every step). It is
-  the default: the seeds' algorithm, and the cheapest per iteration. Levenberg damping
-  is the default because on the SIP-shaped problem (benchmarks/solver_scaling.py, T = 20)
-  Marquardt's diag(JᵀJ) scaling let the weakly observed joints (seen by the 0.003-weight
-  prior only) take multi-radian steps: cost 66.6 after 10 iterations against 0.54.
+Solvers (`method=`, or any optimistix least-squares solver as `solver=`):
+
+- ``"lm"`` (default) — `VonMarcardLM`, von Marcard's Levenberg-Marquardt (§2.3.2,
+  §3.3.4) as an optimistix solver: δ = -(JᵀJ + λI)⁻¹ Jᵀr (eq. 2.52, `damping="levenberg"`)
+  or -(JᵀJ + λ diag(JᵀJ))⁻¹ Jᵀr (eq. 2.54, `"marquardt"`), λ₀ = 10, ×10 on a rejected
+  step, ×0.1 on an accepted one, manifold unknowns updated x ← x ⊕ δ and re-anchored
+  after every accepted step (eq. 2.56-2.60). Jacobian blocks (a term's analytic
+  `Term.jacobian`, else forward-mode AD by colouring over what the term `reads`) and H
+  are built once per accepted iterate; a rejected step only refactorises with the new
+  λ. Levenberg damping is the default: on the SIP problem Marquardt's diag(JᵀJ) scaling
+  let joints seen only by the 0.003-weight prior take multi-radian steps.
 - ``"optx_lm"`` / ``"optx_gn"`` — `optx.LevenbergMarquardt` / `optx.GaussNewton` with the
-  block-banded `BandedNormalCholesky` as their `linear_solver` (``linear_solver="dense"``
-  gives optimistix's own dense default, QR / AutoLinearSolver, for small problems).
-  optimistix's LM damps with λI and its own trust-region schedule, and rebuilds the
-  Jacobian blocks on every step, rejected ones included: optimistix hands a linear
-  solver nothing but the operator. Rotations use a fixed anchor, x = x₀ ⊕ δ (see
-  `manifold.py`).
-- ``"jaxopt"`` — `jaxopt.LevenbergMarquardt` on the flat δ with a materialised Jacobian,
-  for small per-frame problems (n ≈ 75, T small) only; jaxopt is unmaintained.
+  structured factorisation as their linear solver (`StructuredCholesky`); they iterate
+  additively on the stored parameters and rebuild the Jacobian on every step.
+- ``"jaxopt"`` — `jaxopt.LevenbergMarquardt` with a dense Jacobian, for small problems.
 
-All backends return a `Solution` of arrays only, so `solve` can be `vmap`ped (see
-`batch.py`), and never raise on failure: `result` holds an `optx.RESULTS` index.
+Differentiation: `jax.grad` of anything computed from `Solution.value` flows through the
+solve by the implicit function theorem (`optx.ImplicitAdjoint`): the adjoint system is the
+Hessian of the cost, assembled by coloured Hessian-vector products in the same
+banded-plus-border structure and solved with the same factorisation — never a dense matrix.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-import lineax as lx
-import numpy as np
+import jax.tree_util as jtu
 import optimistix as optx
 from jax import Array
 
-from .manifold import FrameLayout, from_manifold, reproject, retract, to_manifold
 from .residuals import Problem, _sanitise
 from .structured import (
-    BandedNormalCholesky,
-    factor_banded,
+    Structure,
+    StructuredCholesky,
+    TermBlocks,
+    factor,
     jacobian_blocks,
-    jt_vector,
-    normal_blocks,
-    solve_banded,
+    normal_equations,
+    solve_factored,
 )
+from .unknowns import Layout, from_manifold, retract, to_manifold
 
-__all__ = ["Solution", "solve", "result_message", "METHODS"]
+__all__ = ["Solution", "VonMarcardLM", "solve", "result_message", "METHODS", "linear_solver"]
 
 METHODS = ("lm", "optx_lm", "optx_gn", "jaxopt")
-_PADDING = "_padding"
 
 
 class Solution(eqx.Module):
@@ -85,222 +85,63 @@ def result_message(result) -> str:
     return optx.RESULTS._index_to_message[int(result)] or "successful"
 
 
-def _residual_fn(delta: Array, args, pad: bool = True) -> dict[str, Array]:
-    """Weighted residuals at x₀ ⊕ δ; δ is (T, n). Padded frames are pinned to δ = 0."""
-    problem, layout, anchor, data, frame_mask = args
-    x = retract(anchor, layout.unravel(delta), problem.rotations)
-    res = problem.residuals_on_manifold(x, data, frame_mask)
-    if pad and frame_mask is not None:
-        # Padded frames have no residual; pinning their δ keeps JᵀJ non-singular and
-        # decoupled from the real frames, at zero cost.
-        res[_PADDING] = jnp.where(frame_mask[:, None], jnp.zeros_like(delta), delta)
-    return res
+class Args(eqx.Module):
+    """What the residual function reads besides the unknowns: `optx.least_squares`'s args."""
 
+    problem: Problem
+    data: Any
+    frame_mask: Array | None
+    layout: Layout = eqx.field(static=True)
 
-def _bandwidths(problem: Problem, with_padding: bool) -> tuple[int, ...]:
-    bw = dict(problem.bandwidths)
-    if with_padding:
-        bw[_PADDING] = 0
-    return tuple(bw[k] for k in sorted(bw))
+    @property
+    def names(self) -> tuple[str, ...]:
+        return tuple(sorted(t.name for t in self.problem.terms))
 
-
-def _check(problem, params0, data, frame_mask, dtype):
-    if not isinstance(problem, Problem):
-        raise ValueError(f"problem must be a jaxmocap.solve.Problem, got {type(problem).__name__}.")
-    layout = FrameLayout.of(params0)
-    for k in problem.rotations:
-        if k not in params0:
-            raise ValueError(f"rotation key {k!r} is not a parameter; parameters are {sorted(params0)}.")
-    leaves = [jnp.asarray(params0[k]) for k in layout.keys]
-    if dtype is None:
-        dtype = jnp.result_type(*[x.dtype for x in leaves if jnp.issubdtype(x.dtype, jnp.floating)] or [jnp.float32])
-    dtype = jnp.dtype(dtype)
-    if dtype == jnp.float64 and not jax.config.jax_enable_x64:
-        raise ValueError(
-            "float64 requested but JAX runs in 32-bit mode; call "
-            "jax.config.update('jax_enable_x64', True) first."
+    def leaf_structure(self):
+        """(bandwidths, (frame, window, sequence) columns) per residual leaf (sorted names)."""
+        terms = {t.name: t for t in self.problem.terms}
+        bw = tuple(terms[k].bandwidth for k in self.names)
+        cols = tuple(
+            tuple(self.layout.columns(terms[k].reads, kind) for kind in ("frame", "window", "sequence"))
+            for k in self.names
         )
-    params0 = {k: jnp.asarray(params0[k], dtype) for k in layout.keys}
-    T = leaves[0].shape[0]
-    if frame_mask is not None:
-        frame_mask = jnp.asarray(frame_mask, bool)
-        if frame_mask.shape != (T,):
-            raise ValueError(f"frame_mask has shape {frame_mask.shape}; expected (T,) = ({T},).")
-    return layout, params0, frame_mask, dtype
+        return bw, cols
+
+    def structure(self) -> Structure:
+        bw, cols = self.leaf_structure()
+        return Structure.of(self.layout, bw, [c[0] for c in cols])
 
 
-def solve(
-    problem: Problem,
-    params0: dict,
-    data: Any = None,
-    *,
-    frame_mask: Array | None = None,
-    method: str = "lm",
-    rtol: float | Array = 1e-6,
-    atol: float | Array = 1e-8,
-    max_steps: int = 100,
-    linear_solver: str | lx.AbstractLinearSolver = "banded",
-    factor_dtype: Any = None,
-    dtype: Any = None,
-    damping: str = "levenberg",
-) -> Solution:
-    """Minimise `problem` from `params0` given `data`; returns a `Solution` of arrays.
-
-    Args:
-        problem: the terms to balance.
-        params0: dict of (T, ...) initial parameters (frame axis first).
-        data: any pytree the term functions read (observations, constants).
-        frame_mask: (T,) bool, False for padded frames (they keep their initial value).
-        method: one of `METHODS` (see the module docstring).
-        rtol, atol: stopping tolerances (arrays allowed, e.g. per sequence under vmap).
-            "lm" stops when a step changes the cost by less than rtol·cost + atol or
-            moves no unknown by more than rtol·|x| + atol; optimistix uses its Cauchy
-            criterion with the same numbers; jaxopt stops when ‖Jᵀr‖₂ <= atol.
-        max_steps: iteration cap (static); hitting it gives result max_steps_reached.
-        linear_solver: "banded" (block-banded Cholesky), "dense" (optimistix's default,
-            only for small T), or any lineax solver, for the optimistix methods.
-        factor_dtype: dtype of JᵀJ and its factor (default: float64 when x64 is on,
-            else the problem dtype).
-        dtype: dtype of the solve (default: that of `params0`; float32 by default).
-        damping: for method "lm": "levenberg", JᵀJ + λI (eq. 2.52), or "marquardt",
-            JᵀJ + λ diag(JᵀJ) (eq. 2.54). Both use λ₀ = 10, ×10 / ×0.1.
-    Returns:
-        `Solution(value, result, num_steps, cost, costs)`.
-    """
-    if method not in METHODS:
-        raise ValueError(f"method must be one of {METHODS}, got {method!r}.")
-    if damping not in ("levenberg", "marquardt"):
-        raise ValueError(f"damping must be 'levenberg' or 'marquardt', got {damping!r}.")
-    layout, params0, frame_mask, dtype = _check(problem, params0, data, frame_mask, dtype)
-    if factor_dtype is None:
-        factor_dtype = jnp.float64 if jax.config.jax_enable_x64 else dtype
-    if method == "lm":
-        max_steps = jnp.asarray(max_steps)  # a loop bound only: no recompilation per value
-    return _solve_jit(
-        problem, layout, params0, data, frame_mask, jnp.asarray(rtol, dtype), jnp.asarray(atol, dtype),
-        max_steps, method=method, linear_solver=linear_solver, factor_dtype=jnp.dtype(factor_dtype),
-        damping=damping,
-    )  # fmt: skip
+def residuals(y: dict, args: Args) -> dict[str, Array]:
+    """The weighted residuals of every term at stored parameters y: optimistix's `fn`."""
+    x = to_manifold(y, args.layout)
+    return args.problem.residuals_on_manifold(x, args.data, args.frame_mask, args.layout.T)
 
 
-def _solve_core(
-    problem, layout, params0, data, frame_mask, rtol, atol, max_steps, *, method, linear_solver, factor_dtype,
-    damping="levenberg",
-):  # fmt: skip
-    """The unbatched, unjitted solve (vmapped by `solve_batch`)."""
-    T, n = jax.tree_util.tree_leaves(params0)[0].shape[0], layout.size
-    dtype = params0[layout.keys[0]].dtype
-    x0 = to_manifold(params0, problem.rotations)
-    args = (problem, layout, x0, data, frame_mask)
-    delta0 = jnp.zeros((T, n), dtype)
-    if method != "lm" and jax.config.jax_enable_x64:
-        # optimistix 0.1 keeps its damping λ in float64 when x64 is on and then fails to
-        # match a float32 iterate; jaxopt promotes likewise. Iterate in float64 there.
-        delta0 = delta0.astype(jnp.float64)
-    if method == "lm":
-        value, result, steps = _marquardt(
-            args, delta0, rtol, atol, max_steps, factor_dtype, damping == "marquardt"
-        )
-    elif method in ("optx_lm", "optx_gn"):
-        if linear_solver == "banded":
-            bw = _bandwidths(problem, frame_mask is not None)
-            linear_solver = BandedNormalCholesky(bandwidths=bw, factor_dtype=factor_dtype)
-        cls = optx.LevenbergMarquardt if method == "optx_lm" else optx.GaussNewton
-        kwargs = {} if isinstance(linear_solver, str) and linear_solver == "dense" else {"linear_solver": linear_solver}
-        solver = cls(rtol=rtol, atol=atol, **kwargs)
-        sol = optx.least_squares(
-            _residual_fn, solver, delta0, args, options={"jac": "fwd"}, max_steps=max_steps, throw=False
-        )
-        value = from_manifold(retract(x0, layout.unravel(sol.value), problem.rotations), problem.rotations)
-        result, steps = sol.result._value, sol.stats["num_steps"]
-    else:
-        value, result, steps = _jaxopt(args, delta0, atol, max_steps)
-    value = {k: v.astype(dtype) for k, v in value.items()}
-    costs = problem.costs(value, data, frame_mask)
-    cost = sum(jax.tree_util.tree_leaves(costs))
-    # A non-finite end point is a divergence whatever the backend said.
-    result = jnp.where(jnp.isfinite(cost), result, optx.RESULTS.nonlinear_divergence._value)
-    return Solution(value, jnp.asarray(result, jnp.int32), jnp.asarray(steps, jnp.int32), cost, costs)
+def linear_solver(args: Args, factor_dtype=None, hessian: bool = False) -> StructuredCholesky:
+    """The structured lineax solver for `args`' problem (optimistix solvers, adjoints)."""
+    bw, cols = args.leaf_structure()
+    return StructuredCholesky(args.layout, bw, cols, hessian, factor_dtype, args.frame_mask)
 
 
-_solve_jit = eqx.filter_jit(_solve_core)
+# --- linearisation in the tangent of the manifold (the LM's own) -------------------------
 
 
-def _jaxopt(args, delta0, tol, max_steps):
-    import jaxopt
-
-    problem, layout, x0, data, frame_mask = args
-    T, n = delta0.shape
-
-    def flat_residual(d, a):
-        res = _residual_fn(d.reshape(T, n), a)
-        return jnp.concatenate([r.reshape(-1) for r in jax.tree_util.tree_leaves(res)])
-
-    lm = jaxopt.LevenbergMarquardt(
-        residual_fun=flat_residual, maxiter=max_steps, tol=tol, solver="cholesky",
-        materialize_jac=True, implicit_diff=False,
-    )  # fmt: skip
-    d, state = lm.run(delta0.reshape(-1), args)
-    value = from_manifold(retract(x0, layout.unravel(d.reshape(T, n)), problem.rotations), problem.rotations)
-    result = jnp.where(
-        state.error <= tol, optx.RESULTS.successful._value, optx.RESULTS.nonlinear_max_steps_reached._value
-    )
-    return value, result, state.iter_num
-
-
-class _LMState(eqx.Module):
-    anchor: Any  # accepted parameters x (rotations as matrices)
-    cost: Array
-    H: list
-    g: Array
-    lam: Array
-    step: Array
-    done: Array
-    result: Array
-
-
-class _Structure(eqx.Module):
-    """Static bookkeeping of a linearisation: terms in residual order, bandwidths, the
-    columns each term reads, and the per-frame order "coupled unknowns first"."""
-
-    names: tuple[str, ...] = eqx.field(static=True)
-    bandwidths: tuple[int, ...] = eqx.field(static=True)
-    columns: tuple[tuple[int, ...], ...] = eqx.field(static=True)
-    perm: tuple[int, ...] | None = eqx.field(static=True)  # None: identity order
-    coupled: int = eqx.field(static=True)
-
-    @classmethod
-    def of(cls, problem: Problem, layout, with_padding: bool) -> "_Structure":
-        terms = {t.name: t for t in problem.terms}
-        names = tuple(sorted(list(terms) + ([_PADDING] if with_padding else [])))
-        bw = tuple(terms[k].bandwidth if k in terms else 0 for k in names)
-        cols = tuple(layout.columns(terms[k].reads if k in terms else None) for k in names)
-        coupled = sorted(set().union(*[c for c, b in zip(cols, bw) if b > 0]))
-        n = layout.size
-        if not coupled or len(coupled) == n:
-            return cls(names, bw, cols, None, n)
-        # Unknowns that no frame-coupling term reads are eliminated frame by frame.
-        perm = tuple(coupled) + tuple(sorted(set(range(n)) - set(coupled)))
-        return cls(names, bw, cols, perm, len(coupled))
-
-    def to_solver_order(self, x: Array) -> Array:
-        return x if self.perm is None else x[..., np.asarray(self.perm)]
-
-    def from_solver_order(self, x: Array) -> Array:
-        return x if self.perm is None else x[..., np.argsort(self.perm)]
-
-
-def _term_blocks(term, x, clean, data, frame_mask, layout, T, dtype):
-    """Residual (T, m) and blocks (T, 2b+1, m, n) of a term with an analytic Jacobian.
+def _analytic_blocks(term, x, clean, data, frame_mask, layout: Layout, st: Structure, dtype):
+    """Residual (T, m) and frame blocks (T, 2b+1, m, n) of a term with an analytic Jacobian.
 
     The term supplies ∂e/∂δ of its raw output; weight, robust loss and masks (which act
     row by row) are applied by pushing each column through their linearisation.
     """
+    T = layout.T
     e = term.raw(x, clean, data)
     jac = term.raw_jacobian(x, clean, data)
     C = 2 * term.bandwidth + 1
     parts = []
-    for key, size in zip(layout.keys, layout.sizes):
+    for key, kind, shape in zip(layout.keys, layout.kinds, layout.shapes):
+        if kind != "frame":
+            continue
+        size = int(jnp.size(jnp.zeros(shape))) if shape else 1
         if key in jac:
             parts.append(jnp.asarray(jac[key], dtype).reshape((T, C) + e.shape[1:] + (size,)))
         else:
@@ -311,98 +152,302 @@ def _term_blocks(term, x, clean, data, frame_mask, layout, T, dtype):
         # finish is then linear, r = √w · keep · e: its Jacobian is r's of a unit e.
         r = term.finish(e, data, frame_mask, T)
         row_scale = term.finish(jnp.ones_like(e), data, frame_mask, T)  # (T, m)
-        return r, row_scale[:, None, :, None] * J.reshape(T, C, -1, J.shape[-1])
-    r, lin = jax.linearize(lambda e_: term.finish(e_, data, frame_mask, T), e)
-    tangents = jnp.moveaxis(jnp.moveaxis(J, -1, 0), 2, 1)  # (n, C, T, *e)
-    cols = jax.vmap(jax.vmap(lin))(tangents)  # (n, C, T, m)
-    return r, jnp.transpose(cols, (2, 1, 3, 0))
+        blocks = row_scale[:, None, :, None] * J.reshape(T, C, -1, J.shape[-1])
+    else:
+        r, lin = jax.linearize(lambda e_: term.finish(e_, data, frame_mask, T), e)
+        tangents = jnp.moveaxis(jnp.moveaxis(J, -1, 0), 2, 1)  # (n, C, T, *e)
+        cols = jax.vmap(jax.vmap(lin))(tangents)  # (n, C, T, m)
+        blocks = jnp.transpose(cols, (2, 1, 3, 0))
+    return r, st.to_solver_order(blocks)
 
 
-def _linearise(args, st: _Structure, T, n, dtype, factor_dtype):
-    """Residuals at δ = 0 and their Jacobian blocks, JᵀJ band and Jᵀr (eq. 2.58).
+def _linearise(y: dict, args: Args, st: Structure, dtype, factor_dtype):
+    """Residuals at y and their blocks in the left-perturbation tangent: (Normal, grad, cost).
 
-    Terms with an analytic `jacobian` supply their blocks directly; the others (and the
-    padding pins) are differentiated by frame colouring over the columns they read.
-    Blocks, JᵀJ and Jᵀr are in the solver's order (coupled unknowns first).
+    Terms with an analytic `jacobian` supply their frame blocks; everything else (other
+    terms, and any term's window and sequence blocks) comes from forward-mode AD by
+    colouring over the columns the term reads.
     """
-    problem, layout, anchor, data, frame_mask = args
+    problem, layout = args.problem, args.layout
+    x = to_manifold(y, layout)
     terms = {t.name: t for t in problem.terms}
-    clean = _sanitise(data)
-    r, blocks = {}, {}
-    for name in st.names:
-        t = terms.get(name)
-        if t is not None and t.jacobian is not None:
-            r[name], blocks[name] = _term_blocks(t, anchor, clean, data, frame_mask, layout, T, dtype)
-        elif name == _PADDING:
-            free = ~frame_mask
-            r[name] = jnp.zeros((T, n), dtype)
-            blocks[name] = (free[:, None, None, None] * jnp.eye(n, dtype=dtype)).astype(dtype)
-    auto = [k for k in st.names if k not in blocks]
-    if auto:
-        sub = Problem([terms[k] for k in auto], problem.rotations)
-        sub_args = (sub, layout, anchor, data, frame_mask)
-        res, lin = jax.linearize(lambda d: _residual_fn(d, sub_args, pad=False), jnp.zeros((T, n), dtype))
-        idx = [st.names.index(k) for k in auto]
-        auto_blocks = jacobian_blocks(
-            lin, T, n, dtype, tuple(st.bandwidths[i] for i in idx), [st.columns[i] for i in idx]
-        )
-        for k, J in zip(auto, auto_blocks):
-            r[k], blocks[k] = res[k], J
-    leaves = [r[k] for k in st.names]
-    J = [st.to_solver_order(blocks[k]) for k in st.names]
-    H = normal_blocks(J, st.bandwidths, factor_dtype, coupled=None if st.perm is None else st.coupled)
-    g = jt_vector(J, st.bandwidths, leaves, factor_dtype)
-    cost = 0.5 * sum(jnp.sum(x.astype(factor_dtype) ** 2) for x in leaves)
-    return cost, H, g
+    names = args.names
+    bw, cols = args.leaf_structure()
+    clean = _sanitise(args.data)
+    blocks: dict[str, TermBlocks] = {}
+    analytic = {}
+    for k in names:
+        t = terms[k]
+        if t.jacobian is not None:
+            analytic[k] = _analytic_blocks(t, problem.views(x)[k], clean, args.data, args.frame_mask, layout, st, dtype)
+    ad = [k for k in names if k not in analytic or any(cols[names.index(k)][1:])]
+    if ad:
+        sub = Problem([terms[k] for k in ad], dict(problem.unknowns))
+        zero = layout.ravel(layout.zeros(dtype))
+
+        def at(dF, dW, dG):
+            moved = retract(x, layout.unravel(dF, dW, dG), layout)
+            return sub.residuals_on_manifold(moved, args.data, args.frame_mask, layout.T)
+
+        res, lin = jax.linearize(at, *zero)
+        idx = [names.index(k) for k in ad]
+        ad_cols = [(() if k in analytic else cols[i][0], cols[i][1], cols[i][2]) for k, i in zip(ad, idx)]
+        found = jacobian_blocks(lambda *t: [lin(*t)[k] for k in ad], st, dtype, [bw[i] for i in idx], ad_cols)
+        for k, b in zip(ad, found):
+            blocks[k] = TermBlocks(res[k], b.JF, b.JW, b.JG)
+    for k, (r, JF) in analytic.items():
+        extra = blocks.get(k)
+        blocks[k] = TermBlocks(r, JF, None if extra is None else extra.JW, None if extra is None else extra.JG)
+    return normal_equations([blocks[k] for k in names], st, factor_dtype, args.frame_mask)
 
 
-def _marquardt(args, delta0, rtol, atol, max_steps, factor_dtype, marquardt):
-    """Von Marcard's LM (λ₀ = 10, ×10 / ×0.1, eq. 2.52 or 2.54) with re-anchoring (eq. 2.60)."""
-    problem, layout, x0, data, frame_mask = args
-    T, n = delta0.shape
-    dtype = delta0.dtype
-    lam_max = 1e10
-    st = _Structure.of(problem, layout, frame_mask is not None)
-    R = optx.RESULTS
+class _LMState(eqx.Module):
+    normal: Any
+    grad: tuple
+    cost: Array
+    lam: Array
+    step: Array
+    done: Array
+    result: Array
 
-    def with_anchor(x):
-        return (problem, layout, x, data, frame_mask)
 
-    cost0, H0, g0 = _linearise(args, st, T, n, dtype, factor_dtype)
-    init = _LMState(
-        x0, cost0, H0, g0, jnp.asarray(10.0, factor_dtype), jnp.asarray(0),
-        ~jnp.isfinite(cost0), jnp.where(jnp.isfinite(cost0), R.successful._value, R.nonlinear_divergence._value),
-    )  # fmt: skip
+class VonMarcardLM(optx.AbstractLeastSquaresSolver):
+    """Von Marcard's Levenberg-Marquardt on the structured normal equations (optimistix solver).
 
-    def body(s: _LMState) -> _LMState:
-        factor = factor_banded(s.H, s.lam, marquardt=marquardt)
-        delta = -st.from_solver_order(solve_banded(factor, s.g)).astype(dtype)
-        x_new = reproject(retract(s.anchor, layout.unravel(delta), problem.rotations), problem.rotations)
-        res_new = jax.tree_util.tree_leaves(_residual_fn(jnp.zeros_like(delta), with_anchor(x_new)))
-        cost_new = 0.5 * sum(jnp.sum(x.astype(factor_dtype) ** 2) for x in res_new)
-        accept = jnp.isfinite(cost_new) & (cost_new < s.cost)
-        # Small steps: Cauchy-type test on the accepted change of cost and of parameters.
-        x_flat, d_flat = layout.ravel(from_manifold(s.anchor, problem.rotations)), delta
-        small_step = jnp.all(jnp.abs(d_flat) <= rtol * jnp.abs(x_flat) + atol)
-        small_cost = (s.cost - cost_new) <= rtol * s.cost + atol
+    λ₀ = 10, ×10 on a rejected step and ×0.1 on an accepted one (eq. 2.52, or eq. 2.54
+    with `marquardt=True`); x ← x ⊕ δ on each unknown's manifold, re-anchored after every
+    accepted step (eq. 2.56-2.60). Stops when an accepted step changes neither the cost
+    (by more than rtol·cost + atol) nor any unknown (by more than rtol·|x| + atol), when a
+    rejected step is already that small, or when λ exceeds 1e10 (no descent left at any
+    damping); `max_steps` (an array: no recompilation per value) ends it otherwise.
+
+    Its `args` must be the `Args` of a jaxmocap `Problem` (use `jaxmocap.solve.solve`).
+    """
+
+    rtol: float | Array = 1e-6
+    atol: float | Array = 1e-8
+    norm: Callable = optx.max_norm
+    max_steps: int | Array = 100
+    marquardt: bool = eqx.field(static=True, default=False)
+    factor_dtype: Any = eqx.field(static=True, default=None)
+
+    def _setup(self, y, args):
+        if not isinstance(args, Args):
+            raise ValueError(
+                "VonMarcardLM solves jaxmocap Problems: call jaxmocap.solve.solve(problem, "
+                f"params0, data), or pass a jaxmocap.solve.solver.Args as args (got {type(args).__name__})."
+            )
+        dtype = jtu.tree_leaves(y)[0].dtype
+        return args.structure(), dtype, self.factor_dtype or dtype
+
+    def init(self, fn, y, args, options, f_struct, aux_struct, tags):
+        st, dtype, fdtype = self._setup(y, args)
+        normal, grad, cost = _linearise(y, args, st, dtype, fdtype)
+        R = optx.RESULTS
+        ok = jnp.isfinite(cost)
+        return _LMState(
+            normal, grad, cost, jnp.asarray(10.0, fdtype), jnp.asarray(0), ~ok,
+            jnp.where(ok, R.successful._value, R.nonlinear_divergence._value),
+        )  # fmt: skip
+
+    def step(self, fn, y, args, options, state: _LMState, tags):
+        st, dtype, fdtype = self._setup(y, args)
+        layout = args.layout
+        f = factor(state.normal, st, state.lam, self.marquardt)
+        dF, dW, dG = solve_factored(f, *state.grad)
+        cast = lambda d: None if d is None else (-d).astype(dtype)  # noqa: E731
+        delta = layout.unravel(cast(st.from_solver_order(dF)), cast(dW), cast(dG))
+        y_new = from_manifold(retract(to_manifold(y, layout), delta, layout), layout)
+        res_new, _ = fn(y_new, args)
+        cost_new = 0.5 * sum(jnp.sum(r.astype(fdtype) ** 2) for r in jtu.tree_leaves(res_new))
+        accept = jnp.isfinite(cost_new) & (cost_new < state.cost)
         # Cauchy-type test (as optimistix): an accepted step that changes neither the cost
         # nor the parameters noticeably, or a rejected step already negligible.
-        converged = (accept & small_cost & small_step) | (~accept & small_step)
-        converged = converged | (s.lam > lam_max)  # no descent left at any damping
+        small_step = jnp.all(
+            jnp.asarray([jnp.all(jnp.abs(d) <= self.rtol * jnp.abs(v) + self.atol) for d, v in
+                         zip(jtu.tree_leaves(delta), jtu.tree_leaves({k: y[k] for k in delta}))])
+        )  # fmt: skip
+        small_cost = (state.cost - cost_new) <= self.rtol * state.cost + self.atol
+        converged = (accept & small_cost & small_step) | (~accept & small_step) | (state.lam > 1e10)
 
         def relinearise(_):
-            return _linearise(with_anchor(x_new), st, T, n, dtype, factor_dtype)
+            return _linearise(y_new, args, st, dtype, fdtype)
 
         def keep(_):
-            return s.cost, s.H, s.g
+            return state.normal, state.grad, state.cost
 
-        cost, H, g = jax.lax.cond(accept, relinearise, keep, None)
-        anchor = jax.tree_util.tree_map(lambda a, b: jnp.where(accept, a, b), x_new, s.anchor)
-        lam = jnp.where(accept, s.lam * 0.1, s.lam * 10.0)
-        step = s.step + 1
-        done = converged | (step >= max_steps)
+        normal, grad, cost = jax.lax.cond(accept, relinearise, keep, None)
+        y_next = jtu.tree_map(lambda a, b: jnp.where(accept, a, b), y_new, y)
+        step = state.step + 1
+        done = converged | (step >= self.max_steps)
+        R = optx.RESULTS
         result = jnp.where(converged, R.successful._value, R.nonlinear_max_steps_reached._value)
-        return _LMState(anchor, cost, H, g, lam, step, done, jnp.where(done, result, s.result))
+        lam = jnp.where(accept, state.lam * 0.1, state.lam * 10.0)
+        new = _LMState(normal, grad, cost, lam, step, done, jnp.where(done, result, state.result))
+        return y_next, new, None
 
-    final = jax.lax.while_loop(lambda s: ~s.done, body, init)
-    return from_manifold(final.anchor, problem.rotations), final.result, final.step
+    def terminate(self, fn, y, args, options, state: _LMState, tags):
+        return state.done, optx.RESULTS.where(
+            state.result == optx.RESULTS.successful._value,
+            optx.RESULTS.successful,
+            optx.RESULTS.where(
+                state.result == optx.RESULTS.nonlinear_divergence._value,
+                optx.RESULTS.nonlinear_divergence,
+                optx.RESULTS.nonlinear_max_steps_reached,
+            ),
+        )
+
+    def postprocess(self, fn, y, aux, args, options, state, tags, result):
+        return y, aux, {}
+
+
+# --- the front door ------------------------------------------------------------------------
+
+
+def _check(problem, params0, data, frame_mask, dtype):
+    if not isinstance(problem, Problem):
+        raise ValueError(f"problem must be a jaxmocap.solve.Problem, got {type(problem).__name__}.")
+    layout = problem.layout(params0)
+    leaves = [jnp.asarray(params0[k]) for k in layout.keys]
+    if dtype is None:
+        dtype = jnp.result_type(*[x.dtype for x in leaves if jnp.issubdtype(x.dtype, jnp.floating)] or [jnp.float32])
+    dtype = jnp.dtype(dtype)
+    if dtype == jnp.float64 and not jax.config.jax_enable_x64:
+        raise ValueError(
+            "float64 requested but JAX runs in 32-bit mode; call "
+            "jax.config.update('jax_enable_x64', True) first."
+        )
+    if layout.T == 0:
+        raise ValueError("the sequence has no frames (T = 0); give at least one frame.")
+    params0 = {k: jnp.asarray(params0[k], dtype) for k in layout.keys}
+    if frame_mask is not None:
+        frame_mask = jnp.asarray(frame_mask, bool)
+        if frame_mask.shape != (layout.T,):
+            raise ValueError(f"frame_mask has shape {frame_mask.shape}; expected (T,) = ({layout.T},).")
+    return layout, params0, frame_mask, dtype
+
+
+def solve(
+    problem: Problem,
+    params0: dict,
+    data: Any = None,
+    *,
+    frame_mask: Array | None = None,
+    method: str = "lm",
+    solver: optx.AbstractLeastSquaresSolver | None = None,
+    rtol: float | Array = 1e-6,
+    atol: float | Array = 1e-8,
+    max_steps: int = 100,
+    factor_dtype: Any = None,
+    dtype: Any = None,
+    damping: str = "levenberg",
+    adjoint: optx.AbstractAdjoint | None = None,
+) -> Solution:
+    """Minimise `problem` from `params0` given `data`; returns a `Solution` of arrays.
+
+    Args:
+        problem: the terms to balance and the kinds of the unknowns.
+        params0: dict of initial parameters (per-frame (T, ...), per-sequence (...),
+            per-window (W, ...), as the problem declares).
+        data: any pytree the term functions read (observations, constants).
+        frame_mask: (T,) bool, False for padded frames (they keep their initial value).
+        method: one of `METHODS` (see the module docstring); ignored if `solver` is given.
+        solver: any optimistix least-squares solver (e.g. `optx.Dogleg(...,
+            linear_solver=jaxmocap.solve.linear_solver(...))`).
+        rtol, atol: stopping tolerances (arrays allowed, e.g. per sequence under vmap).
+        max_steps: iteration cap; for "lm" a traced bound (no recompilation per value).
+        factor_dtype: dtype of H and its factor (default: float64 when x64 is on, else
+            the problem dtype).
+        dtype: dtype of the solve (default: that of `params0`; float32 by default).
+        damping: for "lm": "levenberg", JᵀJ + λI (eq. 2.52), or "marquardt" (eq. 2.54).
+        adjoint: how gradients flow through the solve (default: implicit
+            differentiation with the structured Hessian factorisation).
+    Returns:
+        `Solution(value, result, num_steps, cost, costs)`.
+    """
+    if method not in METHODS:
+        raise ValueError(f"method must be one of {METHODS}, got {method!r}.")
+    if damping not in ("levenberg", "marquardt"):
+        raise ValueError(f"damping must be 'levenberg' or 'marquardt', got {damping!r}.")
+    layout, params0, frame_mask, dtype = _check(problem, params0, data, frame_mask, dtype)
+    if factor_dtype is None:
+        factor_dtype = jnp.float64 if jax.config.jax_enable_x64 else dtype
+    args = Args(problem, data, frame_mask, layout)
+    # "lm" takes max_steps as a traced loop bound: no recompilation per value.
+    max_steps = jnp.asarray(max_steps) if method == "lm" and solver is None else int(max_steps)
+    return _solve_jit(
+        args, params0, jnp.asarray(rtol, dtype), jnp.asarray(atol, dtype), max_steps,
+        method=method, solver=solver, factor_dtype=jnp.dtype(factor_dtype), damping=damping, adjoint=adjoint,
+    )  # fmt: skip
+
+
+def _solve_core(args: Args, params0, rtol, atol, max_steps, *, method, solver, factor_dtype, damping, adjoint):
+    """The unbatched, unjitted solve (vmapped by `solve_batch`)."""
+    dtype = jtu.tree_leaves(params0)[0].dtype
+    if method == "jaxopt" and solver is None:
+        value, result, steps = _jaxopt(args, params0, atol, max_steps)
+    else:
+        y0 = params0
+        if solver is None:
+            if method == "lm":
+                solver = VonMarcardLM(rtol, atol, max_steps=max_steps, marquardt=damping == "marquardt", factor_dtype=factor_dtype)
+            else:
+                if jax.config.jax_enable_x64:
+                    # optimistix 0.1 keeps its damping λ in float64 when x64 is on and then
+                    # fails to match a float32 iterate: iterate in float64 there.
+                    y0 = jtu.tree_map(lambda v: v.astype(jnp.float64), y0)
+                cls = optx.LevenbergMarquardt if method == "optx_lm" else optx.GaussNewton
+                solver = cls(rtol=rtol, atol=atol, linear_solver=linear_solver(args, factor_dtype))
+        if adjoint is None:
+            adjoint = optx.ImplicitAdjoint(linear_solver=linear_solver(args, factor_dtype, hessian=True))
+        steps_cap = None if isinstance(solver, VonMarcardLM) else int(max_steps)
+        sol = optx.least_squares(residuals, solver, y0, args, max_steps=steps_cap, adjoint=adjoint, throw=False)
+        value, result, steps = sol.value, sol.result._value, sol.stats["num_steps"]
+    value = {k: v.astype(dtype) for k, v in value.items()}
+    res = residuals(value, args)
+    costs = {k: 0.5 * jnp.sum(r * r) for k, r in res.items()}
+    cost = sum(jtu.tree_leaves(costs))
+    # A non-finite end point is a divergence whatever the backend said.
+    result = jnp.where(jnp.isfinite(cost), result, optx.RESULTS.nonlinear_divergence._value)
+    return Solution(value, jnp.asarray(result, jnp.int32), jnp.asarray(steps, jnp.int32), cost, costs)
+
+
+_solve_jit = eqx.filter_jit(_solve_core)
+
+
+def _jaxopt(args: Args, params0, tol, max_steps):
+    import jaxopt
+
+    layout = args.layout
+
+    def flat(y):
+        F, W, G = layout.ravel(y)
+        return jnp.concatenate([p.reshape(-1) for p in (F, W, G) if p is not None])
+
+    F0, W0, G0 = layout.ravel(params0)
+    sizes = [p.size for p in (F0, W0, G0) if p is not None]
+
+    def unflat(v):
+        parts, start = [], 0
+        for p in (F0, W0, G0):
+            if p is None:
+                parts.append(None)
+                continue
+            parts.append(v[start : start + p.size].reshape(p.shape))
+            start += p.size
+        return layout.unravel(*parts)
+
+    def flat_residual(v, a):
+        return jnp.concatenate([r.reshape(-1) for r in jtu.tree_leaves(residuals(unflat(v), a))])
+
+    del sizes
+    lm = jaxopt.LevenbergMarquardt(
+        residual_fun=flat_residual, maxiter=max_steps, tol=tol, solver="cholesky",
+        materialize_jac=True, implicit_diff=False,
+    )  # fmt: skip
+    v, state = lm.run(flat(params0), args)
+    result = jnp.where(
+        state.error <= tol, optx.RESULTS.successful._value, optx.RESULTS.nonlinear_max_steps_reached._value
+    )
+    return unflat(v), result, state.iter_num
+

@@ -1,34 +1,41 @@
-"""Block-banded normal equations: Jacobian blocks by frame colouring, banded Cholesky.
+"""Structured normal equations: banded frames, windows and a sequence-wide border.
 
-A whole-sequence problem has n unknowns per frame (75 for pose + translation) and T
-frames. With every residual row t depending on frames t-b .. t+b only (`Term.bandwidth`),
-the Jacobian is block-banded and JᵀJ has block bandwidth 2b (von Marcard eq. 3.27,
-3.30-3.31). This module exploits that, at a cost linear in T:
+The unknowns of a sequence are per-frame (F: T frames of n), per-window (W windows of
+m, window w covering frames [w·s, w·s + L)) and per-sequence (G: g shared by all
+frames). With every residual row t depending on frames t-b .. t+b (`Term.bandwidth`),
+on the windows containing t (terms that read windows have b = 0), and on any of G, the
+Gauss-Newton matrix H = JᵀJ (and the Hessian of the cost, for implicit differentiation)
+is "banded plus border" (an arrowhead):
 
-1. **Compressed Jacobian.** Frames s ≡ c (mod 2b+1) never share a residual row, so one
-   JVP with the unit vector e_k placed on every frame of colour c recovers column k of
-   all blocks J_{t,s} with s ≡ c at once: (2b+1)·n JVPs give every block, independent
-   of T (Curtis-Powell-Reid colouring).
-2. **Normal equations.** H = JᵀJ + λ I, assembled as per-frame n×n blocks H_{s,s+e},
-   e = 0..2b, in `factor_dtype` (float64 when the problem is float32 and x64 is on:
-   the 1/dt² of the acceleration term squares into H's condition number), after a
-   symmetric Jacobi scaling diag(H)^(-1/2) that removes the bad scaling between terms.
-3. **Per-frame elimination.** Unknowns that only per-frame terms read ("local", e.g.
-   the hands and feet in SIP, which only the prior sees) are ordered last and
-   eliminated frame by frame, S = H_cc - H_cl H_ll⁻¹ H_lc, batched over frames; the
-   band shrinks to the n_c coupled unknowns (51 of 75 in SIP).
-4. **Block-tridiagonal Cholesky.** Grouping g = 2b consecutive frames into one
-   super-block makes S block-tridiagonal; `lax.scan` factorises it
-   (S_k = D_k - W_{k-1}ᵀW_{k-1}, L_k = chol(S_k), W_k = L_k⁻¹U_k, keeping L_k⁻¹) and
-   solves by forward and backward substitution (products with L_k⁻¹). Cost
-   O(T (g n_c)³ + T n_l³), memory O(T g n²).
+    [ H_FF  H_FW  H_FG ]      H_FF: frame band of width 2b (von Marcard eq. 3.30-3.31)
+    [ H_WF  H_WW  H_WG ]      H_FW: frame t × the ≤ K = ⌈L/s⌉ windows containing t
+    [ H_GF  H_GW  H_GG ]      H_WW: window band of width K-1;  G: dense border
 
-`BandedNormalCholesky` wraps this as a lineax solver, so it plugs into
-`optx.LevenbergMarquardt(linear_solver=...)` / `optx.GaussNewton(linear_solver=...)`.
-It solves the least-squares problem min ‖A x - v‖ through the normal equations, where A
-is either a residual Jacobian J (Gauss-Newton) or optimistix's damped operator [J; √λ I]
-(Levenberg-Marquardt), which it recognises and turns into JᵀJ + λ I without any JVP of
-the damping rows.
+This module builds and solves it exactly, at a cost linear in T:
+
+1. **Blocks by colouring.** Frames s ≡ c (mod 2b+1) never share a residual row, so one
+   JVP with e_k on every frame of colour c recovers column k of all frame blocks
+   (Curtis-Powell-Reid); windows are coloured mod K, the border takes one JVP per
+   column. For the Hessian (the adjoint of a solve) Hessian-vector products are
+   coloured the same way, with 4b+1 frame and 2K-1 window colours.
+2. **Per-frame elimination.** Per-frame unknowns that no frame-coupling term reads
+   ("local": SIP's hands and feet, every unknown of a per-frame problem) are eliminated
+   frame by frame, S = H_cc - H_cl H_ll⁻¹ H_lc, batched over frames; their fill lands in
+   the frame's coupled unknowns, the windows containing it and the border.
+3. **Block-tridiagonal Cholesky.** The coupled frame unknowns and the windows are
+   grouped in super-blocks (G frames and r windows, G = r·s, large enough that every
+   coupling joins a block to itself or the next); `lax.scan` factorises the resulting
+   block-tridiagonal matrix and solves by substitution with the inverse factors.
+4. **Border.** The Schur complement on the sequence-wide unknowns,
+   S = H_GG - H_GA H_AA⁻¹ H_AG, is formed by banded solves against the g border
+   columns (O(T g) work), factorised densely, and the step is recovered by back
+   substitution.
+
+Everything is Jacobi-scaled (diag(H)^(-1/2)) and formed in `factor_dtype` (float64
+when x64 is on: the 1/dt² of acceleration terms squares into H's condition number).
+`StructuredCholesky` wraps this as a lineax solver for optimistix's own solvers (its
+operator is J, or [J; √λ I] for Levenberg-Marquardt) and for `optx.ImplicitAdjoint`
+(its operator is the Hessian of the cost).
 """
 
 from __future__ import annotations
@@ -44,15 +51,22 @@ import lineax as lx
 import numpy as np
 from jax import Array
 
+from .unknowns import Layout, Windows
+
 __all__ = [
-    "BandedNormalCholesky",
-    "jacobian_blocks",
-    "normal_blocks",
-    "factor_banded",
-    "solve_banded",
-    "jt_vector",
+    "Structure",
+    "TermBlocks",
+    "Normal",
+    "Factor",
+    "StructuredCholesky",
     "shift_frames",
+    "jacobian_blocks",
+    "normal_equations",
+    "factor",
+    "solve_factored",
 ]
+
+_F32_SHIFT = 1e-5
 
 
 def shift_frames(x: Array, d: int) -> Array:
@@ -68,72 +82,150 @@ def shift_frames(x: Array, d: int) -> Array:
     return jnp.concatenate([x[-d:], zeros], 0)
 
 
-def jacobian_blocks(mv, T: int, n: int, dtype, bandwidths, columns=None) -> list[Array]:
-    """Every non-zero Jacobian block of a frame-banded linear map, by colouring.
+class Structure(eqx.Module):
+    """Static shape of one problem's normal equations.
 
-    Leaves are grouped by bandwidth b and each group gets its own (2b+1)·k JVPs, k the
-    number of per-frame columns its leaves read (`columns`, default all n), with the
-    other leaves' outputs dead code that XLA removes: per-frame terms cost k JVPs, not
-    (2·max b + 1)·n.
-
-    Args:
-        mv: linear map (T, n) -> pytree of leaves (T, ...), leaf ℓ's row t depending on
-            input frames t - b_ℓ .. t + b_ℓ only.
-        T, n: frames and unknowns per frame.
-        dtype: dtype of the input.
-        bandwidths: b_ℓ per output leaf (in `jtu.tree_leaves` order).
-        columns: per leaf, the per-frame columns it depends on (None: all); the blocks
-            of the other columns are returned as zeros without being computed.
-    Returns:
-        One array per leaf, (T, 2b_ℓ+1, m_ℓ, n): block [t, d] = ∂r_t/∂x_{t+d},
-        d = -b_ℓ .. b_ℓ (zero where t+d is outside the sequence).
+    T frames of n unknowns (solver order: the nc coupled ones first, `perm` maps from
+    the layout's order), band half-width B2 = 2·max(b) of H, W windows of m unknowns,
+    g border unknowns.
     """
-    eye = jnp.eye(n, dtype=dtype)
-    t = jnp.arange(T)
-    columns = [None] * len(bandwidths) if columns is None else list(columns)
-    blocks = [None] * len(bandwidths)
-    for b in sorted(set(bandwidths)):
-        members = [i for i, bi in enumerate(bandwidths) if bi == b]
-        cols = sorted(set().union(*[range(n) if columns[i] is None else columns[i] for i in members]))
-        C = 2 * b + 1
-        colour = t % C
-        unit = eye[np.asarray(cols)]  # (k, n)
 
-        def per_colour(c, members=members, colour=colour, unit=unit):
-            # Tangents (k, T, n): e_j on every frame of colour c, for each read column j.
-            tangents = (colour == c)[None, :, None].astype(dtype) * unit[:, None, :]
-            leaves = jtu.tree_leaves(jax.vmap(mv)(tangents))
-            return [leaves[i].reshape(len(cols), T, -1) for i in members]
+    T: int = eqx.field(static=True)
+    n: int = eqx.field(static=True)
+    nc: int = eqx.field(static=True)
+    perm: tuple[int, ...] | None = eqx.field(static=True)
+    B2: int = eqx.field(static=True)
+    windows: Windows | None = eqx.field(static=True)
+    W: int = eqx.field(static=True)
+    m: int = eqx.field(static=True)
+    g: int = eqx.field(static=True)
 
-        # lax.map over colours bounds live memory to one colour's JVP outputs at a time.
-        outs = jax.lax.map(per_colour, jnp.arange(C))  # (C, k, T, m) per member
-        for i, leaf in zip(members, outs):
-            per_frame = jnp.transpose(leaf, (2, 0, 3, 1))  # (T, C, m, k)
-            if len(cols) < n:
-                # Embed the k computed columns among n (the others are zero).
-                pos = np.full(n, len(cols))
-                pos[np.asarray(cols)] = np.arange(len(cols))
-                zero = jnp.zeros(per_frame.shape[:-1] + (1,), per_frame.dtype)
-                per_frame = jnp.concatenate([per_frame, zero], -1)[..., pos]
-            blocks[i] = jnp.stack([per_frame[t, (t + d) % C] for d in range(-b, b + 1)], axis=1)
-    return blocks
+    @classmethod
+    def of(cls, layout: Layout, bandwidths, frame_columns) -> Structure:
+        """From the layout and, per residual leaf, its bandwidth and per-frame columns."""
+        n = layout.n
+        B = max(bandwidths) if bandwidths else 0
+        coupled = sorted(set().union(*[set(c) for c, b in zip(frame_columns, bandwidths) if b > 0]))
+        perm = tuple(coupled) + tuple(sorted(set(range(n)) - set(coupled)))
+        perm = None if perm == tuple(range(n)) else perm
+        return cls(
+            layout.T, n, len(coupled), perm, 2 * B, layout.windows, layout.num_windows,
+            layout.size("window"), layout.size("sequence"),
+        )  # fmt: skip
+
+    @property
+    def K(self) -> int:
+        return self.windows.slots if self.W else 0
+
+    def to_solver_order(self, x: Array) -> Array:
+        return x if self.perm is None else x[..., np.asarray(self.perm)]
+
+    def from_solver_order(self, x: Array) -> Array:
+        return x if self.perm is None else x[..., np.argsort(self.perm)]
+
+    def slot_windows(self):
+        return self.windows.slot_windows(self.T, self.W)
+
+    def blocking(self) -> tuple[int, int, int]:
+        """(G frames, r windows, Kb super-blocks) of the block-tridiagonal stage."""
+        if not self.W:
+            G = max(1, self.B2)
+            return G, 0, (-(-self.T // G) if self.nc else 0)
+        s, K = self.windows.stride, self.K
+        r = max(1, K - 1, -(-self.B2 // s) if self.nc else 1)
+        G = r * s
+        return G, r, max(-(-self.T // G) if self.nc else 0, -(-self.W // r))
 
 
-def normal_blocks(blocks: list[Array], bandwidths, dtype, coupled: int | None = None) -> list[Array]:
-    """Upper block band of JᵀJ: H[e][s] = H_{s, s+e}, e = 0 .. 2·max(b).
+class TermBlocks(eqx.Module):
+    """One residual leaf linearised: r (T, m_t); JF (T, 2b+1, m_t, n) (solver order);
+    JW (T, K, m_t, m) per window slot or None; JG (T, m_t, g) or None."""
 
-    H[0] is (T, n, n). With `coupled` = n_c, the unknowns are ordered coupled first and
-    every frame-coupling leaf (b > 0) reads the first n_c only, so H[e >= 1] is
-    (T, n_c, n_c) and those leaves add to H[0]'s top-left corner only.
+    r: Array
+    JF: Array
+    JW: Array | None = None
+    JG: Array | None = None
 
-    H[e][s] = Σ_ℓ Σ_d J_ℓ[s-d, d]ᵀ J_ℓ[s-d, d+e]: the shifted factors of every leaf and
-    offset are stacked along the contracted axis so that each H[e] is one batched
-    product (on XLA-CPU the cost of a batched product is nearly independent of its
-    contracted length, so this is several times faster than one product per pair).
+    @property
+    def bandwidth(self) -> int:
+        return (self.JF.shape[1] - 1) // 2
+
+
+class Normal(eqx.Module):
+    """The structured matrix (see the module docstring) and a right-hand side.
+
+    FF: [H_{t,t+e}] for e = 0..B2: FF[0] (T, n, n), FF[e>0] (T, nc, nc).
+    FW (T, K, n, m); WW (W, K, m, m) with WW[w, e] = H_{w, w+e}; FG (T, n, g); WG (W, m, g); GG (g, g).
+    """
+
+    FF: list
+    FW: Array | None
+    WW: Array | None
+    FG: Array | None
+    WG: Array | None
+    GG: Array | None
+
+
+# --- stride groups: frames t = q·s + u share the windows q, q-1, ..., q-K+1 --------------
+
+
+def _groups(x: Array, st: Structure) -> Array:
+    """(T, ...) -> (Q, s, ...), zero-padded at the end."""
+    s = st.windows.stride
+    Q = -(-st.T // s)
+    pad = Q * s - st.T
+    if pad:
+        x = jnp.concatenate([x, jnp.zeros((pad,) + x.shape[1:], x.dtype)], 0)
+    return x.reshape((Q, s) + x.shape[1:])
+
+
+def _slot_mask(st: Structure, j: int) -> np.ndarray:
+    """(Q, s) validity of slot j: window q - j exists and contains frame q·s + u."""
+    s, L = st.windows.stride, st.windows.length
+    Q = -(-st.T // s)
+    q, u = np.arange(Q)[:, None], np.arange(s)[None, :]
+    return (q - j >= 0) & (q - j < st.W) & (u + j * s < L) & (q * s + u < st.T)
+
+
+def _to_windows(per_group: Array, j: int, st: Structure) -> Array:
+    """Per-group sums (Q, ...) of slot j -> per-window (W, ...): window w = q - j."""
+    Q = per_group.shape[0]
+    out = shift_frames(per_group, -j)[: st.W] if j else per_group[: st.W]
+    if Q < st.W:
+        out = jnp.concatenate([out, jnp.zeros((st.W - Q,) + out.shape[1:], out.dtype)], 0)
+    return out
+
+
+def _group_sum(spec: str, a: Array, b: Array, j: int, st: Structure) -> Array:
+    """Σ over the frames of each stride group of einsum(spec) for slot j, as per-window (W, ...)."""
+    mask = jnp.asarray(_slot_mask(st, j), a.dtype)
+    per = jnp.einsum(spec, _groups(a, st) * mask.reshape(mask.shape + (1,) * (a.ndim - 1)), _groups(b, st))
+    return _to_windows(per, j, st)
+
+
+def _window_of_slot(x: Array, j: int, st: Structure) -> Array:
+    """Per-window x (W, ...) read at slot j of every frame: (T, ...), 0 where invalid."""
+    s = st.windows.stride
+    Q = -(-st.T // s)
+    w = np.arange(Q) - j
+    vals = x[np.clip(w, 0, st.W - 1)]  # (Q, ...)
+    vals = jnp.broadcast_to(vals[:, None], (Q, s) + x.shape[1:])
+    mask = jnp.asarray(_slot_mask(st, j)).reshape((Q, s) + (1,) * (x.ndim - 1))
+    return jnp.where(mask, vals, 0.0).reshape((Q * s,) + x.shape[1:])[: st.T]
+
+
+# --- normal equations from Jacobian blocks ---------------------------------------------
+
+
+def _normal_blocks(blocks: list[Array], bandwidths, dtype, nc: int, n: int) -> list[Array]:
+    """Upper frame band of JᵀJ: H[e][s] = H_{s, s+e}, e = 0 .. 2·max(b).
+
+    H[e][s] = Σ_ℓ Σ_d J_ℓ[s-d, d]ᵀ J_ℓ[s-d, d+e]; the shifted factors of every leaf and
+    offset are stacked along the contracted axis so each H[e] is one batched product
+    (on XLA-CPU nearly as fast as one product per pair is slow). Frame-coupling leaves
+    read only the first nc (coupled) unknowns.
     """
     B = max(bandwidths)
-    n = blocks[0].shape[-1]
-    nc = n if coupled is None else coupled
     H = []
     for e in range(2 * B + 1):
         left, right = [], []
@@ -153,146 +245,525 @@ def normal_blocks(blocks: list[Array], bandwidths, dtype, coupled: int | None = 
     return H
 
 
-def jt_vector(blocks: list[Array], bandwidths, residuals: list[Array], dtype) -> Array:
-    """Jᵀ r from the blocks: g[s] = Σ_d J_{s-d, s}ᵀ r_{s-d}.  -> (T, n)."""
-    T, n = blocks[0].shape[0], blocks[0].shape[-1]
-    g = jnp.zeros((T, n), dtype)
-    for J, b, r in zip(blocks, bandwidths, residuals):
-        r = r.reshape(T, -1).astype(dtype)
+def jt_vector(terms: list[TermBlocks], st: Structure, vectors: list[Array], dtype):
+    """Jᵀv from the blocks: (gF (T, n) solver order, gW (W, m) or None, gG (g,) or None)."""
+    T, K = st.T, st.K
+    gF = jnp.zeros((T, st.n), dtype)
+    gW = jnp.zeros((st.W, st.m), dtype) if st.W else None
+    gG = jnp.zeros((st.g,), dtype) if st.g else None
+    for t, v in zip(terms, vectors):
+        v = v.reshape(T, -1).astype(dtype)
+        b = t.bandwidth
         for d in range(-b, b + 1):
-            g = g + shift_frames(jnp.einsum("tmi,tm->ti", J[:, d + b].astype(dtype), r), d)
-    return g
+            gF = gF + shift_frames(jnp.einsum("tmi,tm->ti", t.JF[:, d + b].astype(dtype), v), d)
+        if t.JW is not None:
+            for j in range(K):
+                gW = gW + _group_sum("qura,qur->qa", t.JW[:, j].astype(dtype), v, j, st)
+        if t.JG is not None:
+            gG = gG + jnp.einsum("trk,tr->k", t.JG.astype(dtype), v)
+    return gF, gW, gG
 
 
-_F32_SHIFT = 1e-5
+def _pin(normal: Normal, st: Structure, frame_mask: Array | None) -> Normal:
+    """Identity rows for padded frames and for windows without a real frame (their step is 0)."""
+    if frame_mask is None:
+        return normal
+    dtype = normal.FF[0].dtype
+    FF = [normal.FF[0] + (~frame_mask)[:, None, None] * jnp.eye(st.n, dtype=dtype)] + list(normal.FF[1:])
+    WW = normal.WW
+    if st.W:
+        fm = frame_mask.astype(dtype)
+        seen = sum(_group_sum("qu,qu->q", fm, jnp.ones_like(fm), j, st) for j in range(st.K))
+        WW = WW.at[:, 0].add((seen == 0)[:, None, None] * jnp.eye(st.m, dtype=dtype))
+    return Normal(FF, normal.FW, WW, normal.FG, normal.WG, normal.GG)
 
 
-class BandedFactor(eqx.Module):
-    """Factor of JᵀJ + λI: local unknowns eliminated per frame, then a block-tridiagonal
-    (super-block) Cholesky of the coupled ones' Schur complement, plus the Jacobi scale."""
+def normal_equations(terms: list[TermBlocks], st: Structure, dtype, frame_mask: Array | None = None):
+    """H = JᵀJ and g = Jᵀr of the linearised residual leaves: (`Normal`, (gF, gW, gG), cost).
 
-    L: Array  # (K, N, N) inverses of the lower Cholesky factors of the Schur complements
-    W: Array  # (K, N, N) L_k⁻¹ U_k (last one unused)
-    scale: Array  # (T, n) diag(H)^(-1/2)
-    L_local: Array | None  # (T, n_l, n_l) Cholesky factor of H_ll per frame
-    X: Array | None  # (T, n_l, n_c) L_ll⁻¹ H_lc
-    group: int = eqx.field(static=True)
-
-
-def factor_banded(H: list[Array], damping: Array | float = 0.0, marquardt: bool = False) -> BandedFactor:
-    """Factorise JᵀJ + λ I (or JᵀJ + λ diag(JᵀJ), `marquardt`, eq. 2.54) from its band.
-
-    H as from `normal_blocks`: H[0] (T, n, n); H[e >= 1] (T, n_c, n_c) couple only the
-    first n_c unknowns of each frame. The other n_l = n - n_c ("local") unknowns are
-    eliminated frame by frame (batched, exact: S = H_cc - H_cl H_ll⁻¹ H_lc), then frames
-    are grouped in super-blocks of g = max(1, 2b) so the band of S becomes
-    block-tridiagonal; the tail is padded with identity frames.
+    Padded frames (frame_mask False) and windows without a real frame get identity
+    rows so that their step is exactly 0.
     """
-    Hd = H[0]
-    T, n, _ = Hd.shape
-    nc = H[1].shape[-1] if len(H) > 1 else n
-    dtype = Hd.dtype
+    T, n, nc, K = st.T, st.n, st.nc, st.K
+    bw = [t.bandwidth for t in terms]
+    JF = [t.JF.astype(dtype) for t in terms]
+    rs = [t.r.reshape(T, -1).astype(dtype) for t in terms]
+    FF = _normal_blocks(JF, bw, dtype, nc, n)
+    FW = WW = FG = WG = GG = None
+    if st.W:
+        m = st.m
+        FW = jnp.zeros((T, K, n, m), dtype)
+        WW = jnp.zeros((st.W, K, m, m), dtype)
+        for t, J in zip(terms, JF):
+            if t.JW is None:
+                continue
+            JW = t.JW.astype(dtype)
+            FW = FW + jnp.einsum("tri,tjra->tjia", J[:, 0], JW)
+            for j in range(K):
+                for i in range(j + 1):
+                    # Slots i <= j of one frame: windows w_j = w_i - (j - i), H_{w_j, w_i}.
+                    WW = WW.at[:, j - i].add(_group_sum("qura,qurb->qab", JW[:, j], JW[:, i], j, st))
+    if st.g:
+        g = st.g
+        FG = jnp.zeros((T, n, g), dtype)
+        WG = jnp.zeros((st.W, st.m, g), dtype) if st.W else None
+        GG = jnp.zeros((g, g), dtype)
+        for t, J, b in zip(terms, JF, bw):
+            if t.JG is None:
+                continue
+            JG = t.JG.astype(dtype)
+            for d in range(-b, b + 1):
+                FG = FG + shift_frames(jnp.einsum("tri,trk->tik", J[:, d + b], JG), d)
+            GG = GG + jnp.einsum("tri,trk->ik", JG, JG)
+            if t.JW is not None:
+                for j in range(K):
+                    WG = WG + _group_sum("qura,qurk->qak", t.JW[:, j].astype(dtype), JG, j, st)
+    normal = _pin(Normal(FF, FW, WW, FG, WG, GG), st, frame_mask)
+    cost = 0.5 * sum(jnp.sum(r * r) for r in rs)
+    return normal, jt_vector(terms, st, rs, dtype), cost
+
+
+# --- blocks by colouring -----------------------------------------------------------------
+
+
+def jacobian_blocks(mv, st: Structure, dtype, bandwidths, columns) -> list[TermBlocks]:
+    """Every non-zero Jacobian block of a linear map with the problem's structure.
+
+    Args:
+        mv: linear map (tF (T, n), tW (W, m) or None, tG (g,) or None) -> list of
+            residual leaves (T, ...), tangents in the layout's order (not solver order).
+        bandwidths: per leaf; columns: per leaf, the (frame, window, sequence) column
+            tuples it reads (the other blocks are zeros, not computed).
+    Returns:
+        One `TermBlocks` per leaf, residual r = 0 (the caller fills it in).
+    """
+    T, n = st.T, st.n
+    zF = jnp.zeros((T, n), dtype)
+    zW = jnp.zeros((st.W, st.m), dtype) if st.W else None
+    zG = jnp.zeros((st.g,), dtype) if st.g else None
+    rows = [int(np.prod(s.shape[1:])) for s in jax.eval_shape(mv, zF, zW, zG)]
+    found = [dict() for _ in bandwidths]
+    t = np.arange(T)
+
+    def run(tangents, members):
+        leaves = jax.vmap(mv)(*tangents)
+        return [leaves[i].reshape(leaves[i].shape[0], T, -1) for i in members]
+
+    def embed(x, cols, size):  # (..., k) computed columns -> (..., size)
+        if len(cols) == size:
+            return x
+        pos = np.full(size, len(cols))
+        pos[np.asarray(cols)] = np.arange(len(cols))
+        return jnp.concatenate([x, jnp.zeros(x.shape[:-1] + (1,), x.dtype)], -1)[..., pos]
+
+    for b in sorted(set(bandwidths)):
+        members = [i for i, bi in enumerate(bandwidths) if bi == b and columns[i][0]]
+        if not members:
+            continue
+        cols = sorted(set().union(*[columns[i][0] for i in members]))
+        C = 2 * b + 1
+        unit = jnp.asarray(np.eye(n)[np.asarray(cols)], dtype)  # (k, n)
+
+        def per_colour(c, unit=unit, C=C, members=members):
+            tF = (jnp.asarray(t % C) == c)[None, :, None].astype(dtype) * unit[:, None, :]
+            k = tF.shape[0]
+            return run((tF, _bcast(zW, k), _bcast(zG, k)), members)
+
+        # lax.map over colours bounds live memory to one colour's JVP outputs at a time.
+        res = jax.lax.map(per_colour, jnp.arange(C))  # per member (C, k, T, m)
+        for leaf, i in zip(res, members):
+            per_frame = embed(jnp.transpose(leaf, (2, 0, 3, 1)), cols, n)  # (T, C, m, n)
+            blocks = jnp.stack([per_frame[t, (t + d) % C] for d in range(-b, b + 1)], axis=1)
+            found[i]["JF"] = st.to_solver_order(blocks)
+    members = [i for i in range(len(bandwidths)) if columns[i][1]]
+    if members:
+        K, m = st.K, st.m
+        cols = sorted(set().union(*[columns[i][1] for i in members]))
+        unit = jnp.asarray(np.eye(m)[np.asarray(cols)], dtype)
+        colour = np.arange(st.W) % K  # the K windows containing a frame differ mod K
+
+        def per_wcolour(c):
+            tW = (jnp.asarray(colour) == c)[None, :, None].astype(dtype) * unit[:, None, :]
+            k = tW.shape[0]
+            return run((_bcast(zF, k), tW, _bcast(zG, k)), members)
+
+        res = jax.lax.map(per_wcolour, jnp.arange(K))  # per member (K, k, T, m_t)
+        wid, valid = st.slot_windows()
+        for leaf, i in zip(res, members):
+            per = embed(jnp.transpose(leaf, (2, 0, 3, 1)), cols, m)  # (T, K colours, m_t, m)
+            JW = per[t[:, None], wid % K]  # (T, K slots, m_t, m)
+            found[i]["JW"] = jnp.where(jnp.asarray(valid)[:, :, None, None], JW, 0.0)
+    members = [i for i in range(len(bandwidths)) if columns[i][2]]
+    if members:
+        cols = sorted(set().union(*[columns[i][2] for i in members]))
+        unit = jnp.asarray(np.eye(st.g)[np.asarray(cols)], dtype)
+        k = unit.shape[0]
+        for leaf, i in zip(run((_bcast(zF, k), _bcast(zW, k), unit), members), members):
+            found[i]["JG"] = embed(jnp.moveaxis(leaf, 0, -1), cols, st.g)  # (T, m_t, g)
+    out = []
+    for i, b in enumerate(bandwidths):
+        JF = found[i].get("JF")
+        if JF is None:
+            JF = jnp.zeros((T, 2 * b + 1, rows[i], n), dtype)
+        out.append(TermBlocks(jnp.zeros((T, rows[i]), dtype), JF, found[i].get("JW"), found[i].get("JG")))
+    return out
+
+
+def _bcast(x, k):
+    return None if x is None else jnp.broadcast_to(x, (k,) + x.shape)
+
+
+def hessian_normal(hvp, st: Structure, dtype, frame_mask: Array | None = None) -> Normal:
+    """The Hessian in `Normal` form from Hessian-vector products, by colouring.
+
+    H couples frames within B2 = 2b, so 2·B2 + 1 frame colours separate them; windows
+    overlap their K-1 neighbours, so 2K - 1 window colours; the border takes g products.
+    `hvp(tF, tW, tG) -> (HF (T, n), HW (W, m) or None, HG (g,) or None)`, layout order.
+    """
+    T, n, nc, K = st.T, st.n, st.nc, st.K
+    t = np.arange(T)
+    zF = jnp.zeros((T, n), dtype)
+    zW = jnp.zeros((st.W, st.m), dtype) if st.W else None
+    zG = jnp.zeros((st.g,), dtype) if st.g else None
+    C = 2 * st.B2 + 1
     eye = jnp.eye(n, dtype=dtype)
+
+    def per_colour(c):
+        tF = (jnp.asarray(t % C) == c)[None, :, None].astype(dtype) * eye[:, None, :]
+        HF, HW, HG = jax.vmap(hvp)(tF, _bcast(zW, n), _bcast(zG, n))
+        return HF  # (n, T, n)
+
+    res = jax.lax.map(per_colour, jnp.arange(C))  # (C, k, T, n)
+    cols = jnp.transpose(res, (2, 0, 3, 1))  # (T, C, n_out, k)
+    cols = st.to_solver_order(jnp.swapaxes(st.to_solver_order(jnp.swapaxes(cols, -1, -2)), -1, -2))
+    FF = [cols[t, (t + e) % C] for e in range(st.B2 + 1)]
+    FF = [FF[0]] + [f[:, :nc, :nc] for f in FF[1:]]
+    FF = [jnp.where(shift_frames(jnp.ones((T,), bool), -e)[:, None, None], f, 0.0) for e, f in enumerate(FF)]
+    FW = WW = FG = WG = GG = None
+    if st.W:
+        m = st.m
+        Cw = 2 * K - 1
+        wcol = np.arange(st.W) % Cw
+        eyem = jnp.eye(m, dtype=dtype)
+
+        def per_wcolour(c):
+            tW = (jnp.asarray(wcol) == c)[None, :, None].astype(dtype) * eyem[:, None, :]
+            HF, HW, _ = jax.vmap(hvp)(_bcast(zF, m), tW, _bcast(zG, m))
+            return HF, HW
+
+        HFw, HWw = jax.lax.map(per_wcolour, jnp.arange(Cw))  # (Cw, m, T, n), (Cw, m, W, m)
+        wid, valid = st.slot_windows()
+        perF = jnp.transpose(HFw, (2, 0, 3, 1))  # (T, Cw, n, m)
+        FW = st.to_solver_order(jnp.swapaxes(perF[t[:, None], wid % Cw], -1, -2))
+        FW = jnp.where(jnp.asarray(valid)[:, :, None, None], jnp.swapaxes(FW, -1, -2), 0.0)
+        perW = jnp.transpose(HWw, (2, 0, 3, 1))  # (W, Cw, m, m)
+        w = np.arange(st.W)
+        WW = jnp.stack([perW[w, (w + e) % Cw] * jnp.asarray(w + e < st.W)[:, None, None] for e in range(K)], 1)
+    if st.g:
+        eyeg = jnp.eye(st.g, dtype=dtype)
+        HF, HW, HG = jax.vmap(hvp)(_bcast(zF, st.g), _bcast(zW, st.g), eyeg)
+        FG = st.to_solver_order(jnp.moveaxis(HF, 0, -1).swapaxes(-1, -2)).swapaxes(-1, -2)
+        WG = None if HW is None else jnp.moveaxis(HW, 0, -1)
+        GG = HG
+    return _pin(Normal(FF, FW, WW, FG, WG, GG), st, frame_mask)
+
+
+# --- factorisation -----------------------------------------------------------------------
+
+
+class Factor(eqx.Module):
+    """A factorised `Normal` (+ damping): scales, per-frame elimination, block-tridiagonal
+    inverse factors, and the border's Schur complement."""
+
+    sF: Array
+    sW: Array | None
+    sG: Array | None
+    L_local: Array | None  # (T, n_l, n_l)
+    X: Array | None  # (T, n_l, nc + K m + g): L_ll⁻¹ [H_lc | H_lW | H_lG]
+    L: Array | None  # (Kb, N, N) inverse Cholesky factors
+    U: Array | None  # (Kb, N, N) L_k⁻¹ U_k
+    Y: Array | None  # (Kb, N, g) A⁻¹ C
+    S_inv: Array | None  # (g, g) inverse Cholesky factor of the border's Schur complement
+    st: Structure = eqx.field(static=True)
+
+
+def _damp_scale(H: Array, lam, marquardt: bool):
+    """Add λI (or λ diag) to the diagonal blocks (..., k, k); return (H, diag^-1/2)."""
+    k = H.shape[-1]
+    eye = jnp.eye(k, dtype=H.dtype)
+    d = jnp.diagonal(H, axis1=-2, axis2=-1)
     if marquardt:
-        d = jnp.diagonal(Hd, axis1=-2, axis2=-1)
         # Floor the diagonal so unknowns no residual touches stay factorisable.
         d = jnp.maximum(d, 1e-12 * jnp.maximum(jnp.max(d), 1.0))
-        Hd = Hd + jnp.asarray(damping, dtype) * d[:, :, None] * eye
+        H = H + jnp.asarray(lam, H.dtype) * d[..., :, None] * eye
     else:
-        Hd = Hd + jnp.asarray(damping, dtype) * eye
-    # Jacobi scaling s_i = diag(H)^(-1/2) (1 for empty columns) conditions the factor.
-    diag = jnp.diagonal(Hd, axis1=-2, axis2=-1)
+        H = H + jnp.asarray(lam, H.dtype) * eye
+    diag = jnp.diagonal(H, axis1=-2, axis2=-1)
     scale = jnp.where(diag > 0, jax.lax.rsqrt(jnp.where(diag > 0, diag, 1.0)), 1.0)
-    Hd = Hd * scale[:, :, None] * scale[:, None, :]
-    if jnp.finfo(dtype).bits < 64:
-        # In float32 the scaled matrix (unit diagonal) loses definiteness to rounding when
-        # JᵀJ is ill-conditioned (measured: NaN factors on the SIP problem); a shift of
-        # a few ulps of its unit diagonal restores it at the cost of a slightly damped step.
-        Hd = Hd + _F32_SHIFT * eye
-    L_local = X = None
-    if nc < n:
-        L_local = jnp.linalg.cholesky(Hd[:, nc:, nc:])
-        X = jsl.solve_triangular(L_local, Hd[:, nc:, :nc], lower=True)  # (T, n_l, n_c)
-        Hd = Hd[:, :nc, :nc] - jnp.einsum("tlc,tld->tcd", X, X)
-    sc = scale[:, :nc]
-    Hs = [Hd] + [H[e] * sc[:, :, None] * shift_frames(sc, -e)[:, None, :] for e in range(1, len(H))]
-    n = nc
-    eye = jnp.eye(n, dtype=dtype)
-    g = max(1, len(H) - 1)
-    K = -(-T // g)
-    pad = K * g - T
-    if pad:
-        Hs[0] = jnp.concatenate([Hs[0], jnp.broadcast_to(eye, (pad, n, n))], 0)
-        Hs[1:] = [jnp.concatenate([h, jnp.zeros((pad, n, n), dtype)], 0) for h in Hs[1:]]
-    Hs = [h.reshape(K, g, n, n) for h in Hs]
-    zero = jnp.zeros((K, n, n), dtype)
-    # Super-block D_k[i, j] = H_{kg+i, kg+j}; U_k[i, j] = H_{kg+i, (k+1)g+j}.
-    D_rows, U_rows = [], []
-    for i in range(g):
-        D_row, U_row = [], []
-        for j in range(g):
-            e = j - i
-            if e >= 0:
-                D_row.append(Hs[e][:, i])
-            else:
-                D_row.append(jnp.swapaxes(Hs[-e][:, j], -1, -2))
-            e = g + j - i
-            U_row.append(Hs[e][:, i] if e < len(Hs) else zero)
-        D_rows.append(jnp.concatenate(D_row, -1))
-        U_rows.append(jnp.concatenate(U_row, -1))
-    D = jnp.concatenate(D_rows, -2)  # (K, N, N)
-    U = jnp.concatenate(U_rows, -2)
-    if g == 1 and len(H) == 1:
-        L_inv = jsl.solve_triangular(jnp.linalg.cholesky(D), jnp.broadcast_to(jnp.eye(D.shape[-1], dtype=dtype), D.shape), lower=True)
-        return BandedFactor(L_inv, jnp.zeros_like(L_inv), scale, L_local, X, g)
+    return H, scale
+
+
+def _outer(a, b):
+    return a[..., :, None] * b[..., None, :]
+
+
+def _tri_factor(D: Array, U: Array):
+    """Block-tridiagonal Cholesky: (L_k⁻¹, L_k⁻¹ U_k) per super-block, by `lax.scan`."""
+    eye = jnp.eye(D.shape[-1], dtype=D.dtype)
 
     def step(W_prev, DU):
         Dk, Uk = DU
         S = Dk - W_prev.T @ W_prev
-        # The inverse factor turns both substitutions of `solve_banded` into products,
-        # which XLA-CPU runs several times faster than triangular solves in a scan.
-        Lk_inv = jsl.solve_triangular(jnp.linalg.cholesky(S), eye_N, lower=True)
+        # The inverse factor turns both substitutions into products, which XLA-CPU runs
+        # several times faster than triangular solves in a scan.
+        Lk_inv = jsl.solve_triangular(jnp.linalg.cholesky(S), eye, lower=True)
         Wk = Lk_inv @ Uk
         return Wk, (Lk_inv, Wk)
 
-    eye_N = jnp.eye(D.shape[-1], dtype=dtype)
     _, (L, W) = jax.lax.scan(step, jnp.zeros_like(D[0]), (D, U))
-    return BandedFactor(L, W, scale, L_local, X, g)
+    return L, W
 
 
-def solve_banded(factor: BandedFactor, rhs: Array) -> Array:
-    """Solve (JᵀJ + λI) x = rhs with a `BandedFactor`.  rhs (T, n) -> (T, n)."""
-    T, n = rhs.shape
-    K, N, _ = factor.L.shape
-    b = rhs.astype(factor.L.dtype) * factor.scale
-    if factor.X is not None:
-        nc = factor.X.shape[-1]
-        z_local = jsl.solve_triangular(factor.L_local, b[:, nc:, None], lower=True)[..., 0]
-        b = b[:, :nc] - jnp.einsum("tlc,tl->tc", factor.X, z_local)
-    nc = b.shape[1]
-    b = b.reshape(-1)
-    b = jnp.concatenate([b, jnp.zeros((K * N - T * nc,), b.dtype)]).reshape(K, N)
+def _tri_solve(L: Array, W: Array, b: Array) -> Array:
+    """Solve with `_tri_factor`'s output; b (Kb, N, k) -> (Kb, N, k)."""
 
     def forward(z_prev, LWb):
-        Lk_inv, Wk_prev, bk = LWb
-        z = Lk_inv @ (bk - Wk_prev.T @ z_prev)
+        Lk, Wk_prev, bk = LWb
+        z = Lk @ (bk - Wk_prev.T @ z_prev)
         return z, z
 
-    W_prev = jnp.concatenate([jnp.zeros_like(factor.W[:1]), factor.W[:-1]], 0)
-    _, z = jax.lax.scan(forward, jnp.zeros((N,), b.dtype), (factor.L, W_prev, b))
+    W_prev = jnp.concatenate([jnp.zeros_like(W[:1]), W[:-1]], 0)
+    _, z = jax.lax.scan(forward, jnp.zeros(b.shape[1:], b.dtype), (L, W_prev, b))
 
     def backward(x_next, LWz):
-        Lk_inv, Wk, zk = LWz
-        x = Lk_inv.T @ (zk - Wk @ x_next)
+        Lk, Wk, zk = LWz
+        x = Lk.T @ (zk - Wk @ x_next)
         return x, x
 
-    _, x = jax.lax.scan(backward, jnp.zeros((N,), b.dtype), (factor.L, factor.W, z), reverse=True)
-    x = x.reshape(-1)[: T * nc].reshape(T, nc)
-    if factor.X is not None:
-        rest = z_local - jnp.einsum("tlc,tc->tl", factor.X, x)
-        x_local = jsl.solve_triangular(jnp.swapaxes(factor.L_local, -1, -2), rest[..., None], lower=False)[..., 0]
-        x = jnp.concatenate([x, x_local], 1)
-    return (x * factor.scale).astype(rhs.dtype)
+    _, x = jax.lax.scan(backward, jnp.zeros(b.shape[1:], b.dtype), (L, W, z), reverse=True)
+    return x
+
+
+def _pad_to(x: Array, length: int, fill_eye: bool = False) -> Array:
+    pad = length - x.shape[0]
+    if pad <= 0:
+        return x
+    if fill_eye:
+        filler = jnp.broadcast_to(jnp.eye(x.shape[-1], dtype=x.dtype), (pad,) + x.shape[1:])
+    else:
+        filler = jnp.zeros((pad,) + x.shape[1:], x.dtype)
+    return jnp.concatenate([x, filler], 0)
+
+
+def _to_blocks(xF: Array | None, xW: Array | None, st: Structure) -> Array:
+    """Coupled frame (T, nc, ...) and window (W, m, ...) parts -> super-block vectors (Kb, N, ...)."""
+    G, r, Kb = st.blocking()
+    parts = []
+    if st.nc and xF is not None:
+        parts.append(_pad_to(xF, Kb * G).reshape((Kb, G * st.nc) + xF.shape[2:]))
+    if r:
+        parts.append(_pad_to(xW, Kb * r).reshape((Kb, r * st.m) + xW.shape[2:]))
+    return jnp.concatenate(parts, 1)
+
+
+def _from_blocks(x: Array, st: Structure):
+    G, r, Kb = st.blocking()
+    xF = xW = None
+    split = G * st.nc if st.nc else 0
+    if st.nc:
+        xF = x[:, :split].reshape((Kb * G, st.nc) + x.shape[2:])[: st.T]
+    if r:
+        xW = x[:, split:].reshape((Kb * r, st.m) + x.shape[2:])[: st.W]
+    return xF, xW
+
+
+def _assemble(FF: list, FW: Array | None, WW: Array | None, st: Structure):
+    """Super-blocks D_k (diagonal) and U_k (to block k+1) of the coupled frames + windows."""
+    G, r, Kb = st.blocking()
+    nc, m, K = st.nc, st.m, st.K
+    dtype = FF[0].dtype
+    FFb = FWb = FWn = WWb = None
+    if nc:
+        FFp = [_pad_to(FF[0], Kb * G, True)] + [_pad_to(f, Kb * G) for f in FF[1:]]
+        FFb = [f.reshape((Kb, G) + f.shape[1:]) for f in FFp]
+    if r:
+        WWp = jnp.concatenate([_pad_to(WW[:, :1], Kb * r, True), _pad_to(WW[:, 1:], Kb * r)], 1) if K > 1 else _pad_to(WW, Kb * r, True)
+        WWb = WWp.reshape((Kb, r) + WWp.shape[1:])
+        if nc:
+            FWp = _pad_to(FW, Kb * G)
+            FWb = FWp.reshape((Kb, G) + FWp.shape[1:])
+            FWn = jnp.concatenate([FWb[1:], jnp.zeros_like(FWb[:1])], 0)
+    s = st.windows.stride if r else 1
+    zero = lambda a, b: jnp.zeros((Kb, a, b), dtype)  # noqa: E731
+    B2 = len(FF) - 1
+    D_rows, U_rows = [], []
+    for i in range(G if nc else 0):
+        D_row, U_row = [], []
+        for i2 in range(G):
+            e = i2 - i
+            if 0 <= e <= B2:
+                D_row.append(FFb[e][:, i])
+            elif -B2 <= e < 0:
+                D_row.append(jnp.swapaxes(FFb[-e][:, i2], -1, -2))
+            else:
+                D_row.append(zero(nc, nc))
+            e = G + i2 - i
+            U_row.append(FFb[e][:, i] if e <= B2 else zero(nc, nc))
+        for p in range(r):
+            j = i // s - p
+            D_row.append(FWb[:, i, j, :nc] if 0 <= j < K else zero(nc, m))
+            U_row.append(zero(nc, m))
+        D_rows.append(jnp.concatenate(D_row, -1))
+        U_rows.append(jnp.concatenate(U_row, -1))
+    for p in range(r):
+        D_row, U_row = [], []
+        for i2 in range(G if nc else 0):
+            j = i2 // s - p
+            D_row.append(jnp.swapaxes(FWb[:, i2, j, :nc], -1, -2) if 0 <= j < K else zero(m, nc))
+            j = r + i2 // s - p
+            U_row.append(jnp.swapaxes(FWn[:, i2, j, :nc], -1, -2) if 0 <= j < K else zero(m, nc))
+        for q in range(r):
+            e = q - p
+            if 0 <= e < K:
+                D_row.append(WWb[:, p, e])
+            elif -K < e < 0:
+                D_row.append(jnp.swapaxes(WWb[:, q, -e], -1, -2))
+            else:
+                D_row.append(zero(m, m))
+            e = r + q - p
+            U_row.append(WWb[:, p, e] if e < K else zero(m, m))
+        D_rows.append(jnp.concatenate(D_row, -1))
+        U_rows.append(jnp.concatenate(U_row, -1))
+    return jnp.concatenate(D_rows, -2), jnp.concatenate(U_rows, -2)
+
+
+def factor(normal: Normal, st: Structure, damping: Array | float = 0.0, marquardt: bool = False) -> Factor:
+    """Factorise H + λI (or H + λ diag(H), eq. 2.54) in its structure (module docstring)."""
+    T, n, nc, K, m, g = st.T, st.n, st.nc, st.K, st.m, st.g
+    FF = list(normal.FF)
+    dtype = FF[0].dtype
+    F0, sF = _damp_scale(FF[0], damping, marquardt)
+    FF = [F0 * _outer(sF, sF)] + [
+        f * _outer(sF[:, :nc], shift_frames(sF[:, :nc], -e)) for e, f in enumerate(FF[1:], 1)
+    ]
+    FW = WW = FG = WG = GG = sW = sG = None
+    if st.W:
+        W0, sW = _damp_scale(normal.WW[:, 0], damping, marquardt)
+        WW = normal.WW.at[:, 0].set(W0)
+        WW = jnp.stack([WW[:, e] * _outer(sW, shift_frames(sW, -e)) for e in range(K)], 1)
+        sW_slot = jnp.stack([_window_of_slot(sW, j, st) for j in range(K)], 1)  # (T, K, m)
+        FW = normal.FW * sF[:, None, :, None] * sW_slot[:, :, None, :]
+    if g:
+        GG, sG = _damp_scale(normal.GG, damping, marquardt)
+        GG = GG * _outer(sG, sG)
+        FG = normal.FG * _outer(sF, sG)
+        WG = None if normal.WG is None else normal.WG * _outer(sW, sG)
+    if jnp.finfo(dtype).bits < 64:
+        # In float32 the scaled matrix (unit diagonal) loses definiteness to rounding when
+        # H is ill-conditioned (measured: NaN factors on the SIP problem); a shift of a
+        # few ulps of its unit diagonal restores it at the cost of a slightly damped step.
+        FF[0] = FF[0] + _F32_SHIFT * jnp.eye(n, dtype=dtype)
+        if st.W:
+            WW = WW.at[:, 0].add(_F32_SHIFT * jnp.eye(m, dtype=dtype))
+        if g:
+            GG = GG + _F32_SHIFT * jnp.eye(g, dtype=dtype)
+    L_local = X = None
+    if nc < n:
+        H0 = FF[0]
+        L_local = jnp.linalg.cholesky(H0[:, nc:, nc:])
+        right = [H0[:, nc:, :nc]]
+        if st.W:
+            right.append(jnp.swapaxes(FW[:, :, nc:, :], 1, 2).reshape(T, n - nc, K * m))
+        if g:
+            right.append(FG[:, nc:])
+        X = jsl.solve_triangular(L_local, jnp.concatenate(right, -1), lower=True)
+        Xc, Xw, Xg = _split_X(X, st)
+        FF[0] = H0[:, :nc, :nc] - jnp.einsum("tla,tlb->tab", Xc, Xc)
+        if st.W:
+            FW = FW[:, :, :nc] - jnp.einsum("tla,tjlb->tjab", Xc, Xw)
+            for j in range(K):
+                for i in range(j + 1):
+                    WW = WW.at[:, j - i].add(-_group_sum("qula,qulb->qab", Xw[:, j], Xw[:, i], j, st))
+        if g:
+            FG = FG[:, :nc] - jnp.einsum("tla,tlk->tak", Xc, Xg)
+            GG = GG - jnp.einsum("tla,tlk->ak", Xg, Xg)
+            if st.W:
+                for j in range(K):
+                    WG = WG - _group_sum("qula,qulk->qak", Xw[:, j], Xg, j, st)
+    L = U = Y = S_inv = None
+    G, r, Kb = st.blocking()
+    if Kb:
+        D, Ub = _assemble(FF, FW, WW, st)
+        L, U = _tri_factor(D, Ub)
+    if g:
+        if Kb:
+            C = _to_blocks(FG[:, :nc] if nc else None, WG, st)  # (Kb, N, g)
+            Y = _tri_solve(L, U, C)
+            S = GG - jnp.einsum("kna,knb->ab", C, Y)
+        else:
+            S = GG
+        S_inv = jsl.solve_triangular(jnp.linalg.cholesky(S), jnp.eye(g, dtype=dtype), lower=True)
+    return Factor(sF, sW, sG, L_local, X, L, U, Y, S_inv, st)
+
+
+def _split_X(X: Array, st: Structure):
+    nc, K, m, g = st.nc, st.K, st.m, st.g
+    T, nl = X.shape[:2]
+    Xc = X[..., :nc]
+    Xw = jnp.swapaxes(X[..., nc : nc + K * m].reshape(T, nl, K, m), 1, 2) if st.W else None  # (T, K, n_l, m)
+    Xg = X[..., nc + K * m :] if g else None
+    return Xc, Xw, Xg
+
+
+def solve_factored(f: Factor, bF: Array, bW: Array | None = None, bG: Array | None = None):
+    """Solve (H + λI) x = b with a `Factor`; b and x as (F (T, n), W (W, m), G (g,)), solver order."""
+    st = f.st
+    T, n, nc, K, g = st.T, st.n, st.nc, st.K, st.g
+    dtype = f.sF.dtype
+    bF = bF.astype(dtype) * f.sF
+    bW = None if bW is None else bW.astype(dtype) * f.sW
+    bG = None if bG is None else bG.astype(dtype) * f.sG
+    if f.X is not None:
+        Xc, Xw, Xg = _split_X(f.X, st)
+        z_local = jsl.solve_triangular(f.L_local, bF[:, nc:, None], lower=True)[..., 0]
+        cF = bF[:, :nc] - jnp.einsum("tla,tl->ta", Xc, z_local)
+        if st.W:
+            for j in range(K):
+                bW = bW - _group_sum("qula,qul->qa", Xw[:, j], z_local, j, st)
+        if g:
+            bG = bG - jnp.einsum("tlk,tl->k", Xg, z_local)
+    else:
+        cF = bF
+    xF_c, xW, xG = cF, bW, None
+    if f.L is not None:
+        z = _tri_solve(f.L, f.U, _to_blocks(cF, bW, st)[..., None])[..., 0]
+        if g:
+            u = f.S_inv @ (bG - jnp.einsum("kna,kn->a", f.Y, _to_blocks(cF, bW, st)))
+            xG = f.S_inv.T @ u
+            z = z - jnp.einsum("kna,a->kn", f.Y, xG)
+        xF_c, xW = _from_blocks(z, st)
+    elif g:
+        xG = f.S_inv.T @ (f.S_inv @ bG)
+    if f.X is not None:
+        rest = z_local
+        if nc:
+            rest = rest - jnp.einsum("tla,ta->tl", Xc, xF_c)
+        if st.W:
+            for j in range(K):
+                rest = rest - jnp.einsum("tla,ta->tl", Xw[:, j], _window_of_slot(xW, j, st))
+        if g:
+            rest = rest - jnp.einsum("tlk,k->tl", Xg, xG)
+        x_local = jsl.solve_triangular(jnp.swapaxes(f.L_local, -1, -2), rest[..., None], lower=False)[..., 0]
+        xF = jnp.concatenate([xF_c, x_local], 1) if nc else x_local
+    else:
+        xF = xF_c
+    xF = xF * f.sF
+    xW = None if xW is None else xW * f.sW
+    xG = None if xG is None else xG * f.sG
+    return xF, xW, xG
+
+
+# --- as a lineax solver ----------------------------------------------------------------------
 
 
 def _damped_parts(operator: lx.AbstractLinearOperator, damped: bool | None):
@@ -307,83 +778,112 @@ def _damped_parts(operator: lx.AbstractLinearOperator, damped: bool | None):
         damped = isinstance(out, tuple) and len(out) == 2 and eqx.tree_equal(out[1], struct) is True
     if not damped:
         return operator.mv, None
-    probe = jnp.zeros(struct.shape, struct.dtype).at[0, 0].set(1.0)
-    sqrt_lambda = operator.mv(probe)[1][0, 0]
+    leaves, tree = jtu.tree_flatten(struct)
+    probe = [jnp.zeros(s.shape, s.dtype) for s in leaves]
+    probe[0] = probe[0].reshape(-1).at[0].set(1.0).reshape(leaves[0].shape)
+    sqrt_lambda = jtu.tree_leaves(operator.mv(jtu.tree_unflatten(tree, probe))[1])[0].reshape(-1)[0]
     return (lambda y: operator.mv(y)[0]), sqrt_lambda**2
 
 
-class BandedNormalCholesky(lx.AbstractLinearSolver):
-    """Least-squares solve through block-banded normal equations (a lineax solver).
+class StructuredCholesky(lx.AbstractLinearSolver):
+    """The structured factorisation as a lineax solver (for optimistix).
 
-    For an operator A: (T, n) -> residual pytree whose leaf ℓ has frame bandwidth b_ℓ,
-    returns x = (AᵀA)⁻¹ Aᵀ v. When A is optimistix's Levenberg-Marquardt operator
-    [J; √λ I] this is the damped step (JᵀJ + λ I)⁻¹ Jᵀ r, von Marcard eq. 2.52.
+    With `hessian=False` the operator is a residual Jacobian J (Gauss-Newton) or
+    optimistix's damped [J; √λ I] (Levenberg-Marquardt, recognised and turned into
+    JᵀJ + λI without any product of the damping rows), and the solve is the
+    least-squares x = (JᵀJ + λI)⁻¹ Jᵀ v. With `hessian=True` the operator is the
+    (symmetric) Hessian of the cost, as in `optx.ImplicitAdjoint`, and x = H⁻¹ v.
+    The operator's input is the problem's parameter dict.
 
     Attributes:
-        bandwidths: b per residual leaf of J, in `jtu.tree_leaves` order (for a dict of
-            terms: sorted by name). A single int applies to every leaf.
-        factor_dtype: dtype in which JᵀJ is formed and factorised (None: the operator's).
-        damped: whether the operator is optimistix's damped [J; √λ I] (None: detect it
-            from the output structure, a 2-tuple whose second part is shaped like y).
+        layout: the parameters' `Layout`.
+        bandwidths: per residual leaf (in `jtu.tree_leaves` order), its frame coupling.
+        columns: per residual leaf, the (frame, window, sequence) columns it reads.
+        hessian: whether the operator is the Hessian (see above).
+        factor_dtype: dtype in which H is formed and factorised (None: the operator's).
+        frame_mask: (T,) False for padded frames (pinned to a zero step), or None.
     """
 
-    bandwidths: tuple[int, ...] | int = eqx.field(static=True, default=0)
+    layout: Layout = eqx.field(static=True)
+    bandwidths: tuple[int, ...] = eqx.field(static=True)
+    columns: tuple = eqx.field(static=True)
+    hessian: bool = eqx.field(static=True, default=False)
     factor_dtype: Any = eqx.field(static=True, default=None)
+    frame_mask: Array | None = None
     damped: bool | None = eqx.field(static=True, default=None)
 
-    def _leaf_bandwidths(self, out_structure) -> tuple[int, ...]:
-        leaves = jtu.tree_leaves(out_structure)
-        if isinstance(self.bandwidths, int):
-            return (self.bandwidths,) * len(leaves)
-        if len(self.bandwidths) != len(leaves):
-            raise ValueError(
-                f"BandedNormalCholesky has {len(self.bandwidths)} bandwidths but the "
-                f"operator has {len(leaves)} output leaves; give one per residual leaf."
-            )
-        return tuple(self.bandwidths)
+    @property
+    def structure(self) -> Structure:
+        return Structure.of(self.layout, self.bandwidths, [c[0] for c in self.columns])
+
+    def _tangent(self, tF, tW, tG):
+        return self.layout.unravel(tF, tW, tG)
 
     def init(self, operator, options):
         del options
-        jac_mv, damping = _damped_parts(operator, self.damped)
+        st, layout = self.structure, self.layout
         struct = operator.in_structure()
-        out_structure = operator.out_structure()
-        if damping is not None:
-            out_structure = out_structure[0]
-        if not (hasattr(struct, "shape") and len(struct.shape) == 2):
+        if not isinstance(struct, dict) or set(struct) != set(layout.keys):
             raise ValueError(
-                f"BandedNormalCholesky needs a (T, n) array of unknowns, got {struct}; "
-                "ravel the per-frame parameters first (FrameLayout.ravel)."
+                f"StructuredCholesky needs an operator on the parameter dict {list(layout.keys)}, got {struct}."
             )
-        T, n = struct.shape
-        for leaf in jtu.tree_leaves(out_structure):
-            if leaf.shape[:1] != (T,):
-                raise ValueError(
-                    f"every residual leaf must have the frame axis first (T={T}), got {leaf.shape}."
-                )
-        bw = self._leaf_bandwidths(out_structure)
-        dtype = self.factor_dtype or struct.dtype
-        blocks = jacobian_blocks(jac_mv, T, n, struct.dtype, bw)
-        H = normal_blocks(blocks, bw, dtype)
-        factor = factor_banded(H, 0.0 if damping is None else damping)
-        return factor, blocks, damping
+        in_dtype = jtu.tree_leaves(struct)[0].dtype
+        dtype = self.factor_dtype or in_dtype
+        if self.hessian:
+
+            def hvp(tF, tW, tG):
+                return layout.ravel(operator.mv(self._tangent(tF, tW, tG)))
+
+            normal = hessian_normal(hvp, st, in_dtype, self.frame_mask)
+            normal = jtu.tree_map(lambda x: x.astype(dtype), normal)
+            return factor(normal, st), None, None
+        jac_mv, damping = _damped_parts(operator, self.damped)
+        out = jtu.tree_leaves(operator.out_structure()[0] if damping is not None else operator.out_structure())
+        if len(out) != len(self.bandwidths):
+            raise ValueError(
+                f"StructuredCholesky has {len(self.bandwidths)} bandwidths but the operator has "
+                f"{len(out)} output leaves; give one per residual leaf."
+            )
+        for leaf in out:
+            if leaf.shape[:1] != (st.T,):
+                raise ValueError(f"every residual leaf must have the frame axis first (T={st.T}), got {leaf.shape}.")
+
+        def mv(tF, tW, tG):
+            return jtu.tree_leaves(jac_mv(self._tangent(tF, tW, tG)))
+
+        blocks = jacobian_blocks(mv, st, in_dtype, self.bandwidths, self.columns)
+        normal, _, _ = normal_equations(blocks, st, dtype, self.frame_mask)
+        return factor(normal, st, 0.0 if damping is None else damping), blocks, damping
 
     def compute(self, state, vector, options):
         del options
-        factor, blocks, damping = state
-        bw = tuple((b.shape[1] - 1) // 2 for b in blocks)
-        r = vector if damping is None else vector[0]
-        g = jt_vector(blocks, bw, jtu.tree_leaves(r), factor.L.dtype)
-        if damping is not None:
-            # Aᵀv = Jᵀ v_r + √λ v_y (v_y = 0 in optimistix's LM, honoured anyway).
-            g = g + jnp.sqrt(damping).astype(g.dtype) * vector[1].astype(g.dtype)
-        x = solve_banded(factor, g.astype(factor.L.dtype)).astype(blocks[0].dtype)
-        return x, lx.RESULTS.successful, {}
+        f, blocks, damping = state
+        st, layout = f.st, self.layout
+        if blocks is None:
+            bF, bW, bG = layout.ravel(vector)
+            bF = st.to_solver_order(bF)
+        else:
+            r = vector if damping is None else vector[0]
+            bF, bW, bG = jt_vector(blocks, st, jtu.tree_leaves(r), f.sF.dtype)
+            if damping is not None:
+                # Aᵀv = Jᵀ v_r + √λ v_y (v_y = 0 in optimistix's LM, honoured anyway).
+                yF, yW, yG = layout.ravel(vector[1])
+                c = jnp.sqrt(damping).astype(bF.dtype)
+                bF = bF + c * st.to_solver_order(yF).astype(bF.dtype)
+                bW = None if bW is None else bW + c * yW.astype(bF.dtype)
+                bG = None if bG is None else bG + c * yG.astype(bF.dtype)
+        xF, xW, xG = solve_factored(f, bF, bW, bG)
+        dtype = jtu.tree_leaves(vector)[0].dtype
+        cast = lambda x: None if x is None else x.astype(dtype)  # noqa: E731
+        return layout.unravel(cast(st.from_solver_order(xF)), cast(xW), cast(xG)), lx.RESULTS.successful, {}
 
     def transpose(self, state, options):
-        raise NotImplementedError(
-            "BandedNormalCholesky solves a least-squares problem; differentiate through "
-            "optimistix with optx.ImplicitAdjoint(linear_solver=lx.AutoLinearSolver(...))."
-        )
+        if not self.hessian:
+            raise NotImplementedError(
+                "StructuredCholesky(hessian=False) solves a least-squares problem; differentiate "
+                "a solve through optx.ImplicitAdjoint(linear_solver=StructuredCholesky(..., hessian=True))."
+            )
+        return state, options  # the Hessian is symmetric
 
     def conj(self, state, options):
         return state, options
