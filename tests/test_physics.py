@@ -268,13 +268,14 @@ def test_ground_term_plugs_into_the_solve_engine():
     rest = np.asarray(forward(body, np.zeros((24, 3))).vertices)
     soles = np.argsort(rest[:, 1])[:40]  # the lowest vertices: the soles
     pose0 = jnp.zeros((2, 24, 3))
-    trans0 = jnp.asarray(np.tile([0.0, -rest[:, 1].min() - 0.03, 0.0], (2, 1)))  # 3 cm into the floor
+    trans0 = jnp.asarray(np.tile([0.0, -rest[:, 1].min() - 0.03, 0.0], (2, 1)))  # 3 cm down
     R0 = axis_angle_to_matrix(pose0)
     data = CombinedData((PhysicsData(body=body, ground=Ground(0.0)), {"pose0": R0, "trans0": trans0}))
-    problem = Problem([
-        ground_support_term(soles, weight=1e2),
-        Term("stay", lambda p, d: jnp.concatenate([(p["pose"] - d["pose0"]).reshape(2, -1), _stay(p, d)], -1), weight=1e-2),
-    ], rotations=("pose",))  # fmt: skip
+
+    def stay(p, d):
+        return jnp.concatenate([(p["pose"] - d["pose0"]).reshape(2, -1), _stay(p, d)], -1)
+
+    problem = Problem([ground_support_term(soles, weight=1e2), Term("stay", stay, weight=1e-2)], rotations=("pose",))
     sol = solve(problem, {"pose": pose0, "trans": trans0}, data, max_steps=20)
     lifted = np.asarray(forward(body, sol.value["pose"], None, sol.value["trans"]).vertices)
     assert lifted[:, soles, 1].min() > -1e-3  # was -30 mm
@@ -358,7 +359,8 @@ def test_rebuilt_problem_with_new_data_does_not_retrace(body64):
     assert TRACES[0] == traced
     ori, height = _fit(body64, sol.value, data)  # and the new data were used
     assert ori < 1e-3 and height > -1e-3
-    assert float(sol.value["trans"][:, 1].max()) == pytest.approx(0.05, abs=2e-3)  # the lowest frame rose 5 cm
+    # The frame holding the truth's lowest vertex rose by the 5 cm the floor rose.
+    assert float(sol.value["trans"][:, 1].max()) == pytest.approx(0.05, abs=2e-3)
 
 
 def test_mjx_ground_term_on_rotation_matrices(scene):
@@ -380,4 +382,44 @@ def test_mjx_ground_term_on_rotation_matrices(scene):
     np.testing.assert_allclose(np.asarray(r), expected, atol=1e-9)
     assert float(r.max()) == pytest.approx(0.02, abs=1e-9)
     sunk = np.asarray(r) > 1e-6
-    assert sunk.any() and np.allclose(np.asarray(dr)[sunk], -1.0) and np.allclose(np.asarray(dr)[~sunk], 0.0)
+    assert sunk.any() and np.allclose(np.asarray(dr)[sunk], -1.0)
+    assert np.allclose(np.asarray(dr)[~sunk], 0.0)
+
+
+def test_physics_terms_share_one_posed_body(body64):
+    """Ground, foot-contact and object terms read one posed body per evaluation through
+    `params.shared`, and give the same residuals without it."""
+    from jaxmocap.physics import FootStationarityResidual, ObjectPenetrationResidual
+
+    calls = []
+
+    class Memo(dict):
+        def __init__(self, values):
+            super().__init__(values)
+            self.cache = {}
+
+        def shared(self, key, compute):
+            if key not in self.cache:
+                calls.append(key)
+                self.cache[key] = compute()
+            return self.cache[key]
+
+    T = 3
+    rng = np.random.default_rng(4)
+    pose = axis_angle_to_matrix(jnp.asarray(rng.normal(scale=0.2, size=(T, 24, 3))))
+    params = {"pose": pose, "trans": jnp.zeros((T, 3))}
+    sdf = ObjectSDF.from_trimesh(trimesh.creation.box(extents=BOX), resolution=8)
+    data = PhysicsData(
+        body=body64, ground=Ground(-0.8), contact_weights=jnp.ones((T - 1, 4)), sdf=sdf,
+        object_rotation=jnp.broadcast_to(jnp.eye(3), (T, 3, 3)), object_position=jnp.zeros((T, 3)),
+    )  # fmt: skip
+    terms = [GroundSupportResidual(), FootStationarityResidual(), ObjectPenetrationResidual(margin=0.01)]
+    shared = Memo(params)
+    out = [f(shared, data) for f in terms]
+    assert calls == ["posed_body"]
+    for f, r in zip(terms, out):
+        np.testing.assert_array_equal(np.asarray(r), np.asarray(f(params, data)))
+    V = body64.num_vertices
+    assert [r.shape for r in out] == [(T, V, 1), (T, 4, 3), (T, V, 1)]
+    assert float(out[2].max()) > 0.05  # the box sits in the torso
+    assert float(jnp.abs(out[1][-1]).max()) == 0.0  # padding row

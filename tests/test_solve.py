@@ -8,7 +8,6 @@ acceleration residuals, a prior) at a size that keeps this file fast. Float64 is
 
 import jax
 import jax.numpy as jnp
-import lineax as lx
 import numpy as np
 import optimistix as optx
 import pytest
@@ -127,54 +126,239 @@ def test_manifold_parametrisations_converge_alike():
     assert max(steps.values()) < 60, steps
 
 
-# --- the structured linear solve ------------------------------------------------------
+# --- the structured linear solve: band, border, windows ----------------------------------
+
+WIN = window(4, 2)  # overlapping windows: every frame in K = 2 of them
 
 
-def _linear_system(T, with_wide_band):
-    terms = list(CHAIN.terms) + [Term("prior", e_prior, weight=0.5)]
-    if with_wide_band:
-        terms.append(Term("smooth2", e_smooth2, weight=0.3, bandwidth=2))
-    problem = Problem(terms, rotations=("rot",))
-    _, init, data = motion(T, seed=1)
-    args = (problem, FrameLayout.of(init), to_manifold(init, ("rot",)), data, None)
-    return args, 0.01 * jnp.ones((T, 12)), _bandwidths(problem, False)
+def e_heading(x, data):
+    """Orientations seen through a per-sequence heading error γ_s about y (von Marcard §4.2.4)."""
+    R, _ = sensors(x)
+    g = x["heading"]
+    c, s_, z, o = jnp.cos(g), jnp.sin(g), jnp.zeros_like(g), jnp.ones_like(g)
+    Ry = jnp.stack([jnp.stack([c, z, s_], -1), jnp.stack([z, o, z], -1), jnp.stack([-s_, z, c], -1)], -2)
+    return matrix_to_axis_angle(Ry @ R @ jnp.swapaxes(data["R"], -1, -2))
 
 
-def test_structured_step_equals_dense_step():
-    """Gauss-Newton and damped (optimistix's own [J; √λ I] operator) steps, 1e-7.
-
-    Bandwidths 0, 1 and 2 together, and T = 9 not a multiple of the super-block size 4.
-    """
-    from optimistix._solver.levenberg_marquardt import _Damped
-
-    args, y, bw = _linear_system(9, True)
-
-    @jax.jit
-    def steps(y):
-        r, lin = jax.linearize(lambda d: _residual_fn(d, args), y)
-        J = lx.FunctionLinearOperator(lin, jax.eval_shape(lambda: y))
-        damped = lx.FunctionLinearOperator(_Damped(J, jnp.asarray(0.3)), jax.eval_shape(lambda: y))
-        out = []
-        for op, vec in ((J, r), (damped, (r, jnp.zeros_like(y)))):
-            for solver in (BandedNormalCholesky(bandwidths=bw), lx.QR()):
-                out.append(lx.linear_solve(op, vec, solver, throw=False).value)
-        return out
-
-    gn, gn_dense, lm, lm_dense = steps(y)
-    for a, b in ((gn, gn_dense), (lm, lm_dense)):
-        # 1e-7: the banded substitutions multiply by explicit inverse factors (faster
-        # on XLA-CPU than triangular solves in a scan; measured 1.8e-8 here).
-        assert float(jnp.max(jnp.abs(a - b))) < 1e-7 * max(float(jnp.max(jnp.abs(b))), 1.0)
+def e_offset(x, data):  # a per-sequence translation offset seen by every frame
+    return (x["trans"] + x["offset"] - data["trans"])[..., None]
 
 
-def test_banded_solver_rejects_misuse():
-    y = jnp.zeros((4, 2))
-    J = lx.FunctionLinearOperator(lambda v: {"a": v, "b": 2 * v}, jax.eval_shape(lambda: y))
-    with pytest.raises(ValueError, match="bandwidths"):
-        lx.linear_solve(J, {"a": y, "b": y}, BandedNormalCholesky(bandwidths=(0,)), throw=False)
-    flat = lx.FunctionLinearOperator(lambda v: v.reshape(-1), jax.eval_shape(lambda: y))
-    with pytest.raises(ValueError, match="frame axis"):
-        lx.linear_solve(flat, jnp.zeros(8), BandedNormalCholesky(bandwidths=0), throw=False)
+def e_window(x, data):  # translation pulled towards a per-window linear trend (DCT-like, 2 coefficients)
+    T = x["trans"].shape[0]
+    frames, _ = WIN.windows.frames(x["trans"])  # (W, 4, 3)
+    basis = jnp.stack([jnp.ones(4), jnp.linspace(-1.0, 1.0, 4)], 1)  # (4, 2)
+    fit = jnp.einsum("lk,wkc->wlc", basis.astype(frames.dtype), x["coef"])
+    return WIN.windows.rows(frames - fit, T)  # (T, K, 3)
+
+
+def _variants(T, seed=1):
+    _, init, data = motion(T, seed=seed)
+    rng = np.random.default_rng(seed)
+    W = WIN.windows.count(T)
+    base = list(CHAIN.terms) + [Term("prior", e_prior, weight=0.5), Term("smooth2", e_smooth2, weight=0.3, bandwidth=2)]
+    border = [Term("heading", e_heading, weight=0.7, reads=(("rot", None), ("trans", None), ("heading", None))),
+              Term("offset", e_offset, weight=0.2, reads=(("trans", None), ("offset", None)))]  # fmt: skip
+    windows = [Term("window", e_window, weight=0.4, reads=(("trans", None), ("coef", None)))]
+    seq = {"heading": jnp.asarray(rng.normal(0, 0.2, 3)), "offset": jnp.asarray(rng.normal(0, 0.1, 3))}
+    coef = {"coef": jnp.asarray(rng.normal(0, 0.3, (W, 2, 3)))}
+    u_seq = {"heading": sequence("angle"), "offset": sequence()}
+    return {
+        "band": (Problem(base, rotations=("rot",)), init),
+        "border": (Problem(base + border, {"rot": frame("so3"), **u_seq}), {**init, **seq}),
+        "windows": (Problem(base + windows, {"rot": frame("so3"), "coef": WIN}), {**init, **coef}),
+        "all": (Problem(base + border + windows, {"rot": frame("so3"), **u_seq, "coef": WIN}), {**init, **seq, **coef}),
+    }, data
+
+
+@pytest.mark.parametrize("variant", ["band", "border", "windows", "all"])
+def test_structured_step_equals_dense_step(variant):
+    """The LM step (eq. 2.52) from the structured factorisation equals a dense float64 solve
+    of the same normal equations, for frame bands (b = 0, 1, 2 together), a sequence-wide
+    border, overlapping windows and all at once; T = 9 is not a multiple of any block."""
+    from jaxmocap.solve.solver import _linearise
+    from jaxmocap.solve.structured import factor, solve_factored
+    from jaxmocap.solve.unknowns import retract
+
+    problems, data = _variants(9)
+    problem, params = problems[variant]
+    layout = problem.layout(params)
+    args = Args(problem, data, None, layout)
+    st = args.structure()
+    normal, grad, cost = _linearise(params, args, st, jnp.float64, jnp.float64)
+    xF, xW, xG = solve_factored(factor(normal, st, 0.3), *grad)
+    step = layout.ravel(layout.unravel(st.from_solver_order(xF), xW, xG))
+    flat = np.concatenate([np.asarray(p).reshape(-1) for p in step if p is not None])
+    # Dense reference: J of the residuals at x ⊕ δ over the flat tangent.
+    x = to_manifold(params, layout)
+    F, W, G = layout.ravel(layout.zeros(jnp.float64))
+    sizes = [p.size for p in (F, W, G) if p is not None]
+
+    def r_of(d):
+        parts, start = [], 0
+        for p in (F, W, G):
+            if p is None:
+                parts.append(None)
+                continue
+            parts.append(d[start : start + p.size].reshape(p.shape))
+            start += p.size
+        res = problem.residuals_on_manifold(retract(x, layout.unravel(*parts), layout), data, None, layout.T)
+        return jnp.concatenate([v.reshape(-1) for v in jax.tree_util.tree_leaves(res)])
+
+    d0 = jnp.zeros(sum(sizes))
+    J = np.asarray(jax.jacfwd(r_of)(d0))
+    r = np.asarray(r_of(d0))
+    dense = np.linalg.solve(J.T @ J + 0.3 * np.eye(J.shape[1]), J.T @ r)
+    assert abs(float(cost) - 0.5 * r @ r) <= 1e-12 * (0.5 * r @ r)
+    assert np.max(np.abs(flat - dense)) < 1e-7 * max(np.max(np.abs(dense)), 1.0)
+
+
+def test_optimistix_solvers_use_the_structure():
+    """optx.LevenbergMarquardt / GaussNewton with `StructuredCholesky` (border and windows)."""
+    problems, data = _variants(8, seed=2)
+    problem, params = problems["all"]
+    ref = solve(problem, params, data, max_steps=60, rtol=1e-12, atol=1e-14)
+    assert int(ref.result) == 0
+    for method in ("optx_lm", "optx_gn"):
+        sol = solve(problem, params, data, method=method, max_steps=100, rtol=1e-12, atol=1e-14)
+        # Gauss-Newton converges only linearly on this non-zero-residual problem.
+        assert int(sol.result) == 0 or method == "optx_gn", method
+        np.testing.assert_allclose(float(sol.cost), float(ref.cost), rtol=1e-6)
+        for k in ("heading", "offset", "coef"):
+            np.testing.assert_allclose(sol.value[k], ref.value[k], atol=1e-5)
+
+
+def test_sequence_unknowns_recovered():
+    """Per-sensor headings (angle manifold) and a per-sequence offset are recovered exactly."""
+    truth, init, data = motion(10, seed=4)
+    gamma, offset = jnp.asarray([0.3, -0.5, 1.2]), jnp.asarray([0.1, -0.2, 0.05])
+    # Measurements see the sensors rotated back by γ about y and translations shifted.
+    c, s_ = jnp.cos(-gamma), jnp.sin(-gamma)
+    z, o = jnp.zeros(3), jnp.ones(3)
+    Ry = jnp.stack([jnp.stack([c, z, s_], -1), jnp.stack([z, o, z], -1), jnp.stack([-s_, z, c], -1)], -2)
+    data = dict(data, R=Ry @ data["R"], trans=data["trans"] + offset)
+    problem = Problem(
+        [Term("heading", e_heading, reads=(("rot", None), ("trans", None), ("heading", None))),
+         Term("acc", e_acc, weight=0.05, bandwidth=1),
+         Term("offset", e_offset, weight=1e-2, reads=(("trans", None), ("offset", None)))],
+        {"rot": frame("so3"), "heading": sequence("angle"), "offset": sequence()},
+    )  # fmt: skip
+    params = dict(init, heading=jnp.zeros(3), offset=jnp.zeros(3))
+    sol = solve(problem, params, data, max_steps=80, rtol=1e-12, atol=1e-14)
+    assert int(sol.result) == 0 and float(sol.cost) < 1e-14
+    np.testing.assert_allclose(sol.value["heading"], gamma, atol=1e-6)
+    np.testing.assert_allclose(sol.value["offset"], offset, atol=1e-6)
+    assert rot_error(sol.value["rot"], truth["rot"]) < 1e-6
+
+
+def test_se3_unknowns_converge():
+    """Rigid poses (SE(3), left-perturbed) per frame fitted to observed points."""
+    rng = np.random.default_rng(0)
+    pts = jnp.asarray(rng.normal(size=(5, 3)))
+    true = jnp.asarray(np.concatenate([rng.normal(0, 0.8, (4, 3)), rng.normal(0, 1.0, (4, 3))], 1))
+    from jaxmocap.solve.unknowns import Layout
+
+    lay = Layout.of({"T": true}, {"T": frame("se3")})
+    M = to_manifold({"T": true}, lay)["T"]
+    obs = jnp.einsum("tab,pb->tpa", M[:, :3, :3], pts) + M[:, None, :3, 3]
+    problem = Problem(
+        [Term("pts", lambda x, d: jnp.einsum("tab,pb->tpa", x["T"][:, :3, :3], d["p"]) + x["T"][:, None, :3, 3] - d["obs"])],
+        {"T": frame("se3")},
+    )
+    sol = solve(problem, {"T": true + 0.3}, {"p": pts, "obs": obs}, max_steps=50, rtol=1e-12, atol=1e-14)
+    assert int(sol.result) == 0 and float(sol.cost) < 1e-20
+    M2 = to_manifold(sol.value, lay)["T"]
+    np.testing.assert_allclose(M2, M, atol=1e-8)
+
+
+# --- gradients through a solve ---------------------------------------------------------------
+
+
+def _grad_problem():
+    problems, data = _variants(6, seed=5)
+    problem, params = problems["border"]
+    small = [t for t in problem.terms if t.name not in ("smooth2", "prior")]  # keep compilation short
+    # Noisy accelerations: the terms disagree at the optimum, so every weight matters.
+    noise = np.random.default_rng(6).normal(0, 2.0, data["acc"].shape)
+    return Problem(small, dict(problem.unknowns)), params, dict(data, acc=data["acc"] + noise)
+
+
+def _solution_scalar(problem, params, data, w_acc, obs, const):
+    from jaxmocap.solve.batch import with_weights
+
+    data = dict(data, trans=data["trans"].at[2, 1].set(obs) + const * jnp.asarray([1.0, 0.5, 2.0]))
+    sol = solve(with_weights(problem, {"acc": w_acc}), params, data, max_steps=100, rtol=1e-13, atol=1e-15)
+    v = sol.value
+    return jnp.sum(jnp.sin(v["rot"])) + jnp.sum(v["trans"] * jnp.arange(3.0)) + jnp.sum(v["heading"]) + 3 * v["offset"][0]
+
+
+def test_gradients_through_solve_match_finite_differences():
+    """d(solution scalar) / d(term weight, observation, per-sequence constant) by implicit
+    differentiation equals central differences, float64, also under vmap."""
+    problem, params, data = _grad_problem()
+    theta = (jnp.asarray(0.05), data["trans"][2, 1], jnp.asarray(0.01))
+    f = jax.jit(lambda w, o, c: _solution_scalar(problem, params, data, w, o, c))
+    grads = jax.grad(f, argnums=(0, 1, 2))(*theta)
+    eps = 1e-5  # measured: 1e-4 leaves a 2.6e-4 truncation error, 1e-6 meets the solver's noise
+    for i, g in enumerate(grads):
+        g = np.asarray(g).reshape(-1)
+        for j in range(g.size):
+            plus = [np.asarray(t, np.float64).copy() for t in theta]
+            minus = [np.asarray(t, np.float64).copy() for t in theta]
+            plus[i].reshape(-1)[j] += eps
+            minus[i].reshape(-1)[j] -= eps
+            fd = (float(f(*plus)) - float(f(*minus))) / (2 * eps)
+            assert abs(g[j] - fd) <= 1e-4 * abs(fd) + 1e-6, (i, j, g[j], fd)
+    # Under vmap: a batch of weights gives the per-member gradients.
+    ws = jnp.asarray([0.05, 0.2])
+    gv = jax.vmap(jax.grad(lambda w: f(w, theta[1], theta[2])))(ws)
+    assert abs(float(grads[0])) > 1e-3
+    np.testing.assert_allclose(gv[0], grads[0], rtol=1e-8)
+    g2 = jax.grad(lambda w: f(w, theta[1], theta[2]))(ws[1])
+    np.testing.assert_allclose(gv[1], g2, rtol=1e-8)
+
+
+# --- weights are data ------------------------------------------------------------------------
+
+TRACES = {"n": 0}
+
+
+def e_counted(x, data):  # counts how often JAX traces the problem (Python runs only then)
+    TRACES["n"] += 1
+    return e_ori(x, data)
+
+
+def test_new_weights_and_new_data_do_not_recompile():
+    from jaxmocap.solve.batch import with_weights
+
+    problem = Problem([Term("ori", e_counted), *CHAIN.terms[1:]], rotations=("rot",))
+    costs = []
+    for k in range(10):
+        _, init, data = motion(6, seed=10 + k)  # new observations each time
+        w = with_weights(problem, {"acc": jnp.asarray(0.01 * (k + 1)), "trans": jnp.asarray(1e-2)})
+        costs.append(float(solve(w, init, data, max_steps=5).cost))
+        if k == 0:
+            after_first = TRACES["n"]
+    assert TRACES["n"] == after_first > 0
+    assert len(set(costs)) == 10
+
+
+def test_per_member_weights_in_solve_batch():
+    """An ablation grid is a batch axis: member b solves with weights[b], one compilation."""
+    _, init, data = motion(6, seed=7)
+    B = 3
+    ws = jnp.asarray([0.0, 0.05, 5.0])
+    batch = jax.tree_util.tree_map(lambda x: jnp.broadcast_to(x, (B,) + x.shape), (init, data))
+    sol = solve_batch(CHAIN, *batch, weights={"acc": ws}, max_steps=40, rtol=1e-10, atol=1e-12)
+    from jaxmocap.solve.batch import with_weights
+
+    for b in range(B):
+        one = solve(with_weights(CHAIN, {"acc": ws[b]}), init, data, max_steps=40, rtol=1e-10, atol=1e-12)
+        np.testing.assert_allclose(sol.value["rot"][b], one.value["rot"], atol=1e-10)
+        np.testing.assert_allclose(sol.costs["acc"][b], one.costs["acc"], rtol=1e-8, atol=1e-14)
+    assert float(sol.costs["acc"][0]) == 0.0 < float(sol.costs["acc"][2])
+    with pytest.raises(ValueError, match="lacks"):
+        solve_batch(CHAIN, *batch, weights={"nope": ws})
 
 
 # --- LM acceptance --------------------------------------------------------------------
@@ -188,11 +372,9 @@ def test_optx_lm_never_accepts_a_cost_increase():
     def record(**kw):
         jax.debug.callback(lambda v: losses.append(float(v)), kw["loss_last_accepted_step"][1])
 
-    args = (CHAIN, FrameLayout.of(init), to_manifold(init, ("rot",)), data, None)
-    solver = optx.LevenbergMarquardt(
-        rtol=1e-10, atol=1e-12, verbose=record, linear_solver=BandedNormalCholesky(bandwidths=_bandwidths(CHAIN, False))
-    )
-    optx.least_squares(_residual_fn, solver, jnp.zeros((6, 12)), args, max_steps=40, throw=False)
+    args = Args(CHAIN, data, None, CHAIN.layout(init))
+    solver = optx.LevenbergMarquardt(rtol=1e-10, atol=1e-12, verbose=record, linear_solver=linear_solver(args))
+    optx.least_squares(residuals, solver, init, args, max_steps=40, throw=False)
     losses = losses[1:]  # the first entry is optimistix's placeholder before any evaluation
     assert len(losses) > 5 and losses[-1] < 1e-2 * losses[0]
     assert all(b <= a for a, b in zip(losses, losses[1:])), losses
@@ -363,6 +545,31 @@ def test_clear_errors():
     bad = Problem([Term("flat", lambda p, d: jnp.zeros((3,)))])
     with pytest.raises(ValueError, match="one row per frame"):
         bad.cost({"x": jnp.zeros((4, 1))}, None)
+
+
+def test_unknown_kinds_reject_misuse():
+    _, init, data = motion(6)
+    seq = dict(init, heading=jnp.zeros(3))
+    # A term reading a per-sequence unknown it does not declare.
+    sneaky = Problem([Term("h", e_heading), Term("keep", e_offset, reads=(("trans", None), ("heading", None)))],
+                     {"rot": frame("so3"), "heading": sequence("angle")})  # fmt: skip
+    with pytest.raises(ValueError, match="add \\('heading', None\\) to the term's reads"):
+        sneaky.cost(seq, data)
+    # A per-sequence unknown no term reads: a singular border.
+    with pytest.raises(ValueError, match="singular border"):
+        Problem(list(CHAIN.terms), {"rot": frame("so3"), "heading": sequence("angle")})
+    # Windows that do not cover the sequence.
+    wp = Problem([*CHAIN.terms, Term("w", e_window, reads=(("trans", None), ("coef", None)))],
+                 {"rot": frame("so3"), "coef": WIN})  # fmt: skip
+    with pytest.raises(ValueError, match="use 2 windows for T = 6"):
+        solve(wp, dict(init, coef=jnp.zeros((4, 2, 3))), data)
+    # A window term that couples frames.
+    with pytest.raises(ValueError, match="bandwidth 0"):
+        Problem([Term("w", e_window, bandwidth=1, reads=(("coef", None),))], {"coef": WIN})
+    with pytest.raises(ValueError, match="stride"):
+        window(4, 5)
+    with pytest.raises(ValueError, match="so3 unknown 'rot'"):
+        solve(Problem([Term("o", e_ori)], {"rot": frame("so3")}), {"rot": jnp.zeros((6, 3, 4))}, data)
 
 
 def test_reads_name_columns_and_are_validated():

@@ -43,7 +43,10 @@ def posed_body(params, body: Body, betas=None) -> BodyOutput:
     Memoised under one key per evaluation: every term of a problem must pose the same
     body and betas (they come from the problem's one `data`).
     """
-    return shared(params, POSED_BODY, lambda: forward_rotations(body, params["pose"], betas, params.get("trans")))
+    def compute():
+        return forward_rotations(body, params["pose"], betas, params.get("trans"))
+
+    return shared(params, POSED_BODY, compute)
 
 
 class CombinedData(eqx.Module):
@@ -67,7 +70,8 @@ class CombinedData(eqx.Module):
             value = getattr(part, name, None)
             if value is not None:
                 return value
-        raise AttributeError(f"no part of this CombinedData has {name!r} (parts: {[type(p).__name__ for p in self.parts]}).")
+        kinds = [type(p).__name__ for p in self.parts]
+        raise AttributeError(f"no part of this CombinedData has {name!r} (parts: {kinds}).")
 
     def __getitem__(self, key):
         for part in self.parts:

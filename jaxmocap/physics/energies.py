@@ -128,8 +128,11 @@ class GroundSupportResidual(eqx.Module):
         return ground_support(vertices, data.ground, self.margin)[..., None]
 
 
-def ground_support_term(vertex_ids=None, margin: float = 0.0, weight=1.0, loss=None, name: str = "ground") -> Term:
-    """`GroundSupportResidual` as a per-frame `Term` (every joint reads: pose blend shapes)."""
+def ground_support_term(
+    vertex_ids=None, margin: float = 0.0, weight=1.0, loss=None, name: str = "ground"
+) -> Term:
+    """`GroundSupportResidual` as a per-frame `Term`; it reads every unknown (through the
+    pose blend shapes every vertex depends on every joint)."""
     return Term(name, GroundSupportResidual(vertex_ids, margin), weight, 0, loss)
 
 
@@ -187,16 +190,21 @@ class FootStationarityResidual(eqx.Module):
     Reads data.body, data.betas, data.contact_weights.
     """
 
-    joints: tuple[int, ...] = eqx.field(static=True, default=_joint_ids(FOOT_JOINTS), converter=_joint_ids)
+    joints: tuple[int, ...] = eqx.field(
+        static=True, default=_joint_ids(FOOT_JOINTS), converter=_joint_ids
+    )
 
     def __call__(self, params, data) -> Array:
-        feet = posed_body(params, data.body, getattr(data, "betas", None)).joints[:, np.asarray(self.joints)]
+        joints = posed_body(params, data.body, getattr(data, "betas", None)).joints
+        feet = joints[:, np.asarray(self.joints)]
         weights = data.contact_weights[: feet.shape[0] - 1].astype(feet.dtype)
         r = foot_stationarity(feet, weights)
         return jnp.concatenate([r, jnp.zeros_like(r[:1])], 0)
 
 
-def foot_stationarity_term(joints: Sequence[str | int] = FOOT_JOINTS, weight=1.0, loss=None, name: str = "contact") -> Term:
+def foot_stationarity_term(
+    joints: Sequence[str | int] = FOOT_JOINTS, weight=1.0, loss=None, name: str = "contact"
+) -> Term:
     """`FootStationarityResidual` as a `Term`, bandwidth 1, reading the foot joints'
     chains and the translation (joint names are SMPL's)."""
     fn = FootStationarityResidual(joints)
@@ -345,7 +353,9 @@ class ObjectPenetrationResidual(eqx.Module):
         return object_penetration(vertices, data.sdf, rotation, position, self.margin)[..., None]
 
 
-def object_penetration_term(vertex_ids=None, margin: float = 0.0, weight=1.0, loss=None, name: str = "object") -> Term:
+def object_penetration_term(
+    vertex_ids=None, margin: float = 0.0, weight=1.0, loss=None, name: str = "object"
+) -> Term:
     """`ObjectPenetrationResidual` as a per-frame `Term`."""
     return Term(name, ObjectPenetrationResidual(vertex_ids, margin), weight, 0, loss)
 
@@ -365,7 +375,8 @@ class MJXGroundResidual(eqx.Module):
 
         scene = data.scene
         local = params["pose"]
-        rotations, joints = forward_kinematics(scene.parents, local, scene.geometry.rest_joints.astype(local.dtype))
+        rest = scene.geometry.rest_joints.astype(local.dtype)
+        rotations, joints = forward_kinematics(scene.parents, local, rest)
         if "trans" in params:
             joints = joints + params["trans"][:, None, :]
         d = jax.vmap(lambda R, p: contact_distances_posed(scene, R, p).ground)(rotations, joints)
