@@ -2,6 +2,7 @@
 
     python benchmarks/sip_speed.py                   # CPU, writes results/sip_speed.json
     python benchmarks/sip_speed.py --suffix gpu --batches 1,64,1024   # on a GPU
+    python benchmarks/sip_speed.py --frames 100 --iters 5 --batches 1 --suffix small   # a quick check
 
 The thesis (von Marcard §3.4.1): 1000 frames, 20 cost evaluations, 7.5 minutes in
 single-core MATLAB. Here "20 iterations" means 20 LM trial steps (each one cost
@@ -9,23 +10,46 @@ evaluation; accepted steps also rebuild the Jacobian), forced by rtol = atol = 0
 solver never stops early. The SOP initialisation is computed once and not timed (it is
 reported separately). float32 (x64 off), the default of the methods.
 
+v1 baseline (same run, same machine): the engine as it was at commit d67d910 (its own
+hand-written LM), imported from `build/v1` (see `_v1.py`: extracted from git history, or
+carried where there is no .git) in a subprocess that times the identical single-sequence
+SIP solve (`--engine-only`): the same data arrays and SOP start (handed over in a file),
+dtype, iteration count and timing loop. Keys: `v1_time_s`, `optx_default_time_s` (this
+run's engine, `sip_single.median_s`), `optx_default_vs_v1_ratio` = current / v1,
+`final_cost`, `v1_final_cost`, `final_cost_rel_diff` (and `v1_final_cost_by_current_costs`,
+v1's end point under this engine's cost function; `v1`: the subprocess's own record).
+`--no-v1` skips it.
+
 Baseline (same process, same problem and start): the engine without the SIP terms'
 analytic Jacobians and `reads`, i.e. Jacobian blocks by forward-mode AD over all 75
 unknowns per frame and no per-frame elimination (`--no-baseline` skips it).
+
+GPU memory: unless XLA_PYTHON_CLIENT_PREALLOCATE is set, it is set to false here (and so
+in the v1 subprocess), so that the two processes can share one GPU on equal terms.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
+import json
+import os
+import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
-import jax
-import jax.numpy as jnp
+# Before JAX starts: the v1 subprocess needs GPU memory while this process holds its own.
+os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")
+
+import jax  # noqa: E402
+import jax.numpy as jnp  # noqa: E402
+import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).parent))
 from _common import machine, peak_memory_bytes, time_call, write_json  # noqa: E402
+from _v1 import V1_COMMIT, v1_path  # noqa: E402
 
 
 def _setup(frames: int, seed: int = 0):
@@ -41,16 +65,98 @@ def _setup(frames: int, seed: int = 0):
     return inertial.from_scenario(sc, 0, body)
 
 
+def _time_sip(setup, init, iters: int, min_seconds: float):
+    """The single-sequence measurement (shared by this run and the v1 subprocess)."""
+    from jaxmocap.methods import inertial
+
+    it = dict(max_steps=iters, rtol=0.0, atol=0.0)
+
+    def run_sip():
+        return inertial.sparse_inertial_poser(setup, init=init, **it).solution
+
+    timing = time_call(run_sip, min_seconds=min_seconds, max_repeats=5)
+    return timing, run_sip()
+
+
+def _engine_only(args) -> int:
+    """Child mode: time the single-sequence SIP solve of whichever jaxmocap is importable."""
+    import jaxmocap
+
+    where = Path(jaxmocap.__file__).resolve().parent.parent
+    if args.expect_package and where != Path(args.expect_package).resolve():
+        raise SystemExit(f"--engine-only: imported jaxmocap from {where}, expected {args.expect_package}")
+    own = _setup(args.frames)
+    leaves, treedef = jax.tree_util.tree_flatten(own)
+    given = np.load(args.init)
+    theirs = [given[f"leaf_{i}"] for i in range(int(given["num_leaves"]))]
+    same_layout = len(theirs) == len(leaves) and all(
+        np.shape(a) == np.shape(b) and np.asarray(a).dtype == np.asarray(b).dtype for a, b in zip(theirs, leaves)
+    )
+    if not same_layout:
+        raise SystemExit("--engine-only: this package's InertialSetup does not match the arrays handed over")
+    identical = all(np.array_equal(np.asarray(a), b) for a, b in zip(leaves, theirs))
+    setup = jax.tree_util.tree_unflatten(treedef, [jnp.asarray(a) for a in theirs])
+    timing, sol = _time_sip(setup, jnp.asarray(given["init"]), args.iters, args.min_seconds)
+    out = {
+        "jaxmocap": str(where),
+        "time": timing,
+        "final_cost": float(sol.cost),
+        "num_steps": int(sol.num_steps),
+        "frames": args.frames,
+        "lm_iterations": args.iters,
+        "x64": bool(jax.config.jax_enable_x64),
+        "dtype": str(jnp.asarray(setup.pose0).dtype),
+        "own_data_identical": bool(identical),  # its own data generation gave the same arrays
+    }
+    np.savez(Path(args.json_out).with_suffix(".npz"), pose=np.asarray(sol.value["pose"]),
+             trans=np.asarray(sol.value["trans"]))  # fmt: skip
+    Path(args.json_out).write_text(json.dumps(out, indent=2) + "\n")
+    print(f"[{where.name}] SIP {args.frames} frames x {args.iters} LM steps: {timing['median_s']:.3f} s "
+          f"(compile + first {timing['compile_and_first_call_s']:.1f} s), final cost {out['final_cost']:.9g}")
+    return 0
+
+
+def _run_v1(args, setup, sop) -> tuple[dict, dict]:
+    """Run `--engine-only` under the v1 package; returns its JSON and its final values."""
+    v1 = v1_path()
+    with tempfile.TemporaryDirectory(prefix="sip_v1_") as tmp:
+        leaves = jax.tree_util.tree_leaves(setup)
+        handed = Path(tmp) / "input.npz"
+        np.savez(handed, init=np.asarray(sop), num_leaves=len(leaves),
+                 **{f"leaf_{i}": np.asarray(a) for i, a in enumerate(leaves)})  # fmt: skip
+        out = Path(tmp) / "v1.json"
+        env = dict(os.environ)
+        env["PYTHONPATH"] = os.pathsep.join([str(v1)] + [p for p in [env.get("PYTHONPATH")] if p])
+        env["JAX_ENABLE_X64"] = "1" if jax.config.jax_enable_x64 else "0"
+        cmd = [sys.executable, str(Path(__file__).resolve()), "--engine-only", "--frames", str(args.frames),
+               "--iters", str(args.iters), "--min-seconds", str(args.min_seconds), "--init", str(handed),
+               "--json-out", str(out), "--expect-package", str(v1)]  # fmt: skip
+        subprocess.run(cmd, env=env, check=True)
+        result = json.loads(out.read_text())
+        with np.load(out.with_suffix(".npz")) as f:
+            values = {k: f[k] for k in f.files}
+    return result, values
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--frames", type=int, default=1000)
-    p.add_argument("--iters", type=int, default=20)
-    p.add_argument("--batches", default="1,16,64", help="batch sizes for the throughput test")
+    p.add_argument("--iters", "--steps", dest="iters", type=int, default=20, help="LM steps (rtol = atol = 0)")
+    p.add_argument("--batches", default="1,16,64", help="batch sizes for the throughput test ('' skips it)")
     p.add_argument("--batch-frames", type=int, default=100, help="frames per sequence in the batch test")
     p.add_argument("--suffix", default="", help="results/sip_speed_<suffix>.json (e.g. gpu)")
     p.add_argument("--min-seconds", type=float, default=2.0)
     p.add_argument("--no-baseline", action="store_true", help="skip the AD-Jacobian baseline")
+    p.add_argument("--no-v1", action="store_true", help="skip the v1-engine (commit d67d910) baseline")
+    p.add_argument("--engine-only", action="store_true", help="internal: time the single SIP solve only")
+    p.add_argument("--init", help="internal (--engine-only): .npz with the setup's arrays and the SOP start")
+    p.add_argument("--json-out", help="internal (--engine-only): where to write time and final cost")
+    p.add_argument("--expect-package", help="internal (--engine-only): folder jaxmocap must come from")
     args = p.parse_args(argv)
+    if args.engine_only:
+        if not (args.init and args.json_out):
+            p.error("--engine-only needs --init and --json-out")
+        return _engine_only(args)
 
     from jaxmocap.methods import inertial
 
@@ -63,34 +169,67 @@ def main(argv=None) -> int:
     sop_timing = time_call(lambda: inertial.sparse_orientation_poser(setup)[0], min_seconds=1e-9, max_repeats=1)
     sop_timing["compile_and_first_call_s"] = sop_first
 
-    def run_sip():
-        return inertial.sparse_inertial_poser(setup, init=sop, **it).solution
-
-    single = time_call(run_sip, min_seconds=args.min_seconds, max_repeats=5)
-    sol = run_sip()
+    single, sol = _time_sip(setup, sop, args.iters, args.min_seconds)
     single.update(num_steps=int(sol.num_steps), frames=args.frames, lm_iterations=args.iters,
                   frames_per_second=args.frames / single["median_s"],
                   seconds_per_iteration=single["median_s"] / args.iters)  # fmt: skip
+    final_cost = float(sol.cost)
     print(f"SIP {args.frames} frames x {args.iters} LM steps: {single['median_s']:.3f} s "
-          f"(compile + first {single['compile_and_first_call_s']:.1f} s); SOP {sop_timing['median_s']:.2f} s")
+          f"(compile + first {single['compile_and_first_call_s']:.1f} s), final cost {final_cost:.9g}; "
+          f"SOP {sop_timing['median_s']:.2f} s")
+
+    v1 = {}
+    if not args.no_v1:
+        child, values = _run_v1(args, setup, sop)
+        rel = abs(final_cost - child["final_cost"]) / abs(child["final_cost"])
+        v1 = {
+            "v1_commit": V1_COMMIT,
+            "v1_time_s": child["time"]["median_s"],
+            "optx_default_time_s": single["median_s"],
+            "optx_default_vs_v1_ratio": single["median_s"] / child["time"]["median_s"],
+            "v1_final_cost": child["final_cost"],
+            "final_cost": final_cost,
+            "final_cost_rel_diff": rel,
+            "v1": child,
+        }
+        try:  # v1's end point under this run's cost function (same definition of "cost")
+            problem = inertial.inertial_problem(setup)
+            v1_value = {k: jnp.asarray(values[k]) for k in sol.value}
+            costs = problem.costs(v1_value, setup.data)
+            v1["v1_final_cost_by_current_costs"] = float(sum(jax.tree_util.tree_leaves(costs)))
+        except Exception as e:  # noqa: BLE001 - a cross-check only
+            v1["v1_final_cost_by_current_costs"] = None
+            print(f"(v1 end point not re-evaluated with the current costs: {type(e).__name__}: {e})")
+        print(f"v1 engine ({v1['v1_commit']}): {v1['v1_time_s']:.3f} s; current/v1 = "
+              f"{v1['optx_default_vs_v1_ratio']:.3f}; final cost {v1['v1_final_cost']:.9g} "
+              f"(relative difference {rel:.2e})")
+
     baseline = None
     if not args.no_baseline:
-        from jaxmocap.solve import Problem, Term, solve
+        from jaxmocap.solve import solve
 
-        analytic = inertial.inertial_problem(setup)
-        plain = Problem(
-            [Term(t.name, t.fn, t.weight, t.bandwidth, t.loss, t.mask) for t in analytic.terms], analytic.rotations
-        )
-        params = {"pose": sop, "trans": jnp.broadcast_to(setup.trans0, (args.frames, 3))}
-        baseline = time_call(lambda: solve(plain, params, setup.data, **it), min_seconds=1e-9, max_repeats=1)
-        single["ratio_to_baseline"] = single["median_s"] / baseline["median_s"]
-        print(f"baseline (AD Jacobians, no elimination): {baseline['median_s']:.3f} s, "
-              f"ratio {single['ratio_to_baseline']:.3f}")
+        # The same problem with its terms' analytic Jacobians and `reads` removed. A
+        # failure here (the engine's Problem/Term changed) is recorded, not fatal.
+        try:
+            analytic = inertial.inertial_problem(setup)
+            plain = dataclasses.replace(
+                analytic, terms=tuple(dataclasses.replace(t, jacobian=None, reads=None) for t in analytic.terms)
+            )
+            params = {"pose": sop, "trans": jnp.broadcast_to(setup.trans0, (args.frames, 3))}
+            baseline = time_call(lambda: solve(plain, params, setup.data, **it), min_seconds=1e-9, max_repeats=1)
+        except Exception as e:  # noqa: BLE001
+            baseline = {"skipped": f"{type(e).__name__}: {e}"}
+            print(f"baseline (AD Jacobians) skipped: {baseline['skipped']}")
+        else:
+            single["ratio_to_baseline"] = single["median_s"] / baseline["median_s"]
+            print(f"baseline (AD Jacobians, no elimination): {baseline['median_s']:.3f} s, "
+                  f"ratio {single['ratio_to_baseline']:.3f}")
 
-    short = _setup(args.batch_frames, seed=1)
-    sop_short, _ = inertial.sparse_orientation_poser(short)
     batches = {}
-    for B in [int(b) for b in args.batches.split(",")]:
+    if args.batches:
+        short = _setup(args.batch_frames, seed=1)
+        sop_short, _ = inertial.sparse_orientation_poser(short)
+    for B in [int(b) for b in args.batches.split(",") if b]:
         stacked = inertial.stack_setups([short] * B)
         init = jnp.broadcast_to(sop_short, (B,) + sop_short.shape)
 
@@ -109,12 +248,13 @@ def main(argv=None) -> int:
         "thesis": {"frames": 1000, "cost_evaluations": 20, "seconds": 450.0, "setup": "single-core MATLAB, i7 3.5 GHz"},
         "sop_init": sop_timing,
         "sip_single": single,
+        **v1,
         "baseline_ad_jacobians": baseline,
         "batch_frames": args.batch_frames,
         "batch": batches,
         "peak_memory_bytes": peak_memory_bytes(),
         # The CPU is shared: a load above the core count means these times are inflated.
-        "load_average_1_5_15min_at_end": list(__import__("os").getloadavg()),
+        "load_average_1_5_15min_at_end": list(os.getloadavg()),
     }
     name = f"sip_speed{'_' + args.suffix if args.suffix else ''}.json"
     print(f"wrote {write_json(name, payload)}")

@@ -9,6 +9,7 @@ padded with masks, per-member weights). Solves are differentiable (implicit adjo
 
 from .batch import pad_sequences as pad_sequences
 from .batch import solve_batch as solve_batch
+from .batch import with_weights as with_weights
 from .residuals import Cauchy as Cauchy
 from .residuals import GemanMcClure as GemanMcClure
 from .residuals import Huber as Huber
