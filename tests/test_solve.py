@@ -581,3 +581,23 @@ def test_reads_name_columns_and_are_validated():
         layout.columns((("pose", (24,)),))
     with pytest.raises(ValueError, match="pairs"):
         Term("a", e_ori, reads=("pose",))
+
+
+def test_gradient_through_solve_with_a_gauge_freedom():
+    """A cost blind to a constant + linear drift (SIP's translation, seen through second
+    differences only) has a singular Hessian; a gauge-invariant output still gets its
+    gradient (the adjoint's relative ridge), equal to central differences."""
+    T = 12
+    data = {"acc": jnp.sin(jnp.arange(T, dtype=jnp.float64))[:, None], "obs": jnp.cos(jnp.arange(T, dtype=jnp.float64))[:, None]}
+
+    def f(log_w):
+        problem = Problem([
+            Term("acc", lambda p, d: second_difference(p["x"]) - d["acc"], jnp.exp(log_w), 1),
+            Term("obs", lambda p, d: second_difference(p["x"]) - d["obs"], 1.0, 1),
+        ])  # fmt: skip
+        x = solve(problem, {"x": jnp.zeros((T, 1))}, data, max_steps=100, rtol=1e-12, atol=1e-14).value["x"]
+        return jnp.sum(second_difference(x)[1:-1] ** 2)
+
+    g = float(jax.grad(f)(0.0))
+    fd = float((f(1e-4) - f(-1e-4)) / 2e-4)
+    assert np.isfinite(g) and abs(g - fd) <= 1e-4 * abs(fd), (g, fd)

@@ -792,7 +792,8 @@ class StructuredCholesky(lx.AbstractLinearSolver):
     optimistix's damped [J; √λ I] (Levenberg-Marquardt, recognised and turned into
     JᵀJ + λI without any product of the damping rows), and the solve is the
     least-squares x = (JᵀJ + λI)⁻¹ Jᵀ v. With `hessian=True` the operator is the
-    (symmetric) Hessian of the cost, as in `optx.ImplicitAdjoint`, and x = H⁻¹ v.
+    (symmetric) Hessian of the cost, as in `optx.ImplicitAdjoint`, and x = H⁻¹ v (with a
+    relative ridge of ~1e-10 in float64 so that gauge freedoms stay solvable).
     The operator's input is the problem's parameter dict.
 
     Attributes:
@@ -836,7 +837,11 @@ class StructuredCholesky(lx.AbstractLinearSolver):
 
             normal = hessian_normal(hvp, st, in_dtype, self.frame_mask)
             normal = jtu.tree_map(lambda x: x.astype(dtype), normal)
-            return factor(normal, st), None, None
+            # A relative ridge ε·diag(H), ε ≈ 1e-2 √(machine ε): a gauge freedom of the cost
+            # (SIP's translation drift, seen by accelerations only) makes H singular, yet any
+            # output that does not depend on the gauge gets its exact gradient up to O(ε).
+            ridge = 1e-2 * float(np.sqrt(np.finfo(dtype).eps))
+            return factor(normal, st, ridge, marquardt=True), None, None
         jac_mv, damping = _damped_parts(operator, self.damped)
         out = jtu.tree_leaves(operator.out_structure()[0] if damping is not None else operator.out_structure())
         if len(out) != len(self.bandwidths):
