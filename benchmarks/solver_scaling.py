@@ -17,8 +17,8 @@ attached to a bone), not from skinning, as in the thesis. Measurements are synth
 from a smooth random motion; the solve starts from a noisy copy of the truth.
 
 For each T in 20, 100, 300, 1000, 3000, 10000 it times `solve(method="lm")` (von Marcard's LM
-on the block-banded Cholesky) and `solve(method="optx_lm")` (optx.LevenbergMarquardt with
-`BandedNormalCholesky`), each for a fixed number of iterations (tolerances 0), and, at
+on the structured Cholesky) and `solve(method="optx_lm")` (optx.LevenbergMarquardt with
+`StructuredCholesky`), each for a fixed number of iterations (tolerances 0), and, at
 T = 20 only, optimistix's dense default (QR of the stacked [J; √λ I]: O(T³) flops and
 O(T²) memory, already minutes per step at T = 100 on this CPU). It also records iterations to convergence, the largest step disagreement
 between the banded and the dense solver, and the float32 step error.
@@ -38,6 +38,7 @@ jax.config.update("jax_enable_x64", True)
 
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
+import optimistix as optx  # noqa: E402
 
 from _common import machine, peak_memory_bytes, write_json  # noqa: E402
 
@@ -150,7 +151,8 @@ def one_row(T: int, steps: int, converge_max_T: int) -> dict:
         err = jnp.linalg.norm(matrix_to_axis_angle(Rs @ jnp.swapaxes(Rt, -1, -2)), axis=-1)
         row["lm_mean_joint_angle_error_deg"] = float(jnp.degrees(jnp.mean(err)))
     if T <= 20:  # QR of the stacked [J; √λ I] is O(T³) flops and O(T²) memory
-        per_step, first, _ = _timed_solve(problem, init, data, "optx_lm", 3, linear_solver="dense")
+        dense = optx.LevenbergMarquardt(rtol=0.0, atol=0.0)  # optimistix's own dense linear solver
+        per_step, first, _ = _timed_solve(problem, init, data, "optx_lm", 3, solver=dense)
         row["optx_lm_dense_s_per_iter"] = per_step
         row["optx_lm_dense_compile_and_first_s"] = first
     row["peak_rss_bytes"] = peak_memory_bytes()
@@ -158,14 +160,13 @@ def one_row(T: int, steps: int, converge_max_T: int) -> dict:
 
 
 def step_agreement(T: int = 40) -> dict:
-    """Banded vs dense (QR) damped step on the SIP problem: float64, and float32 inputs
+    """Structured vs dense (QR) damped step on the SIP problem: float64, and float32 inputs
     with the factor in float32 or float64, against the float64 dense step."""
     import lineax as lx
     from optimistix._solver.levenberg_marquardt import _Damped
 
-    from jaxmocap.solve import BandedNormalCholesky, FrameLayout
-    from jaxmocap.solve.manifold import to_manifold
-    from jaxmocap.solve.solver import _bandwidths, _residual_fn
+    from jaxmocap.solve import Args, linear_solver
+    from jaxmocap.solve.solver import residuals
 
     body = jaxmocap.default_body("low")
     out = {"T": T, "lambda": 1.0}
@@ -173,20 +174,20 @@ def step_agreement(T: int = 40) -> dict:
     for dtype, factor in ((jnp.float64, jnp.float64), (jnp.float32, jnp.float64), (jnp.float32, jnp.float32)):
         problem, make_data = sip_problem(body, dtype)
         _, init, data = make_data(T)
-        args = (problem, FrameLayout.of(init), to_manifold(init, ("pose",)), data, None)
-        bw = _bandwidths(problem, False)
+        args = Args(problem, data, None, problem.layout(init))
 
         @jax.jit
-        def solve_both(y, args=args, bw=bw, factor=factor):
-            r, lin = jax.linearize(lambda d: _residual_fn(d, args), y)
-            J = lx.FunctionLinearOperator(lin, jax.eval_shape(lambda: y))
-            op = lx.FunctionLinearOperator(_Damped(J, jnp.asarray(1.0, y.dtype)), jax.eval_shape(lambda: y))
-            vec = (r, jnp.zeros_like(y))
-            a = lx.linear_solve(op, vec, BandedNormalCholesky(bandwidths=bw, factor_dtype=factor), throw=False)
+        def solve_both(y, args=args, factor=factor):
+            r, lin = jax.linearize(lambda p: residuals(p, args), y)
+            struct = jax.eval_shape(lambda: y)
+            op = lx.FunctionLinearOperator(_Damped(lx.FunctionLinearOperator(lin, struct), jnp.asarray(1.0, dtype)), struct)
+            vec = (r, jax.tree_util.tree_map(jnp.zeros_like, y))
+            a = lx.linear_solve(op, vec, linear_solver(args, factor), throw=False)
             b = lx.linear_solve(op, vec, lx.QR(), throw=False)
-            return a.value, b.value
+            flat = lambda v: jnp.concatenate([v["pose"].reshape(T, -1), v["trans"]], 1)  # noqa: E731
+            return flat(a.value), flat(b.value)
 
-        steps[(jnp.dtype(dtype).name, jnp.dtype(factor).name)] = solve_both(jnp.zeros((T, 75), dtype))
+        steps[(jnp.dtype(dtype).name, jnp.dtype(factor).name)] = solve_both(init)
     ref = np.asarray(steps[("float64", "float64")][1])
     scale = np.max(np.abs(ref))
     for (d, f), (banded, dense) in steps.items():

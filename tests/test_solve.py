@@ -232,14 +232,15 @@ def test_sequence_unknowns_recovered():
     """Per-sensor headings (angle manifold) and a per-sequence offset are recovered exactly."""
     truth, init, data = motion(10, seed=4)
     gamma, offset = jnp.asarray([0.3, -0.5, 1.2]), jnp.asarray([0.1, -0.2, 0.05])
-    # Measurements see the sensors rotated back by γ about y and translations shifted.
-    c, s_ = jnp.cos(-gamma), jnp.sin(-gamma)
+    # Measurements see the sensors rotated by γ about y and translations shifted.
+    c, s_ = jnp.cos(gamma), jnp.sin(gamma)
     z, o = jnp.zeros(3), jnp.ones(3)
     Ry = jnp.stack([jnp.stack([c, z, s_], -1), jnp.stack([z, o, z], -1), jnp.stack([-s_, z, c], -1)], -2)
-    data = dict(data, R=Ry @ data["R"], trans=data["trans"] + offset)
+    data = dict(data, R=Ry @ data["R"], trans=data["trans"] + offset, trans0=data["trans"])
     problem = Problem(
         [Term("heading", e_heading, reads=(("rot", None), ("trans", None), ("heading", None))),
          Term("acc", e_acc, weight=0.05, bandwidth=1),
+         Term("pin", lambda x, d: (x["trans"] - d["trans0"])[..., None], weight=1e-2),  # a second, unbiased sensor
          Term("offset", e_offset, weight=1e-2, reads=(("trans", None), ("offset", None)))],
         {"rot": frame("so3"), "heading": sequence("angle"), "offset": sequence()},
     )  # fmt: skip
@@ -601,3 +602,33 @@ def test_gradient_through_solve_with_a_gauge_freedom():
     g = float(jax.grad(f)(0.0))
     fd = float((f(1e-4) - f(-1e-4)) / 2e-4)
     assert np.isfinite(g) and abs(g - fd) <= 1e-4 * abs(fd), (g, fd)
+
+
+def test_gradient_through_a_padded_batch():
+    """Padded frames change neither the solution nor its gradient w.r.t. per-member weights."""
+    problem, params, data = _grad_problem()
+    rng = np.random.default_rng(8)
+
+    def pad(x):  # two junk frames on every per-frame leaf
+        return jnp.concatenate([x, jnp.asarray(rng.normal(size=(2,) + x.shape[1:]))]) if x.shape[:1] == (6,) else x
+
+    pparams, pdata = {k: pad(v) for k, v in params.items()}, {k: pad(v) for k, v in data.items()}
+    mask = jnp.arange(8) < 6
+    kw = dict(max_steps=100, rtol=1e-13, atol=1e-15)
+
+    def scalar(v):
+        return jnp.sum(jnp.sin(v["rot"][..., :6, :, :])) + jnp.sum(v["trans"][..., :6, :] * jnp.arange(3.0)) + jnp.sum(v["heading"])
+
+    def batched(w):
+        b = jax.tree_util.tree_map(lambda x: x[None], (pparams, pdata))
+        sol = solve_batch(problem, *b, mask[None], weights={"acc": w[None]}, **kw)
+        return scalar(jax.tree_util.tree_map(lambda x: x[0], sol.value))
+
+    def single(w):
+        from jaxmocap.solve.batch import with_weights
+
+        return scalar(solve(with_weights(problem, {"acc": w}), params, data, **kw).value)
+
+    w = jnp.asarray(0.05)
+    np.testing.assert_allclose(batched(w), single(w), rtol=1e-9)
+    np.testing.assert_allclose(jax.grad(batched)(w), jax.grad(single)(w), rtol=1e-6)
