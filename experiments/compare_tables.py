@@ -1,0 +1,53 @@
+"""Compare two runs of experiments/sip_tables.py number by number (engine changes).
+
+    python experiments/compare_tables.py OLD.json NEW.json [--out experiments/results/X.json]
+
+Every mean (MPJPE mm, MPJAE °) in both files is compared; the output lists each with
+its relative change and the largest one (key `max_rel_change`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import tempfile
+from pathlib import Path
+
+
+def _numbers(x, path=""):
+    if isinstance(x, dict):
+        for k, v in x.items():
+            yield from _numbers(v, f"{path}/{k}")
+    elif isinstance(x, (int, float)) and not isinstance(x, bool) and path.rsplit("/", 1)[-1] != "std":
+        yield path, float(x)
+
+
+def compare(old: dict, new: dict) -> dict:
+    a, b = dict(_numbers(old)), dict(_numbers(new))
+    rows = {k: {"old": a[k], "new": b[k], "rel_change": (b[k] - a[k]) / abs(a[k]) if a[k] else 0.0}
+            for k in sorted(set(a) & set(b)) if k.startswith(("/table", "/ablations"))}  # fmt: skip
+    worst = max(rows, key=lambda k: abs(rows[k]["rel_change"]))
+    return {"compared": len(rows), "max_rel_change": abs(rows[worst]["rel_change"]), "worst": worst, "rows": rows}
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("old")
+    p.add_argument("new")
+    p.add_argument("--out")
+    args = p.parse_args(argv)
+    out = compare(json.loads(Path(args.old).read_text()), json.loads(Path(args.new).read_text()))
+    for k, r in out["rows"].items():
+        print(f"{k:55s} {r['old']:9.3f} {r['new']:9.3f} {100 * r['rel_change']:+7.3f} %")
+    print(f"{out['compared']} numbers; largest relative change {100 * out['max_rel_change']:.3f} % ({out['worst']})")
+    if args.out:
+        fd, tmp = tempfile.mkstemp(dir=Path(args.out).parent, suffix=".tmp")
+        with os.fdopen(fd, "w") as f:
+            json.dump(out, f, indent=2)
+        os.replace(tmp, args.out)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
