@@ -4,7 +4,8 @@ Every method in jaxmocap minimises E(x) = Σ_terms w_k Σ_i ρ_k(‖e_k,i(x)‖�
 (robust) squared residuals (von Marcard eq. 2.41-2.43, eq. 3.5; Huang eq. 4.1). A `Term`
 is one named energy: a residual function of (parameters, data) with one row per frame,
 a weight, an optional robust loss and an optional observation mask. A `Problem` is a set
-of terms over a parameter pytree whose leaves all carry the frame axis first.
+of terms over a dict of unknowns, each per frame, per sequence or per window
+(`unknowns.py`), the rows of every term still one per frame.
 
 Conventions (the contract the structured solver relies on):
 
