@@ -31,6 +31,14 @@ def test_fewer_betas_than_components(smpl_dict, random_body):
     np.testing.assert_allclose(forward(random_body, np.zeros((24, 3)), betas).vertices, ref_v, atol=1e-9)
 
 
+def test_no_shape_components_is_the_template_shape(random_body):
+    """Motions without a shape (CMU clips: betas of shape (0,)) pose the template body."""
+    pose = rng.normal(scale=0.3, size=(2, 24, 3))
+    empty = forward(random_body, pose, np.zeros((0,)), np.zeros(3))
+    none = forward(random_body, pose, None, np.zeros(3))
+    np.testing.assert_allclose(empty.vertices, none.vertices, atol=1e-12)
+
+
 @pytest.mark.parametrize("batch", [(), (1,), (3, 2)])
 def test_batch_shapes_equal_per_sample(random_body, batch):
     pose = rng.normal(scale=0.5, size=(*batch, 24, 3))

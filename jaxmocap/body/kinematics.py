@@ -128,6 +128,9 @@ def _check_inputs(body: Body, local_rotations, betas, trans) -> tuple[Array, Arr
             f"betas has shape {betas.shape}; expected (..., B) with B <= {body.num_betas}, "
             "the number of shape components of this body."
         )
+    if betas.shape[-1] == 0:
+        # No shape components (CMU motions carry none): the template shape, β = 0.
+        betas = jnp.zeros(betas.shape[:-1] + (1,), dtype)
     trans = jnp.zeros((3,), dtype) if trans is None else as_float_array(trans, dtype, "trans")
     if trans.ndim < 1 or trans.shape[-1] != 3:
         raise ValueError(f"trans has shape {trans.shape}; expected (..., 3).")
