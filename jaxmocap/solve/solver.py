@@ -175,11 +175,12 @@ def _linearise(y: dict, args: Args, st: Structure, dtype, factor_dtype):
     bw, cols = args.leaf_structure()
     clean = _sanitise(args.data)
     blocks: dict[str, TermBlocks] = {}
+    views = problem.views(x)  # one shared memo for the analytic terms
     analytic = {}
     for k in names:
         t = terms[k]
         if t.jacobian is not None:
-            analytic[k] = _analytic_blocks(t, problem.views(x)[k], clean, args.data, args.frame_mask, layout, st, dtype)
+            analytic[k] = _analytic_blocks(t, views[k], clean, args.data, args.frame_mask, layout, st, dtype)
     ad = [k for k in names if k not in analytic or any(cols[names.index(k)][1:])]
     if ad:
         sub = Problem([terms[k] for k in ad], dict(problem.unknowns))
@@ -425,7 +426,6 @@ def _jaxopt(args: Args, params0, tol, max_steps):
         return jnp.concatenate([p.reshape(-1) for p in (F, W, G) if p is not None])
 
     F0, W0, G0 = layout.ravel(params0)
-    sizes = [p.size for p in (F0, W0, G0) if p is not None]
 
     def unflat(v):
         parts, start = [], 0
@@ -440,7 +440,6 @@ def _jaxopt(args: Args, params0, tol, max_steps):
     def flat_residual(v, a):
         return jnp.concatenate([r.reshape(-1) for r in jtu.tree_leaves(residuals(unflat(v), a))])
 
-    del sizes
     lm = jaxopt.LevenbergMarquardt(
         residual_fun=flat_residual, maxiter=max_steps, tol=tol, solver="cholesky",
         materialize_jac=True, implicit_diff=False,

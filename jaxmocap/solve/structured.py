@@ -123,6 +123,10 @@ class Structure(eqx.Module):
     def from_solver_order(self, x: Array) -> Array:
         return x if self.perm is None else x[..., np.argsort(self.perm)]
 
+    def rows_to_solver_order(self, x: Array) -> Array:
+        """The second-to-last axis (per-frame rows of a block) in solver order."""
+        return x if self.perm is None else x[..., np.asarray(self.perm), :]
+
     def slot_windows(self):
         return self.windows.slot_windows(self.T, self.W)
 
@@ -430,12 +434,11 @@ def hessian_normal(hvp, st: Structure, dtype, frame_mask: Array | None = None) -
 
     def per_colour(c):
         tF = (jnp.asarray(t % C) == c)[None, :, None].astype(dtype) * eye[:, None, :]
-        HF, HW, HG = jax.vmap(hvp)(tF, _bcast(zW, n), _bcast(zG, n))
-        return HF  # (n, T, n)
+        return jax.vmap(hvp)(tF, _bcast(zW, n), _bcast(zG, n))[0]  # (n, T, n)
 
     res = jax.lax.map(per_colour, jnp.arange(C))  # (C, k, T, n)
     cols = jnp.transpose(res, (2, 0, 3, 1))  # (T, C, n_out, k)
-    cols = st.to_solver_order(jnp.swapaxes(st.to_solver_order(jnp.swapaxes(cols, -1, -2)), -1, -2))
+    cols = st.to_solver_order(st.rows_to_solver_order(cols))
     FF = [cols[t, (t + e) % C] for e in range(st.B2 + 1)]
     FF = [FF[0]] + [f[:, :nc, :nc] for f in FF[1:]]
     FF = [jnp.where(shift_frames(jnp.ones((T,), bool), -e)[:, None, None], f, 0.0) for e, f in enumerate(FF)]
@@ -454,15 +457,15 @@ def hessian_normal(hvp, st: Structure, dtype, frame_mask: Array | None = None) -
         HFw, HWw = jax.lax.map(per_wcolour, jnp.arange(Cw))  # (Cw, m, T, n), (Cw, m, W, m)
         wid, valid = st.slot_windows()
         perF = jnp.transpose(HFw, (2, 0, 3, 1))  # (T, Cw, n, m)
-        FW = st.to_solver_order(jnp.swapaxes(perF[t[:, None], wid % Cw], -1, -2))
-        FW = jnp.where(jnp.asarray(valid)[:, :, None, None], jnp.swapaxes(FW, -1, -2), 0.0)
+        FW = st.rows_to_solver_order(perF[t[:, None], wid % Cw])
+        FW = jnp.where(jnp.asarray(valid)[:, :, None, None], FW, 0.0)
         perW = jnp.transpose(HWw, (2, 0, 3, 1))  # (W, Cw, m, m)
         w = np.arange(st.W)
         WW = jnp.stack([perW[w, (w + e) % Cw] * jnp.asarray(w + e < st.W)[:, None, None] for e in range(K)], 1)
     if st.g:
         eyeg = jnp.eye(st.g, dtype=dtype)
         HF, HW, HG = jax.vmap(hvp)(_bcast(zF, st.g), _bcast(zW, st.g), eyeg)
-        FG = st.to_solver_order(jnp.moveaxis(HF, 0, -1).swapaxes(-1, -2)).swapaxes(-1, -2)
+        FG = st.rows_to_solver_order(jnp.moveaxis(HF, 0, -1))  # (T, n, g)
         WG = None if HW is None else jnp.moveaxis(HW, 0, -1)
         GG = HG
     return _pin(Normal(FF, FW, WW, FG, WG, GG), st, frame_mask)
@@ -718,7 +721,7 @@ def _split_X(X: Array, st: Structure):
 def solve_factored(f: Factor, bF: Array, bW: Array | None = None, bG: Array | None = None):
     """Solve (H + λI) x = b with a `Factor`; b and x as (F (T, n), W (W, m), G (g,)), solver order."""
     st = f.st
-    T, n, nc, K, g = st.T, st.n, st.nc, st.K, st.g
+    nc, K, g = st.nc, st.K, st.g
     dtype = f.sF.dtype
     bF = bF.astype(dtype) * f.sF
     bW = None if bW is None else bW.astype(dtype) * f.sW
@@ -736,9 +739,10 @@ def solve_factored(f: Factor, bF: Array, bW: Array | None = None, bG: Array | No
         cF = bF
     xF_c, xW, xG = cF, bW, None
     if f.L is not None:
-        z = _tri_solve(f.L, f.U, _to_blocks(cF, bW, st)[..., None])[..., 0]
+        b = _to_blocks(cF, bW, st)
+        z = _tri_solve(f.L, f.U, b[..., None])[..., 0]
         if g:
-            u = f.S_inv @ (bG - jnp.einsum("kna,kn->a", f.Y, _to_blocks(cF, bW, st)))
+            u = f.S_inv @ (bG - jnp.einsum("kna,kn->a", f.Y, b))
             xG = f.S_inv.T @ u
             z = z - jnp.einsum("kna,a->kn", f.Y, xG)
         xF_c, xW = _from_blocks(z, st)
@@ -866,37 +870,36 @@ class StructuredCholesky(lx.AbstractLinearSolver):
         del options
         f, blocks, damping, operator = state
         st, layout = f.st, self.layout
+        dtype = jtu.tree_leaves(vector)[0].dtype
+        cast = lambda x: None if x is None else x.astype(dtype)  # noqa: E731
+
+        def solve(bF, bW, bG):  # solver-order right-hand side -> parameter dict
+            xF, xW, xG = solve_factored(f, bF, bW, bG)
+            return layout.unravel(cast(st.from_solver_order(xF)), cast(xW), cast(xG))
+
+        def solve_dict(v):
+            bF, bW, bG = layout.ravel(v)
+            return solve(st.to_solver_order(bF), bW, bG)
+
         if blocks is None:
             # x = (H + εD)⁻¹ b, then iterative refinement x ← x + (H + εD)⁻¹ (b - H x): each
             # round shrinks the ridge's error by ~ε·cond(H); a gauge (null) component of x
             # stays bounded and does not reach gauge-invariant outputs.
-            dtype = jtu.tree_leaves(vector)[0].dtype
-
-            def solve_dict(v):
-                bF, bW, bG = layout.ravel(v)
-                xF, xW, xG = solve_factored(f, st.to_solver_order(bF), bW, bG)
-                cast = lambda x: None if x is None else x.astype(dtype)  # noqa: E731
-                return layout.unravel(cast(st.from_solver_order(xF)), cast(xW), cast(xG))
-
             x = solve_dict(vector)
             for _ in range(self.refinements):
                 r = jtu.tree_map(lambda b, hx: b - hx, vector, operator.mv(x))
                 x = jtu.tree_map(jnp.add, x, solve_dict(r))
             return x, lx.RESULTS.successful, {}
-        else:
-            r = vector if damping is None else vector[0]
-            bF, bW, bG = jt_vector(blocks, st, jtu.tree_leaves(r), f.sF.dtype)
-            if damping is not None:
-                # Aᵀv = Jᵀ v_r + √λ v_y (v_y = 0 in optimistix's LM, honoured anyway).
-                yF, yW, yG = layout.ravel(vector[1])
-                c = jnp.sqrt(damping).astype(bF.dtype)
-                bF = bF + c * st.to_solver_order(yF).astype(bF.dtype)
-                bW = None if bW is None else bW + c * yW.astype(bF.dtype)
-                bG = None if bG is None else bG + c * yG.astype(bF.dtype)
-        xF, xW, xG = solve_factored(f, bF, bW, bG)
-        dtype = jtu.tree_leaves(vector)[0].dtype
-        cast = lambda x: None if x is None else x.astype(dtype)  # noqa: E731
-        return layout.unravel(cast(st.from_solver_order(xF)), cast(xW), cast(xG)), lx.RESULTS.successful, {}
+        r = vector if damping is None else vector[0]
+        bF, bW, bG = jt_vector(blocks, st, jtu.tree_leaves(r), f.sF.dtype)
+        if damping is not None:
+            # Aᵀv = Jᵀ v_r + √λ v_y (v_y = 0 in optimistix's LM, honoured anyway).
+            yF, yW, yG = layout.ravel(vector[1])
+            c = jnp.sqrt(damping).astype(bF.dtype)
+            bF = bF + c * st.to_solver_order(yF).astype(bF.dtype)
+            bW = None if bW is None else bW + c * yW.astype(bF.dtype)
+            bG = None if bG is None else bG + c * yG.astype(bF.dtype)
+        return solve(bF, bW, bG), lx.RESULTS.successful, {}
 
     def transpose(self, state, options):
         if not self.hessian:
