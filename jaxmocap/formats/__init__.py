@@ -10,3 +10,11 @@ from .calibration import CalibratedCamera as CalibratedCamera
 from .calibration import CalibrationError as CalibrationError
 from .calibration import load_calibration as load_calibration
 from .calibration import save_calibration as save_calibration
+from . import openpose as openpose
+from .openpose import KEYPOINT_COUNTS as KEYPOINT_COUNTS
+from .openpose import KeypointFileError as KeypointFileError
+from .openpose import KeypointRecording as KeypointRecording
+from .openpose import align_views as align_views
+from .openpose import normalise_view_name as normalise_view_name
+from .openpose import read_openpose as read_openpose
+from .openpose import write_openpose as write_openpose

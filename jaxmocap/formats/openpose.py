@@ -1,0 +1,269 @@
+"""OpenPose keypoints per camera folder and frame, and the calibration they belong to.
+
+OpenPose's ``--write_json`` writes one file per frame, ``<name>_<frame:012d>_keypoints.json``
+(any digits before ``_keypoints.json`` are taken as the frame number here):
+
+    {"version": 1.3, "people": [{"person_id": [-1], "pose_keypoints_2d": [u0, v0, c0, u1, ...],
+                                 "face_keypoints_2d": [], "hand_left_keypoints_2d": [], ...}]}
+
+with K (u, v, confidence) triples per person in the model's order (BODY_25, BODY_25B,
+COCO-18: `KEYPOINT_COUNTS`; names in `jaxmocap.sensors.keypoints.KEYPOINT_FORMATS`), pixel
+centres at integers, undetected keypoints as (0, 0, 0). A recording is one folder per
+camera under a root (Pose2Sim: ``pose/cam01_json/``; EasyMocap: ``openpose/01/``).
+
+`read_openpose` gathers every view into padded arrays over the union of frame numbers: a
+frame whose file is missing in one view, or whose "people" list is empty, has no people
+there (confidence 0). People are kept in the file's order; which one is the subject is
+decided later across views (`jaxmocap.sensors.triangulation.select_person`).
+
+BODY_25 and BODY_25B both have 25 keypoints and cannot be told apart from the numbers:
+pass the layout the detector ran with.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import re
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from .calibration import CalibratedCamera
+
+__all__ = [
+    "KEYPOINT_COUNTS",
+    "KeypointFileError",
+    "KeypointRecording",
+    "read_openpose",
+    "write_openpose",
+    "align_views",
+    "normalise_view_name",
+]
+
+KEYPOINT_COUNTS = {"body25": 25, "body25b": 25, "coco18": 18}
+_FRAME = re.compile(r"(\d+)_keypoints\.json$")
+_EMPTY_PARTS = (
+    "face_keypoints_2d", "hand_left_keypoints_2d", "hand_right_keypoints_2d", "pose_keypoints_3d",
+    "face_keypoints_3d", "hand_left_keypoints_3d", "hand_right_keypoints_3d",
+)  # fmt: skip
+
+
+class KeypointFileError(ValueError):
+    """A keypoint folder or file is missing, unreadable or of another layout."""
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class KeypointRecording:
+    """OpenPose detections of several synchronised cameras.
+
+    views: camera folder names, one per view.
+    layout: "body25" | "body25b" | "coco18".
+    frames: (T,) int frame numbers (union over views, increasing).
+    keypoints: per view (T, P_v, K, 3) rows (u, v, confidence) in pixels, people in file
+        order padded with zeros to P_v = max(1, most people in any frame of that view).
+    """
+
+    views: tuple[str, ...]
+    layout: str
+    frames: np.ndarray
+    keypoints: tuple[np.ndarray, ...]
+
+    @property
+    def num_frames(self) -> int:
+        return len(self.frames)
+
+
+def _natural_key(name: str):
+    return [int(s) if s.isdigit() else s.lower() for s in re.split(r"(\d+)", name)]
+
+
+def _keypoint_files(folder: Path) -> list[Path]:
+    return sorted(p for p in folder.iterdir() if p.is_file() and _FRAME.search(p.name))
+
+
+def _layouts_for(count: int) -> list[str]:
+    return [name for name, k in KEYPOINT_COUNTS.items() if 3 * k == count]
+
+
+def _read_people(path: Path, layout: str) -> list[np.ndarray]:
+    K = KEYPOINT_COUNTS[layout]
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        raise KeypointFileError(f"{path}: not valid JSON, truncated or corrupt ({e}).") from None
+    if not isinstance(data, dict) or not isinstance(data.get("people"), list):
+        raise KeypointFileError(f"{path}: no 'people' list; not an OpenPose --write_json file.")
+    people = []
+    for i, person in enumerate(data["people"]):
+        flat = person.get("pose_keypoints_2d", []) if isinstance(person, dict) else None
+        if not isinstance(flat, list):
+            raise KeypointFileError(f"{path}: people[{i}] has no 'pose_keypoints_2d' list.")
+        if len(flat) == 0:  # e.g. a face- or hand-only detection
+            continue
+        if len(flat) != 3 * K:
+            fits = _layouts_for(len(flat))
+            hint = f"the layout that fits is {' or '.join(map(repr, fits))}" if fits else (
+                f"no known layout has {len(flat)} numbers ({sorted(KEYPOINT_COUNTS.items())} keypoints x 3)"
+            )
+            raise KeypointFileError(
+                f"{path}: people[{i}] has {len(flat)} numbers in pose_keypoints_2d, but layout "
+                f"{layout!r} expects {3 * K} ({K} keypoints x (u, v, c)); {hint}."
+            )
+        try:
+            rows = np.asarray(flat, np.float64).reshape(K, 3)
+        except (TypeError, ValueError):
+            raise KeypointFileError(f"{path}: people[{i}].pose_keypoints_2d holds non-numbers.") from None
+        if not np.all(np.isfinite(rows)):
+            raise KeypointFileError(f"{path}: people[{i}].pose_keypoints_2d holds NaN or infinity.")
+        people.append(rows)
+    return people
+
+
+def read_openpose(root, layout: str = "body25", views: Sequence[str] | None = None) -> KeypointRecording:
+    """Read OpenPose JSON from one folder per camera under `root`.
+
+    Args:
+        root: folder holding one sub-folder per camera (or, for one camera, the JSON files).
+        layout: "body25" | "body25b" | "coco18", the model OpenPose ran with.
+        views: camera folder names to read, in this order; None reads every sub-folder
+            holding ``*_keypoints.json`` files, in natural order (cam2 before cam10).
+    Raises:
+        KeypointFileError naming the folder or file: missing camera folder, no keypoint
+        files, truncated JSON, a keypoint count of another layout.
+    """
+    root = Path(root)
+    if layout not in KEYPOINT_COUNTS:
+        raise KeypointFileError(f"layout={layout!r} is not known; choose from {sorted(KEYPOINT_COUNTS)}.")
+    if not root.is_dir():
+        raise KeypointFileError(f"{root}: no such folder; give the folder holding one keypoint folder per camera.")
+    if views is None:
+        folders = sorted((p for p in root.iterdir() if p.is_dir() and _keypoint_files(p)), key=lambda p: _natural_key(p.name))
+        if not folders and _keypoint_files(root):
+            folders = [root]  # a single camera's files directly under root
+        if not folders:
+            raise KeypointFileError(f"{root}: no camera folders with OpenPose '*_keypoints.json' files.")
+    else:
+        views = [views] if isinstance(views, str) else list(views)
+        present = sorted(p.name for p in root.iterdir() if p.is_dir())
+        folders = []
+        for v in views:
+            if not (root / v).is_dir():
+                raise KeypointFileError(f"{root / v}: missing camera folder; folders present in {root}: {present}.")
+            folders.append(root / v)
+    per_view = []
+    for folder in folders:
+        files = _keypoint_files(folder)
+        if not files:
+            raise KeypointFileError(f"{folder}: no OpenPose '<name>_<frame>_keypoints.json' files.")
+        by_frame: dict[int, Path] = {}
+        for f in files:
+            frame = int(_FRAME.search(f.name).group(1))
+            if frame in by_frame:
+                raise KeypointFileError(f"{folder}: frame {frame} appears twice: {by_frame[frame].name} and {f.name}.")
+            by_frame[frame] = f
+        per_view.append({frame: _read_people(f, layout) for frame, f in by_frame.items()})
+    frames = np.array(sorted(set().union(*per_view)), np.int64)
+    index = {int(f): i for i, f in enumerate(frames)}
+    K = KEYPOINT_COUNTS[layout]
+    keypoints = []
+    for people in per_view:
+        P = max([1] + [len(p) for p in people.values()])
+        out = np.zeros((len(frames), P, K, 3))
+        for frame, rows in people.items():
+            if rows:
+                out[index[frame], : len(rows)] = np.stack(rows)
+        keypoints.append(out)
+    return KeypointRecording(tuple(f.name for f in folders), layout, frames, tuple(keypoints))
+
+
+def write_openpose(root, views, keypoints, layout, frames=None) -> None:
+    """Write detections as OpenPose's ``--write_json`` output, one folder per view.
+
+    Args:
+        root: output folder; view v goes to ``root/views[v]/<view>_<frame:012d>_keypoints.json``.
+        views: camera folder names; keypoints: per view (T, P, K, 3) rows (u, v, c);
+        layout: "body25" | "body25b" | "coco18"; frames: (T,) frame numbers (default 0..T-1).
+    A slot whose confidences are all 0 is padding and not written, so a frame with no one
+    gets ``"people": []``.
+    """
+    root = Path(root)
+    if layout not in KEYPOINT_COUNTS:
+        raise KeypointFileError(f"layout={layout!r} is not known; choose from {sorted(KEYPOINT_COUNTS)}.")
+    views = [views] if isinstance(views, str) else list(views)
+    if len(views) != len(keypoints):
+        raise ValueError(f"write_openpose: {len(views)} views but {len(keypoints)} keypoint arrays.")
+    K = KEYPOINT_COUNTS[layout]
+    for view, kp in zip(views, keypoints):
+        kp = np.asarray(kp, np.float64)
+        if kp.ndim != 4 or kp.shape[2:] != (K, 3):
+            raise ValueError(f"write_openpose: view {view!r} keypoints must be (T, P, {K}, 3) for {layout!r}; got {kp.shape}.")
+        T = kp.shape[0]
+        frame_numbers = np.arange(T) if frames is None else np.asarray(frames, np.int64)
+        if frame_numbers.shape != (T,):
+            raise ValueError(f"write_openpose: frames must be ({T},), got {frame_numbers.shape}.")
+        folder = root / view
+        folder.mkdir(parents=True, exist_ok=True)
+        for t, frame in enumerate(frame_numbers):
+            people = [
+                {"person_id": [-1], "pose_keypoints_2d": person.reshape(-1).tolist(), **{k: [] for k in _EMPTY_PARTS}}
+                for person in kp[t]
+                if np.any(person[:, 2] > 0)
+            ]
+            text = json.dumps({"version": 1.3, "people": people})
+            (folder / f"{view}_{int(frame):012d}_keypoints.json").write_text(text, encoding="utf-8")
+
+
+def normalise_view_name(name: str) -> tuple[str, ...]:
+    """The key `align_views` matches names by when they differ: case, separators, leading zeros
+    and a "json" word are ignored ("cam01" == "Cam_1" == "cam1_json")."""
+    tokens = re.findall(r"[a-z]+|\d+", name.lower())
+    return tuple(str(int(t)) if t.isdigit() else t for t in tokens if t != "json")
+
+
+def align_views(recording: KeypointRecording, cameras: Sequence[CalibratedCamera]) -> list[CalibratedCamera]:
+    """The cameras of `recording.views`, in that order, matched by name.
+
+    A view matches the camera of the same name, or else the one camera whose
+    `normalise_view_name` key is equal. Cameras without a view are left out. Raises
+    ValueError listing both name sets when a view has no (or no unique) camera, or when a
+    view's detections fall outside its camera's image (a wrong image size or camera).
+    """
+    cameras = list(cameras)
+    by_name = {c.name: c for c in cameras}
+    out: list[CalibratedCamera | None] = [by_name.get(v) for v in recording.views]
+    used = {c.name for c in out if c is not None}
+    keys: dict[tuple, list[CalibratedCamera]] = {}
+    for c in cameras:
+        if c.name not in used:
+            keys.setdefault(normalise_view_name(c.name), []).append(c)
+    problems = []
+    for i, view in enumerate(recording.views):
+        if out[i] is not None:
+            continue
+        match = keys.get(normalise_view_name(view), [])
+        if len(match) == 1 and match[0].name not in used:
+            out[i] = match[0]
+            used.add(match[0].name)
+        else:
+            problems.append(f"{view!r} ({'ambiguous: ' + str([c.name for c in match]) if match else 'no camera'})")
+    if problems:
+        raise ValueError(
+            f"align_views: keypoint views {list(recording.views)} do not match calibration cameras "
+            f"{[c.name for c in cameras]}: {', '.join(problems)}. Rename the folders or the cameras "
+            "(names match exactly, or ignoring case, separators, leading zeros and 'json')."
+        )
+    for view, cam, kp in zip(recording.views, out, recording.keypoints):
+        seen = kp[..., 2] > 0
+        if cam.width <= 0 or not seen.any():
+            continue
+        u, v = kp[..., 0][seen], kp[..., 1][seen]
+        margin = 2.0 + 0.005 * max(cam.width, cam.height)  # OpenPose never reports points outside the image
+        if u.max() > cam.width - 0.5 + margin or v.max() > cam.height - 0.5 + margin or min(u.min(), v.min()) < -0.5 - margin:
+            raise ValueError(
+                f"align_views: view {view!r} has detections up to ({u.max():.0f}, {v.max():.0f}) px, outside "
+                f"camera {cam.name!r}'s {cam.width} x {cam.height} image; wrong image size in the calibration "
+                "(another video resolution, width/height swapped) or the wrong camera."
+            )
+    return out  # type: ignore[return-value]
