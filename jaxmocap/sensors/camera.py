@@ -28,6 +28,9 @@ __all__ = [
     "ring_cameras",
     "handheld_trajectory",
     "camera_imu",
+    "distort_points",
+    "undistort_pixels",
+    "project_points",
 ]
 
 
@@ -155,3 +158,94 @@ def camera_imu(R, t, fps: float) -> IMUReadings:
     Rcg = jnp.swapaxes(R, -1, -2)
     center = -jnp.einsum("tba,tb->ta", R, jnp.asarray(t))
     return imu_from_trajectory(Rcg[:, None], center[:, None], fps)
+
+
+# ------------------------------------------------------- lens distortion (host NumPy, OpenCV)
+# Real calibrations (jaxmocap.formats) carry OpenCV's Brown-Conrady model on normalised
+# coordinates x = (x_c / z_c, y_c / z_c), r² = x² + y²:
+#   x_d = x (1 + k1 r² + k2 r⁴ + k3 r⁶) + 2 p1 x y + p2 (r² + 2 x²)
+#   y_d = y (1 + k1 r² + k2 r⁴ + k3 r⁶) + p1 (r² + 2 y²) + 2 p2 x y
+# Fitting works on undistorted pixels, so detections are undistorted once, up front.
+
+
+def _dist5(dist) -> np.ndarray:
+    d = np.asarray(dist, np.float64).reshape(-1)
+    if d.size not in (0, 4, 5):
+        raise ValueError(f"dist must hold 4 or 5 OpenCV coefficients (k1, k2, p1, p2[, k3]); got {d.size}.")
+    return np.concatenate([d, np.zeros(5 - d.size)])
+
+
+def distort_points(xy, dist) -> np.ndarray:
+    """Normalised image coordinates (..., 2) -> distorted normalised coordinates (OpenCV model)."""
+    xy = np.asarray(xy, np.float64)
+    k1, k2, p1, p2, k3 = _dist5(dist)
+    x, y = xy[..., 0], xy[..., 1]
+    r2 = x * x + y * y
+    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    return np.stack(
+        [x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x), y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y], -1
+    )
+
+
+def _distort_jacobian(x, y, d) -> np.ndarray:
+    """∂(x_d, y_d)/∂(x, y): (..., 2, 2)."""
+    k1, k2, p1, p2, k3 = d
+    r2 = x * x + y * y
+    radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+    dradial = k1 + r2 * (2 * k2 + 3 * k3 * r2)  # d radial / d r²
+    dxdx = radial + 2 * x * x * dradial + 2 * p1 * y + 6 * p2 * x
+    dxdy = 2 * x * y * dradial + 2 * p1 * x + 2 * p2 * y
+    dydx = 2 * x * y * dradial + 2 * p1 * x + 2 * p2 * y
+    dydy = radial + 2 * y * y * dradial + 6 * p1 * y + 2 * p2 * x
+    return np.stack([np.stack([dxdx, dxdy], -1), np.stack([dydx, dydy], -1)], -2)
+
+
+def undistort_pixels(uv, K, dist, iterations: int = 20) -> np.ndarray:
+    """Distorted pixels (..., 2) -> ideal pinhole pixels under the same K.
+
+    The inverse of `distort_points` between K's pixels, like ``cv2.undistortPoints(uv, K,
+    dist, P=K)`` but solved by Newton's method (OpenCV's fixed-point loop stops at ~1e-3 px
+    on strong lenses): converges to ~1e-10 px inside the image. Pixels the lens model
+    cannot map back (beyond the fold of a strongly distorting model) come out NaN.
+    """
+    uv = np.asarray(uv, np.float64)
+    K = np.asarray(K, np.float64)
+    d = _dist5(dist)
+    if not np.any(d):
+        return uv.copy()
+    # normalised distorted coordinates: solve K [x, y, 1]ᵀ = [u, v, 1]ᵀ (K upper triangular)
+    yd = (uv[..., 1] - K[1, 2]) / K[1, 1]
+    xd = (uv[..., 0] - K[0, 2] - K[0, 1] * yd) / K[0, 0]
+    target = np.stack([xd, yd], -1)
+    xy = target.copy()
+    for _ in range(iterations):
+        residual = distort_points(xy, d) - target
+        J = _distort_jacobian(xy[..., 0], xy[..., 1], d)
+        det = J[..., 0, 0] * J[..., 1, 1] - J[..., 0, 1] * J[..., 1, 0]
+        det = np.where(np.abs(det) < 1e-12, 1e-12, det)
+        step = np.stack(
+            [J[..., 1, 1] * residual[..., 0] - J[..., 0, 1] * residual[..., 1],
+             -J[..., 1, 0] * residual[..., 0] + J[..., 0, 0] * residual[..., 1]], -1
+        ) / det[..., None]  # fmt: skip
+        xy = xy - step
+        if np.all(np.abs(step) < 1e-15):
+            break
+    ok = np.all(np.abs(distort_points(xy, d) - target) < 1e-9, -1)
+    xy = np.where(ok[..., None], xy, np.nan)
+    return np.stack([K[0, 0] * xy[..., 0] + K[0, 1] * xy[..., 1] + K[0, 2], K[1, 1] * xy[..., 1] + K[1, 2]], -1)
+
+
+def project_points(K, dist, R, t, points) -> tuple[np.ndarray, np.ndarray]:
+    """Distorted pixels and depths of world points (..., 3) in a calibrated camera (NumPy).
+
+    K (3, 3), dist (5,) OpenCV, R (3, 3), t (3,) world-to-camera. Returns uv (..., 2) and
+    z (...); points with z <= 0 are behind the camera and their uv is meaningless.
+    """
+    points = np.asarray(points, np.float64)
+    pc = points @ np.asarray(R, np.float64).T + np.asarray(t, np.float64)
+    z = pc[..., 2]
+    safe = np.where(np.abs(z) < 1e-12, 1e-12, z)
+    xy = distort_points(pc[..., :2] / safe[..., None], dist)
+    K = np.asarray(K, np.float64)
+    uv = np.stack([K[0, 0] * xy[..., 0] + K[0, 1] * xy[..., 1] + K[0, 2], K[1, 1] * xy[..., 1] + K[1, 2]], -1)
+    return uv, z
