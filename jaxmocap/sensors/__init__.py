@@ -14,6 +14,7 @@ from . import keypoints as keypoints
 from . import objects as objects
 from . import scenario as scenario
 from . import silhouette as silhouette
+from . import triangulation as triangulation
 from .calibration import heading_reset as heading_reset
 from .calibration import remove_heading as remove_heading
 from .calibration import sensor_to_bone_offsets as sensor_to_bone_offsets
@@ -39,3 +40,5 @@ from .scenario import make_scenario as make_scenario
 from .scenario import save_dip as save_dip
 from .scenario import save_scenario as save_scenario
 from .silhouette import rasterize_views as rasterize_views
+from .triangulation import select_person as select_person
+from .triangulation import triangulate as triangulate

@@ -1,0 +1,250 @@
+"""Triangulation of 2D detections from calibrated views, and choosing the subject across views.
+
+DLT (Hartley & Zisserman §12.2): each view v with pixel (u, v) and projection P_v gives two
+rows u P³ - P¹ and v P³ - P² of A X = 0; rows are scaled to unit length and then by the
+detection confidence, and X is A's right singular vector of the smallest singular value.
+
+`select_person` answers "which detection in each view is the subject" without trusting
+OpenPose's person order (it changes from view to view and frame to frame; von Marcard
+§4.3.2, Huang ch. 4): per frame, every pair of detections from two views seeds a 3D pose;
+each seed collects, in every other view, the detection its projection explains best;
+views that stay inconsistent are dropped; the hypothesis with the most supporting views,
+then joints, then the lowest median reprojection error wins. From the second frame on,
+hypotheses within `max_jump` metres (median joint distance) of the previous frame's 3D
+pose are preferred, so the subject is followed rather than re-chosen. Work is in
+undistorted pixels (`undistort_pixels`), where DLT is exact.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..formats.calibration import CalibratedCamera
+from ..formats.openpose import KeypointRecording, align_views
+from .camera import undistort_pixels
+
+__all__ = ["projection_matrices", "triangulate", "select_person", "undistort_recording"]
+
+
+def projection_matrices(cameras) -> np.ndarray:
+    """(V, 3, 4) projection matrices K [R | t] of calibrated cameras (undistorted pixels)."""
+    cameras = list(cameras)
+    if not cameras or not all(isinstance(c, CalibratedCamera) for c in cameras):
+        raise ValueError("projection_matrices: give a non-empty sequence of CalibratedCamera.")
+    return np.stack([c.K @ np.concatenate([c.R, c.t[:, None]], 1) for c in cameras])
+
+
+def _reproject(P, X):
+    """Pixels (V, ..., 2) and depths (V, ...) of points X (..., 3) under P (V, 3, 4)."""
+    Xh = np.concatenate([X, np.ones(X.shape[:-1] + (1,))], -1)
+    x = np.einsum("vab,...b->v...a", P, Xh)
+    z = x[..., 2]
+    safe = np.where(np.abs(z) < 1e-12, 1e-12, z)
+    return x[..., :2] / safe[..., None], z
+
+
+def triangulate(P, uv, conf, min_views: int = 2) -> tuple[np.ndarray, np.ndarray]:
+    """Confidence-weighted DLT of V views.
+
+    Args:
+        P: (V, 3, 4) projection matrices (`projection_matrices`); uv: (V, ..., 2) undistorted
+        pixels; conf: (V, ...) confidences (0 = not seen); min_views: views needed per point.
+    Returns:
+        points (..., 3), NaN where fewer than `min_views` views have conf > 0; and the
+        reprojection error (V, ...) in pixels of every view (also those with conf 0: how
+        well would that view's pixel fit), inf where the point is behind that camera.
+    """
+    P = np.asarray(P, np.float64)
+    uv = np.asarray(uv, np.float64)
+    conf = np.asarray(conf, np.float64)
+    V = P.shape[0]
+    if P.shape[1:] != (3, 4) or uv.shape[0] != V or uv.shape[-1] != 2 or conf.shape != uv.shape[:-1]:
+        raise ValueError(
+            f"triangulate: need P (V, 3, 4), uv (V, ..., 2), conf (V, ...); got {P.shape}, {uv.shape}, {conf.shape}."
+        )
+    batch = uv.shape[1:-1]
+    Pb = P.reshape((V,) + (1,) * len(batch) + (3, 4))
+    w = np.where(np.isfinite(uv).all(-1) & (conf > 0), conf, 0.0)
+    u, v = np.nan_to_num(uv[..., 0]), np.nan_to_num(uv[..., 1])
+    rows = []
+    for coord, k in ((u, 0), (v, 1)):
+        r = coord[..., None] * Pb[..., 2, :] - Pb[..., k, :]
+        r = r / np.maximum(np.linalg.norm(r, axis=-1, keepdims=True), 1e-300)
+        rows.append(r * w[..., None])
+    A = np.moveaxis(np.concatenate(rows, 0), 0, -2)  # (..., 2V, 4)
+    h = np.linalg.svd(A)[2][..., -1, :]
+    enough = (w > 0).sum(0) >= min_views
+    safe = np.where(np.abs(h[..., 3]) < 1e-300, 1.0, h[..., 3])
+    X = h[..., :3] / safe[..., None]
+    X = np.where((enough & (np.abs(h[..., 3]) > 1e-12 * np.abs(h).max(-1)))[..., None], X, np.nan)
+    proj, z = _reproject(P, np.nan_to_num(X))
+    err = np.linalg.norm(proj - uv, axis=-1)
+    err = np.where(z > 0, err, np.inf)
+    err = np.where(np.isfinite(X).all(-1), err, np.nan)
+    return X, err
+
+
+def _masked_median(x, mask, axis=-1):
+    """Median of x where mask along `axis` (inf where nothing is masked in); warning-free."""
+    x = np.where(mask, x, np.inf)
+    xs = np.sort(x, axis=axis)
+    n = mask.sum(axis=axis, keepdims=True)
+    lo = np.take_along_axis(xs, np.maximum((n - 1) // 2, 0), axis=axis)
+    hi = np.take_along_axis(xs, np.maximum(n // 2, 0), axis=axis)
+    med = np.squeeze(0.5 * (lo + hi), axis=axis)
+    return np.where(np.squeeze(n, axis=axis) > 0, med, np.inf)
+
+
+def undistort_recording(recording: KeypointRecording, cameras) -> list[np.ndarray]:
+    """Per view (T, P, K, 3) detections in undistorted pixels (cameras aligned to the views).
+
+    Keypoints with confidence 0, or that the lens model cannot map back, get (0, 0, 0).
+    """
+    out = []
+    for kp, cam in zip(recording.keypoints, align_views(recording, cameras)):
+        uv = undistort_pixels(kp[..., :2], cam.K, cam.dist)
+        ok = (kp[..., 2] > 0) & np.isfinite(uv).all(-1)
+        out.append(np.where(ok[..., None], np.concatenate([uv, kp[..., 2:]], -1), 0.0))
+    return out
+
+
+def select_person(
+    recording: KeypointRecording,
+    cameras,
+    min_views: int = 2,
+    *,
+    max_error: float = 0.02,
+    max_jump: float = 0.5,
+    min_joints: int = 3,
+) -> np.ndarray:
+    """One person per view and frame, chosen by cross-view consistency (module docstring).
+
+    Args:
+        recording: `read_openpose` output; cameras: its calibration (any order; matched to
+            `recording.views` by `align_views`).
+        min_views: views that must agree for a frame to have a subject.
+        max_error: reprojection error, as a fraction of each view's focal length, below which
+            a detection (median over its joints) or a joint supports a 3D pose (0.02 ≈ 1.1°:
+            30 px at f = 1500 px).
+        max_jump: metres the median joint may move per frame and still count as the
+            same person as the previous frame's subject.
+        min_joints: confident joints two detections must share to be compared.
+    Returns:
+        (V, T, K, 3) the subject's (u, v, confidence) in UNDISTORTED pixels, views in
+        `recording.views` order; confidence 0 in a view (and frame) whose detections are
+        all inconsistent with the chosen 3D pose, and in frames where fewer than
+        `min_views` views agree. With one view, the subject is followed in 2D instead:
+        the most confident detection first, then the one nearest the previous choice.
+    """
+    cams = align_views(recording, cameras)
+    dets = undistort_recording(recording, cams)
+    V, T = len(cams), recording.num_frames
+    K = dets[0].shape[2]
+    out = np.zeros((V, T, K, 3))
+    if V == 1:
+        return _follow_2d(dets[0])[None]
+    if min_views < 2:
+        raise ValueError(f"select_person: min_views must be >= 2 with {V} views (got {min_views}).")
+    P = projection_matrices(cams)
+    tau = max_error * np.array([0.5 * (c.K[0, 0] + c.K[1, 1]) for c in cams])  # (V,) px
+    previous, gap = None, 1
+    for t in range(T):
+        frame = [d[t] for d in dets]  # per view (P_v, K, 3)
+        real = [np.flatnonzero((f[..., 2] > 0).sum(-1) >= min_joints) for f in frame]
+        best = _best_hypothesis(P, frame, real, tau, min_views, min_joints, previous, max_jump * gap)
+        if best is None:
+            gap += 1
+            continue
+        choice, X = best
+        for v, p in enumerate(choice):
+            if p >= 0:
+                out[v, t] = frame[v][p]
+        previous, gap = X, 1
+    return out
+
+
+def _best_hypothesis(P, frame, real, tau, min_views, min_joints, previous, gate):
+    V = len(frame)
+    K = frame[0].shape[1]
+    seeds = [(a, i, b, j) for a in range(V) for b in range(a + 1, V) for i in real[a] for j in real[b]]
+    if not seeds:
+        return None
+    S = len(seeds)
+    choice = np.full((S, V), -1)
+    for s, (a, i, b, j) in enumerate(seeds):
+        choice[s, a], choice[s, b] = i, j
+    X, err = _triangulate_choice(P, frame, choice)
+    # each view takes the detection the seed's projection explains best (seed views re-chosen too,
+    # so a seed from a wrong pair can still grow into the right person)
+    proj, z = _reproject(P, np.nan_to_num(X))  # (V, S, K, 2), (V, S, K)
+    known = np.isfinite(X).all(-1)  # (S, K)
+    seed_ok = known.sum(-1) >= min_joints
+    for v in range(V):
+        if len(real[v]) == 0:
+            choice[:, v] = -1
+            continue
+        cand = frame[v][real[v]]  # (C, K, 3)
+        e = np.linalg.norm(proj[v][:, None] - cand[None, ..., :2], axis=-1)  # (S, C, K)
+        e = np.where(z[v][:, None] > 0, e, np.inf)
+        mask = known[:, None] & (cand[None, ..., 2] > 0)
+        med = _masked_median(e, mask)
+        med = np.where(mask.sum(-1) >= min_joints, med, np.inf)
+        c = np.argmin(med, axis=1)
+        good = med[np.arange(S), c] < tau[v]
+        choice[:, v] = np.where(good & seed_ok, real[v][c], -1)
+    for _ in range(2):  # re-triangulate with every view, drop views that remain inconsistent
+        X, err = _triangulate_choice(P, frame, choice)
+        seen = _chosen_conf(frame, choice) > 0  # (V, S, K)
+        med = _masked_median(err, seen & np.isfinite(err))  # (V, S)
+        choice = np.where((med.T < tau) & (choice >= 0), choice, -1)
+    X, err = _triangulate_choice(P, frame, choice)
+    seen = (_chosen_conf(frame, choice) > 0) & np.isfinite(err)
+    views = (choice >= 0).sum(1)
+    joints = (seen & (err < tau[:, None, None])).sum((0, 2))
+    median = _masked_median(np.moveaxis(err, 0, 1).reshape(S, -1), np.moveaxis(seen, 0, 1).reshape(S, -1))
+    ok = (views >= min_views) & (np.isfinite(X).all(-1).sum(-1) >= min_joints)
+    if previous is not None:
+        both = np.isfinite(X).all(-1) & np.isfinite(previous).all(-1)
+        dist = _masked_median(np.linalg.norm(np.nan_to_num(X) - np.nan_to_num(previous), axis=-1), both)
+        near = ok & (dist < gate)
+        if near.any():
+            ok = near
+    if not ok.any():
+        return None
+    order = np.lexsort((median, -joints, -views))  # last key is primary
+    s = next(s for s in order if ok[s])
+    return choice[s], X[s]
+
+
+def _chosen_conf(frame, choice):
+    """(V, S, K) confidences of the chosen detections (0 where a view chose none)."""
+    return np.stack([
+        np.where(choice[:, v, None] >= 0, frame[v][np.maximum(choice[:, v], 0), :, 2], 0.0)
+        for v in range(len(frame))
+    ])  # fmt: skip
+
+
+def _triangulate_choice(P, frame, choice):
+    uv = np.stack([frame[v][np.maximum(choice[:, v], 0), :, :2] for v in range(len(frame))])  # (V, S, K, 2)
+    return triangulate(P, uv, _chosen_conf(frame, choice))
+
+
+def _follow_2d(det):
+    """One view: (T, P, K, 3) -> (T, K, 3), following the most confident person in 2D."""
+    T, _, K, _ = det.shape
+    out = np.zeros((T, K, 3))
+    last = None
+    for t in range(T):
+        seen = det[t, ..., 2] > 0
+        if not seen.any():
+            continue
+        p = int(np.argmax(det[t, ..., 2].sum(-1)))
+        if last is not None:
+            both = seen & (last[:, 2] > 0)
+            dist = _masked_median(np.linalg.norm(det[t, ..., :2] - last[:, :2], axis=-1), both)
+            lo, hi = last[last[:, 2] > 0, :2].min(0), last[last[:, 2] > 0, :2].max(0)
+            if np.min(dist) < 0.5 * np.linalg.norm(hi - lo) + 1.0:  # within half the box diagonal
+                p = int(np.argmin(dist))
+        out[t] = det[t, p]
+        last = out[t]
+    return out
