@@ -1,4 +1,4 @@
-"""2D keypoints: COCO-18 / OpenPose BODY_25 regressors on the body and a detector error model.
+"""2D keypoints: COCO-18 / OpenPose BODY_25 / BODY_25B regressors on the body and a detector error model.
 
 Regressor: a (K, V) matrix 𝒦 with keypoints = 𝒦 · vertices (posed mesh), built per body
 from its rest mesh:
@@ -10,8 +10,45 @@ from its rest mesh:
     `imu.ray_vertex`: the skin point straight out from a joint-relative point, among
     vertices skinned mostly to the head / foot bones. Offsets in `_SURFACE` (metres, rest
     pose, y up, facing +z).
+  - BODY_25B's upper neck (below the chin, from MPII's "upper neck") = the mean of SMPL's
+    neck and head rows; its head top = the crown vertex straight above the head joint.
 OpenPose's hips sit lower and more lateral than SMPL's; we keep SMPL's (documented
 difference, as in SMPLify's use of 𝒥 for the hips).
+
+How each layout maps onto SMPL (index in each layout; J(x) = row x of 𝒥, mean(·) = mean
+of rows, vertex(x) = a skin vertex near joint x; left/right mirror each other):
+
+    keypoint          coco18  body25  body25b  SMPL
+    nose                 0       0       0     vertex(head), front of the face
+    neck                 1       1       -     mean(J(left_shoulder), J(right_shoulder))
+    upper_neck           -       -      17     mean(J(neck), J(head))
+    head_top             -       -      18     vertex(head), top of the skull
+    right_shoulder       2       2       6     J(right_shoulder)
+    right_elbow          3       3       8     J(right_elbow)
+    right_wrist          4       4      10     J(right_wrist)
+    left_shoulder        5       5       5     J(left_shoulder)
+    left_elbow           6       6       7     J(left_elbow)
+    left_wrist           7       7       9     J(left_wrist)
+    mid_hip              -       8       -     mean(J(left_hip), J(right_hip))
+    right_hip            8       9      12     J(right_hip)
+    right_knee           9      10      14     J(right_knee)
+    right_ankle         10      11      16     J(right_ankle)
+    left_hip            11      12      11     J(left_hip)
+    left_knee           12      13      13     J(left_knee)
+    left_ankle          13      14      15     J(left_ankle)
+    right_eye           14      15       2     vertex(head), 3.2 cm right, 3.5 cm up
+    left_eye            15      16       1     vertex(head), 3.2 cm left, 3.5 cm up
+    right_ear           16      17       4     vertex(head), to the right
+    left_ear            17      18       3     vertex(head), to the left
+    left_big_toe         -      19      19     vertex(left_foot), front, medial
+    left_small_toe       -      20      20     vertex(left_foot), front, lateral
+    left_heel            -      21      21     vertex(left_ankle), back
+    right_big_toe        -      22      22     vertex(right_foot), front, medial
+    right_small_toe      -      23      23     vertex(right_foot), front, lateral
+    right_heel           -      24      24     vertex(right_ankle), back
+
+Orders follow OpenPose's `poseParameters.cpp` (POSE_COCO_BODY_PARTS, POSE_BODY_25_BODY_PARTS,
+POSE_BODY_25B_BODY_PARTS, where index 17 is called "Neck" but is the upper neck).
 
 Detector error model (`DetectorErrorModel`, `detect`): per view and frame, every person's
 keypoints get pixel noise, confidences that fall with the error, missed joints (and all
@@ -35,6 +72,7 @@ from .imu import ray_vertex, rest_joints
 __all__ = [
     "COCO18_NAMES",
     "BODY25_NAMES",
+    "BODY25B_NAMES",
     "KEYPOINT_FORMATS",
     "keypoint_regressor",
     "regress_keypoints",
@@ -56,7 +94,14 @@ BODY25_NAMES = (
     "left_big_toe", "left_small_toe", "left_heel", "right_big_toe", "right_small_toe",
     "right_heel",
 )  # fmt: skip
-KEYPOINT_FORMATS = {"coco18": COCO18_NAMES, "body25": BODY25_NAMES}
+BODY25B_NAMES = (
+    "nose", "left_eye", "right_eye", "left_ear", "right_ear", "left_shoulder",
+    "right_shoulder", "left_elbow", "right_elbow", "left_wrist", "right_wrist", "left_hip",
+    "right_hip", "left_knee", "right_knee", "left_ankle", "right_ankle", "upper_neck",
+    "head_top", "left_big_toe", "left_small_toe", "left_heel", "right_big_toe",
+    "right_small_toe", "right_heel",
+)  # fmt: skip
+KEYPOINT_FORMATS = {"coco18": COCO18_NAMES, "body25": BODY25_NAMES, "body25b": BODY25B_NAMES}
 
 _J = {n: i for i, n in enumerate(SMPL_JOINT_NAMES)}
 _JOINT_ROWS = {
@@ -68,6 +113,7 @@ _JOINT_ROWS = {
 }  # fmt: skip
 _JOINT_ROWS["neck"] = ("left_shoulder", "right_shoulder")
 _JOINT_ROWS["mid_hip"] = ("left_hip", "right_hip")
+_JOINT_ROWS["upper_neck"] = ("neck", "head")  # BODY_25B: between the neck base and the skull base
 
 # name: (joint, offset from it (left side; mirrored for right), outward direction, bone)
 _SURFACE = {
@@ -77,6 +123,7 @@ _SURFACE = {
     "left_big_toe": ("left_foot", (-0.015, 0.0, 0.0), (0.0, 0.0, 1.0), "left_foot"),
     "left_small_toe": ("left_foot", (0.03, 0.0, -0.02), (0.0, 0.0, 1.0), "left_foot"),
     "left_heel": ("left_ankle", (0.0, -0.03, 0.0), (0.0, 0.0, -1.0), "left_ankle"),
+    "head_top": ("head", (0.0, 0.0, 0.01), (0.0, 1.0, 0.0), "head"),
 }
 
 
@@ -108,7 +155,7 @@ def _surface_vertex(body: Body, name: str, joints: np.ndarray) -> int:
 
 
 def keypoint_regressor(body: Body, layout: str = "coco18") -> np.ndarray:
-    """(K, V) keypoint regressor for `layout` ("coco18" or "body25") on `body`."""
+    """(K, V) keypoint regressor for `layout` ("coco18", "body25" or "body25b") on `body`."""
     if layout not in KEYPOINT_FORMATS:
         raise ValueError(f"Unknown keypoint layout {layout!r}; choose from {sorted(KEYPOINT_FORMATS)}.")
     names = KEYPOINT_FORMATS[layout]
