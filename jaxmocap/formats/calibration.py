@@ -36,8 +36,9 @@ Formats (`format=` or inferred from the path):
   ``R`` (V, 3, 3), ``t`` (V, 3), ``width`` (V,), ``height`` (V,).
 
 Checks common to all: shapes, K upper-triangular with positive focal lengths, R a
-rotation, and the principal point inside the image when the size is known (catches
-width/height given the wrong way round or a calibration from another video mode).
+rotation, and, when the size is known, the principal point inside the image and not
+far off-centre where exchanging width and height would centre it (catches sizes given
+the wrong way round or a calibration of another video mode).
 """
 
 from __future__ import annotations
@@ -118,8 +119,13 @@ class CalibratedCamera:
         width, height = int(self.width), int(self.height)
         if width < 0 or height < 0 or (width == 0) != (height == 0):
             raise ValueError(f"{where}: width and height must both be positive (or both 0 = unknown); got {width} x {height}.")
-        if width > 0 and not (0.0 <= K[0, 2] <= width and 0.0 <= K[1, 2] <= height):
-            swapped = 0.0 <= K[0, 2] <= height and 0.0 <= K[1, 2] <= width
+        # The principal point sits near the image centre (a cropped sensor window can move
+        # it, never out of the image); far off-centre but central with the sides exchanged
+        # means width and height were given the wrong way round.
+        off = width > 0 and max(abs(K[0, 2] / width - 0.5), abs(K[1, 2] / height - 0.5)) > 0.35
+        swapped = width > 0 and max(abs(K[0, 2] / height - 0.5), abs(K[1, 2] / width - 0.5)) < 0.1
+        outside = width > 0 and not (0.0 <= K[0, 2] <= width and 0.0 <= K[1, 2] <= height)
+        if outside or (off and swapped):
             raise ValueError(
                 f"{where}: principal point ({K[0, 2]:.1f}, {K[1, 2]:.1f}) lies outside the "
                 f"{width} x {height} (width x height) image"
