@@ -366,10 +366,10 @@ def test_select_person_picks_the_consistent_subject_not_person_zero(tmp_path):
             distractor = np.concatenate([rng.uniform([0, 0], [1279, 719], (25, 2)), rng.uniform(0.1, 0.6, (25, 1))], -1)
             order = list(rows)
             rng.shuffle(order)
-            if v == 0 and "subject" in order:  # first in some views, last in others
+            if v == 1 and "subject" in order:  # first in some views, last in others
                 order.remove("subject")
                 order.insert(0, "subject")
-            if v == 1:
+            if v == 0:
                 order.remove("subject")
                 order.append("subject")
             dets[v].append(np.stack([rows[n] for n in order] + [distractor]))
