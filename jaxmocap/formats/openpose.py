@@ -262,7 +262,8 @@ def align_views(recording: KeypointRecording, cameras: Sequence[CalibratedCamera
         margin = 2.0 + 0.005 * max(cam.width, cam.height)  # OpenPose never reports points outside the image
         if u.max() > cam.width - 0.5 + margin or v.max() > cam.height - 0.5 + margin or min(u.min(), v.min()) < -0.5 - margin:
             raise ValueError(
-                f"align_views: view {view!r} has detections up to ({u.max():.0f}, {v.max():.0f}) px, outside "
+                f"align_views: view {view!r} has detections in u {u.min():.0f}..{u.max():.0f}, "
+                f"v {v.min():.0f}..{v.max():.0f} px, outside "
                 f"camera {cam.name!r}'s {cam.width} x {cam.height} image; wrong image size in the calibration "
                 "(another video resolution, width/height swapped) or the wrong camera."
             )
