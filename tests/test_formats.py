@@ -206,7 +206,15 @@ def _rig(num_views=4, width=1280, height=720, seed=0):
 def test_every_writer_round_trips_through_its_reader(tmp_path, fmt):
     cams = _rig()
     points = np.random.default_rng(1).uniform([-0.5, 0.0, -0.5], [1.0, 1.8, 1.0], (50, 3))
-    path = tmp_path / {"pose2sim": "Calib.toml", "qualisys": "Calib.qca.txt", "easymocap": "calib", "npz": "c.npz"}[fmt]
+    path = (
+        tmp_path
+        / {
+            "pose2sim": "Calib.toml",
+            "qualisys": "Calib.qca.txt",
+            "easymocap": "calib",
+            "npz": "c.npz",
+        }[fmt]
+    )
     save_calibration(path, cams, fmt)
     back = load_calibration(path)  # format inferred from the path
     assert [c.name for c in back] == [c.name for c in cams]
@@ -219,7 +227,12 @@ def test_every_writer_round_trips_through_its_reader(tmp_path, fmt):
 def test_hand_written_fixtures_survive_every_writer(tmp_path):
     (tmp_path / "Calib.toml").write_text(TOML)
     cams = load_calibration(tmp_path / "Calib.toml")
-    names = {"pose2sim": "out/cal.toml", "qualisys": "out/cal.qca.txt", "easymocap": "em", "npz": "out/cal.npz"}
+    names = {
+        "pose2sim": "out/cal.toml",
+        "qualisys": "out/cal.qca.txt",
+        "easymocap": "em",
+        "npz": "out/cal.npz",
+    }
     (tmp_path / "out").mkdir()
     for fmt in FORMATS:
         save_calibration(tmp_path / names[fmt], cams, fmt)
@@ -236,11 +249,16 @@ def test_distortion_matches_the_opencv_formula():
     x, y = 0.3, -0.2
     r2 = x * x + y * y
     radial = 1 + k1 * r2 + k2 * r2**2 + k3 * r2**3
-    expected = (x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x), y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y)
+    expected = (
+        x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x),
+        y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y,
+    )
     np.testing.assert_allclose(distort_points([x, y], [k1, k2, p1, p2, k3]), expected, rtol=1e-15)
 
 
-@pytest.mark.parametrize("dist", [[-0.28, 0.09, 1e-3, -2e-3, -0.01], [0.12, -0.03, -1e-3, 1e-3, 0.0]])
+@pytest.mark.parametrize(
+    "dist", [[-0.28, 0.09, 1e-3, -2e-3, -0.01], [0.12, -0.03, -1e-3, 1e-3, 0.0]]
+)
 def test_undistortion_inverts_distortion_to_1e6_px_over_the_image(dist):
     K = np.array([[1100.0, 0.0, 955.0], [0.0, 1105.0, 545.0], [0.0, 0.0, 1.0]])
     u, v = np.meshgrid(np.linspace(0, 1919, 97), np.linspace(0, 1079, 55))
@@ -253,7 +271,9 @@ def test_undistortion_inverts_distortion_to_1e6_px_over_the_image(dist):
     # and the other way: ideal pixels -> distorted -> undistorted
     xy = (uv - K[:2, 2]) / np.diag(K)[:2] * 0.8
     distorted = distort_points(xy, dist) * np.diag(K)[:2] + K[:2, 2]
-    np.testing.assert_allclose(undistort_pixels(distorted, K, dist), xy * np.diag(K)[:2] + K[:2, 2], atol=1e-6)
+    np.testing.assert_allclose(
+        undistort_pixels(distorted, K, dist), xy * np.diag(K)[:2] + K[:2, 2], atol=1e-6
+    )
 
 
 # ------------------------------------------------------------------------------ OpenPose
@@ -278,7 +298,9 @@ def test_openpose_round_trip_with_several_people_empty_frames_and_a_missing_file
     write_openpose(tmp_path, views, kps, "body25", frames=frames)
     text = json.loads((tmp_path / "cam01" / "cam01_000000000011_keypoints.json").read_text())
     assert text["people"] == [] and text["version"] == 1.3
-    person = json.loads((tmp_path / "cam01" / "cam01_000000000010_keypoints.json").read_text())["people"][0]
+    person = json.loads((tmp_path / "cam01" / "cam01_000000000010_keypoints.json").read_text())[
+        "people"
+    ][0]
     assert person["person_id"] == [-1] and len(person["pose_keypoints_2d"]) == 75
     assert person["face_keypoints_2d"] == [] and person["hand_left_keypoints_2d"] == []
     (tmp_path / "cam03" / "cam03_000000000014_keypoints.json").unlink()  # a dropped frame
@@ -346,7 +368,9 @@ def test_select_person_picks_the_consistent_subject_not_person_zero(tmp_path):
     cams = _rig(seed=4)
     T, V = 6, 4
     step = np.array([0.02, 0.0, 0.01])
-    subject, other, third = (_body(rng, c) for c in ([0.3, 0.9, 0.2], [1.0, 0.9, 0.6], [-0.4, 0.9, -0.3]))
+    subject, other, third = (
+        _body(rng, c) for c in ([0.3, 0.9, 0.2], [1.0, 0.9, 0.6], [-0.4, 0.9, -0.3])
+    )
     truth = np.zeros((V, T, 25, 2))
     dets = [[] for _ in range(V)]
     for t in range(T):
@@ -363,7 +387,9 @@ def test_select_person_picks_the_consistent_subject_not_person_zero(tmp_path):
                 if name == "other" and t == 0:  # half-occluded in the first frame
                     kp[::2] = 0.0
                 rows[name] = kp
-            distractor = np.concatenate([rng.uniform([0, 0], [1279, 719], (25, 2)), rng.uniform(0.1, 0.6, (25, 1))], -1)
+            distractor = np.concatenate(
+                [rng.uniform([0, 0], [1279, 719], (25, 2)), rng.uniform(0.1, 0.6, (25, 1))], -1
+            )
             order = list(rows)
             rng.shuffle(order)
             if v == 1 and "subject" in order:  # first in some views, last in others
@@ -374,7 +400,10 @@ def test_select_person_picks_the_consistent_subject_not_person_zero(tmp_path):
                 order.append("subject")
             dets[v].append(np.stack([rows[n] for n in order] + [distractor]))
     P = max(len(d) for view in dets for d in view)
-    padded = [np.stack([np.concatenate([d, np.zeros((P - len(d), 25, 3))]) for d in view]) for view in dets]
+    padded = [
+        np.stack([np.concatenate([d, np.zeros((P - len(d), 25, 3))]) for d in view])
+        for view in dets
+    ]
     views = [c.name for c in cams]
     write_openpose(tmp_path, views, padded, "body25")
     rec = read_openpose(tmp_path, "body25")
@@ -391,8 +420,12 @@ def test_select_person_picks_the_consistent_subject_not_person_zero(tmp_path):
 def test_select_person_with_one_view_follows_the_most_confident_person_in_2d(tmp_path):
     cam = _rig(1)[0]
     T = 4
-    shape = np.random.default_rng(0).uniform([-50, -150], [50, 150], (18, 2))  # a person's 2D layout
-    a = np.concatenate([shape + [400.0, 300.0] + np.arange(T)[:, None, None] * 5, np.full((T, 18, 1), 0.9)], -1)
+    shape = np.random.default_rng(0).uniform(
+        [-50, -150], [50, 150], (18, 2)
+    )  # a person's 2D layout
+    a = np.concatenate(
+        [shape + [400.0, 300.0] + np.arange(T)[:, None, None] * 5, np.full((T, 18, 1), 0.9)], -1
+    )
     b = np.concatenate([np.tile(shape + [900.0, 300.0], (T, 1, 1)), np.full((T, 18, 1), 0.5)], -1)
     b[2:, :, 2] = 1.0  # later more confident, but not the person followed
     write_openpose(tmp_path, [cam.name], [np.stack([b, a], 1)], "coco18")
@@ -414,7 +447,10 @@ def test_view_names_match_exactly_then_normalised_else_both_sets_are_listed(tmp_
     assert normalise_view_name("cam01") == normalise_view_name("Cam_1") == ("cam", "1")
     write_openpose(tmp_path / "b", ["left", "cam01"], kp[:2], "body25")
     rec = read_openpose(tmp_path / "b", "body25")
-    with pytest.raises(ValueError, match=r"views \['cam01', 'left'\] do not match calibration cameras \['cam01', 'cam02', 'cam03'\]: 'left' \(no camera\)"):
+    with pytest.raises(
+        ValueError,
+        match=r"views \['cam01', 'left'\] do not match calibration cameras \['cam01', 'cam02', 'cam03'\]: 'left' \(no camera\)",
+    ):
         align_views(rec, cams)
 
 
@@ -430,7 +466,10 @@ def test_missing_camera_folder_names_it(tmp_path):
 def test_body25_file_read_as_coco18_says_which_layout_fits(tmp_path):
     kp = _random_people(np.random.default_rng(0), 1, 1)
     write_openpose(tmp_path, ["cam01"], [kp], "body25")
-    with pytest.raises(KeypointFileError, match=r"cam01_000000000000_keypoints\.json.*75 numbers.*'coco18' expects 54.*'body25' or 'body25b'"):
+    with pytest.raises(
+        KeypointFileError,
+        match=r"cam01_000000000000_keypoints\.json.*75 numbers.*'coco18' expects 54.*'body25' or 'body25b'",
+    ):
         read_openpose(tmp_path, "coco18")
     with pytest.raises(KeypointFileError, match="layout='body_25' is not known"):
         read_openpose(tmp_path, "body_25")
@@ -440,7 +479,9 @@ def test_truncated_json_names_the_file(tmp_path):
     write_openpose(tmp_path, ["cam01"], [_random_people(np.random.default_rng(0), 3, 2)], "body25")
     bad = tmp_path / "cam01" / "cam01_000000000001_keypoints.json"
     bad.write_text(bad.read_text()[:-40])
-    with pytest.raises(KeypointFileError, match=r"cam01_000000000001_keypoints\.json: not valid JSON"):
+    with pytest.raises(
+        KeypointFileError, match=r"cam01_000000000001_keypoints\.json: not valid JSON"
+    ):
         read_openpose(tmp_path, "body25")
 
 
@@ -453,8 +494,12 @@ def test_unknown_or_broken_calibrations_name_the_file(tmp_path):
         load_calibration(path, format="vicon")
     with pytest.raises(CalibrationError, match=r"nothere\.toml: no such file"):
         load_calibration(tmp_path / "nothere.toml")
-    (tmp_path / "bad.qca.txt").write_text(QCA.replace('<transform x="0.0" y="-5000.0"', '<transform x="0.0" y="oops"', 1))
-    with pytest.raises(CalibrationError, match=r"bad\.qca\.txt \(camera 11\): <transform y='oops'> is not a number"):
+    (tmp_path / "bad.qca.txt").write_text(
+        QCA.replace('<transform x="0.0" y="-5000.0"', '<transform x="0.0" y="oops"', 1)
+    )
+    with pytest.raises(
+        CalibrationError, match=r"bad\.qca\.txt \(camera 11\): <transform y='oops'> is not a number"
+    ):
         load_calibration(tmp_path / "bad.qca.txt")
     (tmp_path / "cut.qca.txt").write_text(QCA[:-200])
     with pytest.raises(CalibrationError, match=r"cut\.qca\.txt: not valid XML"):
@@ -464,17 +509,23 @@ def test_unknown_or_broken_calibrations_name_the_file(tmp_path):
     with pytest.raises(CalibrationError, match=r"extri\.yml: no such file"):
         load_calibration(tmp_path / "em")
     (tmp_path / "fish.toml").write_text(TOML.replace("fisheye = false", "fisheye = true", 1))
-    with pytest.raises(CalibrationError, match=r"fish\.toml \[cam_01\]: fisheye cameras are not supported"):
+    with pytest.raises(
+        CalibrationError, match=r"fish\.toml \[cam_01\]: fisheye cameras are not supported"
+    ):
         load_calibration(tmp_path / "fish.toml")
 
 
 def test_wrong_image_size_is_caught_where_it_shows(tmp_path):
     path = tmp_path / "swapped.toml"
     path.write_text(TOML.replace("size = [ 1280.0, 720.0]", "size = [ 720.0, 1280.0]", 1))
-    with pytest.raises(CalibrationError, match=r"swapped\.toml \[cam_01\].*principal point .*outside.*swapped"):
+    with pytest.raises(
+        CalibrationError, match=r"swapped\.toml \[cam_01\].*principal point .*outside.*swapped"
+    ):
         load_calibration(path)
     # a calibration of a smaller video mode than the detections came from
-    small = [CalibratedCamera(c.name, c.K / [[2], [2], [1]], c.dist, c.R, c.t, 640, 360) for c in _rig(2)]
+    small = [
+        CalibratedCamera(c.name, c.K / [[2], [2], [1]], c.dist, c.R, c.t, 640, 360) for c in _rig(2)
+    ]
     kp = np.zeros((1, 1, 25, 3))
     kp[0, 0, :, :2] = [1000.0, 600.0]
     kp[0, 0, :, 2] = 0.8

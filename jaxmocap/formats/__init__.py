@@ -5,12 +5,12 @@ convention; nothing here imports from sensors, energies or methods.
 """
 
 from . import calibration as calibration
+from . import openpose as openpose
 from .calibration import FORMATS as FORMATS
 from .calibration import CalibratedCamera as CalibratedCamera
 from .calibration import CalibrationError as CalibrationError
 from .calibration import load_calibration as load_calibration
 from .calibration import save_calibration as save_calibration
-from . import openpose as openpose
 from .openpose import KEYPOINT_COUNTS as KEYPOINT_COUNTS
 from .openpose import KeypointFileError as KeypointFileError
 from .openpose import KeypointRecording as KeypointRecording

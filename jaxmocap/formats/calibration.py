@@ -54,8 +54,8 @@ from scipy.spatial.transform import Rotation
 
 __all__ = [
     "FORMATS",
-    "CalibrationError",
     "CalibratedCamera",
+    "CalibrationError",
     "load_calibration",
     "save_calibration",
 ]
@@ -96,7 +96,9 @@ class CalibratedCamera:
         t = np.asarray(self.t, np.float64).reshape(-1)
         where = f"camera {self.name!r}"
         if K.shape != (3, 3) or R.shape != (3, 3) or t.shape != (3,):
-            raise ValueError(f"{where}: K and R must be (3, 3) and t (3,); got {K.shape}, {R.shape}, {t.shape}.")
+            raise ValueError(
+                f"{where}: K and R must be (3, 3) and t (3,); got {K.shape}, {R.shape}, {t.shape}."
+            )
         if dist.size in (4, 5):
             dist = np.concatenate([dist, np.zeros(5 - dist.size)])
         elif dist.size == 0:
@@ -108,17 +110,32 @@ class CalibratedCamera:
                 f"{where}: distortion must have 4 or 5 OpenCV coefficients (k1, k2, p1, p2[, k3]); "
                 f"got {dist.size}: {dist.tolist()} (rational/thin-prism models are not supported)."
             )
-        if not (np.all(np.isfinite(K)) and np.all(np.isfinite(R)) and np.all(np.isfinite(t)) and np.all(np.isfinite(dist))):
+        if not (
+            np.all(np.isfinite(K))
+            and np.all(np.isfinite(R))
+            and np.all(np.isfinite(t))
+            and np.all(np.isfinite(dist))
+        ):
             raise ValueError(f"{where}: K, dist, R and t must be finite.")
-        if K[0, 0] <= 0 or K[1, 1] <= 0 or np.any(K[1:, 0] != 0) or K[2, 1] != 0 or not np.isclose(K[2, 2], 1.0):
+        if (
+            K[0, 0] <= 0
+            or K[1, 1] <= 0
+            or np.any(K[1:, 0] != 0)
+            or K[2, 1] != 0
+            or not np.isclose(K[2, 2], 1.0)
+        ):
             raise ValueError(
                 f"{where}: K must be [[fx, s, cx], [0, fy, cy], [0, 0, 1]] with fx, fy > 0; got {K.tolist()}."
             )
         if np.abs(R @ R.T - np.eye(3)).max() > 1e-5 or np.linalg.det(R) < 0:
-            raise ValueError(f"{where}: R is not a rotation matrix (RRᵀ ≠ I or det < 0): {R.tolist()}.")
+            raise ValueError(
+                f"{where}: R is not a rotation matrix (RRᵀ ≠ I or det < 0): {R.tolist()}."
+            )
         width, height = int(self.width), int(self.height)
         if width < 0 or height < 0 or (width == 0) != (height == 0):
-            raise ValueError(f"{where}: width and height must both be positive (or both 0 = unknown); got {width} x {height}.")
+            raise ValueError(
+                f"{where}: width and height must both be positive (or both 0 = unknown); got {width} x {height}."
+            )
         # The principal point sits near the image centre (a cropped sensor window can move
         # it, never out of the image); far off-centre but central with the sides exchanged
         # means width and height were given the wrong way round.
@@ -131,7 +148,14 @@ class CalibratedCamera:
                 f"{width} x {height} (width x height) image"
                 + ("; width and height look swapped." if swapped else "; is the image size right?")
             )
-        for field, value in (("K", K), ("dist", dist), ("R", R), ("t", t), ("width", width), ("height", height)):
+        for field, value in (
+            ("K", K),
+            ("dist", dist),
+            ("R", R),
+            ("t", t),
+            ("width", width),
+            ("height", height),
+        ):
             object.__setattr__(self, field, value)
         object.__setattr__(self, "name", str(self.name))
 
@@ -168,7 +192,7 @@ def _infer_format(path: Path) -> str:
     if name.endswith((".qca.txt", ".qca", ".xml")):
         return "qualisys"
     head = path.read_bytes()[:512].lstrip().decode("utf-8", "replace")
-    if head.startswith("<?xml") or head.startswith("<calibration") or "<calibration" in head:
+    if head.startswith("<?xml") or "<calibration" in head:
         return "qualisys"
     if head.startswith("%YAML"):
         return "easymocap"
@@ -189,13 +213,18 @@ def load_calibration(path, format: str | None = None) -> list[CalibratedCamera]:
     """
     path = Path(path)
     if format is not None and format not in FORMATS:
-        raise CalibrationError(f"{path}: unknown calibration format {format!r}; choose from {FORMATS}.")
+        raise CalibrationError(
+            f"{path}: unknown calibration format {format!r}; choose from {FORMATS}."
+        )
     if not path.exists():
         raise CalibrationError(f"{path}: no such file or folder.")
     format = format or _infer_format(path)
-    cameras = {"pose2sim": _read_toml, "qualisys": _read_qualisys, "easymocap": _read_easymocap, "npz": _read_npz}[
-        format
-    ](path)
+    cameras = {
+        "pose2sim": _read_toml,
+        "qualisys": _read_qualisys,
+        "easymocap": _read_easymocap,
+        "npz": _read_npz,
+    }[format](path)
     if not cameras:
         raise CalibrationError(f"{path}: no cameras found (read as {format!r}).")
     names = [c.name for c in cameras]
@@ -208,13 +237,20 @@ def save_calibration(path, cameras, format: str) -> None:
     """Write `cameras` in one of the real layouts (EasyMocap: `path` is the folder)."""
     path = Path(path)
     if format not in FORMATS:
-        raise CalibrationError(f"{path}: unknown calibration format {format!r}; choose from {FORMATS}.")
+        raise CalibrationError(
+            f"{path}: unknown calibration format {format!r}; choose from {FORMATS}."
+        )
     cameras = list(cameras)
     if not cameras or not all(isinstance(c, CalibratedCamera) for c in cameras):
-        raise ValueError("save_calibration: `cameras` must be a non-empty sequence of CalibratedCamera.")
-    {"pose2sim": _write_toml, "qualisys": _write_qualisys, "easymocap": _write_easymocap, "npz": _write_npz}[format](
-        path, cameras
-    )
+        raise ValueError(
+            "save_calibration: `cameras` must be a non-empty sequence of CalibratedCamera."
+        )
+    {
+        "pose2sim": _write_toml,
+        "qualisys": _write_qualisys,
+        "easymocap": _write_easymocap,
+        "npz": _write_npz,
+    }[format](path, cameras)
 
 
 def _rodrigues(rvec, where) -> np.ndarray:
@@ -247,10 +283,14 @@ def _read_toml(path: Path) -> list[CalibratedCamera]:
         where = f"{path} [{key}]"
         missing = [k for k in ("size", "matrix", "rotation", "translation") if k not in table]
         if missing:
-            raise CalibrationError(f"{where}: missing {missing}; a Pose2Sim camera table needs size, matrix, "
-                                   "distortions, rotation (Rodrigues) and translation.")
+            raise CalibrationError(
+                f"{where}: missing {missing}; a Pose2Sim camera table needs size, matrix, "
+                "distortions, rotation (Rodrigues) and translation."
+            )
         if table.get("fisheye", False):
-            raise CalibrationError(f"{where}: fisheye cameras are not supported (OpenCV pinhole model only).")
+            raise CalibrationError(
+                f"{where}: fisheye cameras are not supported (OpenCV pinhole model only)."
+            )
         try:
             size = np.asarray(table["size"], np.float64).reshape(-1)
             K = np.asarray(table["matrix"], np.float64)
@@ -259,7 +299,9 @@ def _read_toml(path: Path) -> list[CalibratedCamera]:
         except (TypeError, ValueError) as e:
             raise CalibrationError(f"{where}: numbers expected ({e}).") from None
         if size.shape != (2,) or np.any(size != np.round(size)):
-            raise CalibrationError(f"{where}: size must be [width, height] in whole pixels, got {table['size']}.")
+            raise CalibrationError(
+                f"{where}: size must be [width, height] in whole pixels, got {table['size']}."
+            )
         cameras.append(_camera(
             where, name=str(table.get("name", key)), K=K, dist=dist, R=_rodrigues(table["rotation"], where),
             t=t, width=int(size[0]), height=int(size[1]),
@@ -280,7 +322,9 @@ def _write_toml(path: Path, cameras) -> None:
             f"[{key}]",
             'name = "' + cam.name.replace('"', '\\"') + '"',
             f"size = [ {float(cam.width)}, {float(cam.height)}]",
-            "matrix = [ " + ", ".join("[ " + ", ".join(_num(v) for v in row) + "]" for row in K) + "]",
+            "matrix = [ "
+            + ", ".join("[ " + ", ".join(_num(v) for v in row) + "]" for row in K)
+            + "]",
             "distortions = [ " + ", ".join(_num(v) for v in dist) + "]",
             "rotation = [ " + ", ".join(_num(v) for v in _rotvec(cam.R)) + "]",
             "translation = [ " + ", ".join(_num(v) for v in cam.t) + "]",
@@ -301,17 +345,23 @@ def _attr(element, key, where) -> float:
     try:
         return float(value)
     except ValueError:
-        raise CalibrationError(f"{where}: <{element.tag} {key}={value!r}> is not a number.") from None
+        raise CalibrationError(
+            f"{where}: <{element.tag} {key}={value!r}> is not a number."
+        ) from None
 
 
 def _read_qualisys(path: Path) -> list[CalibratedCamera]:
     try:
         root = ET.parse(path).getroot()
     except ET.ParseError as e:
-        raise CalibrationError(f"{path}: not valid XML ({e}); expected a QTM .qca.txt calibration.") from None
+        raise CalibrationError(
+            f"{path}: not valid XML ({e}); expected a QTM .qca.txt calibration."
+        ) from None
     elements = root.findall("cameras/camera") or root.findall(".//calibration/cameras/camera")
     if root.tag != "calibration" and not elements:
-        raise CalibrationError(f"{path}: no <calibration><cameras><camera> elements; not a QTM calibration.")
+        raise CalibrationError(
+            f"{path}: no <calibration><cameras><camera> elements; not a QTM calibration."
+        )
     cameras = []
     for i, el in enumerate(elements):
         name = el.get("serial") or f"camera_{i + 1}"
@@ -323,12 +373,16 @@ def _read_qualisys(path: Path) -> list[CalibratedCamera]:
         centre = np.array([_attr(transform, k, where) for k in ("x", "y", "z")]) / 1000.0  # mm -> m
         R = _QUALISYS_TO_OPENCV @ M
         if _attr_or(intrinsic, "skew", 0.0, where) != 0.0:
-            raise CalibrationError(f"{where}: nonzero skew is not supported (its unit is undocumented).")
+            raise CalibrationError(
+                f"{where}: nonzero skew is not supported (its unit is undocumented)."
+            )
         fu, fv = (_attr(intrinsic, k, where) / _SUBPIXELS for k in ("focalLengthU", "focalLengthV"))
         cu, cv = (_attr(intrinsic, k, where) / _SUBPIXELS for k in ("centerPointU", "centerPointV"))
         fov = el.find("fov_video")
         if fov is not None:
-            left, top, right, bottom = (_attr(fov, k, where) for k in ("left", "top", "right", "bottom"))
+            left, top, right, bottom = (
+                _attr(fov, k, where) for k in ("left", "top", "right", "bottom")
+            )
         else:  # the whole sensor
             left = _attr(intrinsic, "sensorMinU", where) / _SUBPIXELS
             top = _attr(intrinsic, "sensorMinV", where) / _SUBPIXELS
@@ -338,7 +392,12 @@ def _read_qualisys(path: Path) -> list[CalibratedCamera]:
         cu, cv = cu - left, cv - top
         scale = _video_scale(el.get("video_resolution", ""), where)
         if scale != 1.0:  # pixel centres at integers: u' = (u + 1/2) s - 1/2
-            fu, fv, cu, cv = fu * scale, fv * scale, (cu + 0.5) * scale - 0.5, (cv + 0.5) * scale - 0.5
+            fu, fv, cu, cv = (
+                fu * scale,
+                fv * scale,
+                (cu + 0.5) * scale - 0.5,
+                (cv + 0.5) * scale - 0.5,
+            )
             width, height = width * scale, height * scale
         dist = [_attr_or(intrinsic, k, 0.0, where) for k in (
             "radialDistortion1", "radialDistortion2", "tangentalDistortion1", "tangentalDistortion2",
@@ -346,7 +405,7 @@ def _read_qualisys(path: Path) -> list[CalibratedCamera]:
         )]  # fmt: skip
         cameras.append(_camera(
             where, name=name, K=[[fu, 0.0, cu], [0.0, fv, cv], [0.0, 0.0, 1.0]], dist=dist, R=R,
-            t=-R @ centre, width=int(round(width)), height=int(round(height)),
+            t=-R @ centre, width=round(width), height=round(height),
         ))  # fmt: skip
     return cameras
 
@@ -356,7 +415,9 @@ def _attr_or(element, key, default, where) -> float:
     try:
         return default if value in (None, "", "none") else float(value)
     except ValueError:
-        raise CalibrationError(f"{where}: <{element.tag} {key}={value!r}> is not a number.") from None
+        raise CalibrationError(
+            f"{where}: <{element.tag} {key}={value!r}> is not a number."
+        ) from None
 
 
 def _video_scale(resolution: str, where) -> float:
@@ -365,7 +426,9 @@ def _video_scale(resolution: str, where) -> float:
         return 1.0
     m = re.fullmatch(r"(\d+)p", resolution)
     if not m:
-        raise CalibrationError(f"{where}: unknown video_resolution {resolution!r} (expected e.g. '1080p', '540p').")
+        raise CalibrationError(
+            f"{where}: unknown video_resolution {resolution!r} (expected e.g. '1080p', '540p')."
+        )
     return int(m.group(1)) / 1080.0
 
 
@@ -375,9 +438,13 @@ def _write_qualisys(path: Path, cameras) -> None:
     group = ET.SubElement(root, "cameras")
     for cam in cameras:
         if cam.width <= 0:
-            raise CalibrationError(f"{path}: camera {cam.name!r} has no image size; QTM files need one.")
+            raise CalibrationError(
+                f"{path}: camera {cam.name!r} has no image size; QTM files need one."
+            )
         if cam.K[0, 1] != 0:
-            raise CalibrationError(f"{path}: camera {cam.name!r} has skew; the QTM writer does not store it.")
+            raise CalibrationError(
+                f"{path}: camera {cam.name!r} has skew; the QTM writer does not store it."
+            )
         el = ET.SubElement(group, "camera", {
             "active": "1", "avg-residual": "0.0", "model": "Miqus Video", "point-count": "0",
             "serial": cam.name, "viewrotation": "0", "video_resolution": "",
@@ -402,7 +469,9 @@ def _write_qualisys(path: Path, cameras) -> None:
         })  # fmt: skip
     ET.indent(root)
     # us-ascii: no declaration from ElementTree, non-ASCII names become character references
-    path.write_bytes(b"<?xml version='1.0' encoding='ASCII'?>\n" + ET.tostring(root, encoding="us-ascii") + b"\n")
+    path.write_bytes(
+        b"<?xml version='1.0' encoding='ASCII'?>\n" + ET.tostring(root, encoding="us-ascii") + b"\n"
+    )
 
 
 # ------------------------------------------------------------------- EasyMocap (OpenCV YAML)
@@ -445,7 +514,9 @@ def _parse_opencv_yaml(path: Path) -> dict:
         if not line.strip() or line.lstrip().startswith(("#", "%", "---", "...")):
             continue
         if line[0] in " \t-":
-            raise CalibrationError(f"{path}:{i}: unexpected indented line {line.strip()!r} outside a key.")
+            raise CalibrationError(
+                f"{path}:{i}: unexpected indented line {line.strip()!r} outside a key."
+            )
         key, sep, rest = line.partition(":")
         if not sep:
             raise CalibrationError(f"{path}:{i}: expected 'key: value', got {line!r}.")
@@ -462,19 +533,27 @@ def _parse_opencv_yaml(path: Path) -> dict:
                         value += " " + lines[i].strip()
                         i += 1
                     if not (value.startswith("[") and value.endswith("]")):
-                        raise CalibrationError(f"{path}: matrix {key!r} has unterminated data {value[:40]!r}.")
+                        raise CalibrationError(
+                            f"{path}: matrix {key!r} has unterminated data {value[:40]!r}."
+                        )
                     try:
                         fields["data"] = [float(x) for x in _flow_items(value)]
                     except ValueError as e:
-                        raise CalibrationError(f"{path}: matrix {key!r} data is not numeric ({e}).") from None
+                        raise CalibrationError(
+                            f"{path}: matrix {key!r} data is not numeric ({e})."
+                        ) from None
                 else:
                     fields[name.strip()] = _yaml_scalar(value)
             try:
                 rows, cols, data = int(fields["rows"]), int(fields["cols"]), fields["data"]
             except (KeyError, ValueError):
-                raise CalibrationError(f"{path}: matrix {key!r} needs rows, cols and data; got {sorted(fields)}.") from None
+                raise CalibrationError(
+                    f"{path}: matrix {key!r} needs rows, cols and data; got {sorted(fields)}."
+                ) from None
             if len(data) != rows * cols:
-                raise CalibrationError(f"{path}: matrix {key!r} is {rows}x{cols} but has {len(data)} numbers.")
+                raise CalibrationError(
+                    f"{path}: matrix {key!r} is {rows}x{cols} but has {len(data)} numbers."
+                )
             out[key] = np.asarray(data, np.float64).reshape(rows, cols)
         elif rest == "":
             items = []
@@ -497,11 +576,17 @@ def _easymocap_paths(path: Path) -> tuple[Path, Path]:
     intri, extri = folder / "intri.yml", folder / "extri.yml"
     if not path.is_dir() and path.name not in ("intri.yml", "extri.yml"):
         # Custom names: the other file is the one with the other prefix.
-        other = path.name.replace("intri", "extri") if "intri" in path.name else path.name.replace("extri", "intri")
+        other = (
+            path.name.replace("intri", "extri")
+            if "intri" in path.name
+            else path.name.replace("extri", "intri")
+        )
         intri, extri = (path, folder / other) if "intri" in path.name else (folder / other, path)
     for p in (intri, extri):
         if not p.exists():
-            raise CalibrationError(f"{p}: no such file; an EasyMocap calibration is intri.yml + extri.yml in one folder.")
+            raise CalibrationError(
+                f"{p}: no such file; an EasyMocap calibration is intri.yml + extri.yml in one folder."
+            )
     return intri, extri
 
 
@@ -513,29 +598,35 @@ def _read_easymocap(path: Path) -> list[CalibratedCamera]:
         raise CalibrationError(f"{intri_path}: no 'names' list of cameras.")
     names = [str(n) for n in names if str(n) != "none"]
     cameras = []
+
+    def need(store, key, file, name):
+        if key not in store:
+            raise CalibrationError(f"{file}: camera {name!r} has no {key!r}.")
+        return store[key]
+
     for name in names:
-
-        def need(store, key, file):
-            if key not in store:
-                raise CalibrationError(f"{file}: camera {name!r} has no {key!r}.")
-            return store[key]
-
         where = f"{intri_path.parent} (camera {name})"
-        K = need(intri, f"K_{name}", intri_path)
+        K = need(intri, f"K_{name}", intri_path, name)
         dist = intri.get(f"dist_{name}", intri.get(f"D_{name}", np.zeros(5)))
         width, height = intri.get(f"W_{name}", 0), intri.get(f"H_{name}", 0)
         if f"R_{name}" in extri:
             r = np.asarray(extri[f"R_{name}"])
             R = r.reshape(3, 3) if r.size == 9 else _rodrigues(r, f"{extri_path} R_{name}")
         else:
-            R = need(extri, f"Rot_{name}", extri_path)
-        if f"R_{name}" in extri and f"Rot_{name}" in extri:
-            if np.abs(np.asarray(extri[f"Rot_{name}"]).reshape(3, 3) - R).max() > 1e-3:
-                raise CalibrationError(f"{extri_path}: camera {name!r}: R_{name} (Rodrigues) and Rot_{name} disagree.")
-        T = need(extri, f"T_{name}", extri_path)
+            R = need(extri, f"Rot_{name}", extri_path, name)
+        both = f"R_{name}" in extri and f"Rot_{name}" in extri
+        if both and np.abs(np.asarray(extri[f"Rot_{name}"]).reshape(3, 3) - R).max() > 1e-3:
+            raise CalibrationError(
+                f"{extri_path}: camera {name!r}: R_{name} (Rodrigues) and Rot_{name} disagree."
+            )
+        T = need(extri, f"T_{name}", extri_path, name)
         if not isinstance(width, int) or not isinstance(height, int):
-            raise CalibrationError(f"{intri_path}: W_{name}/H_{name} must be integers, got {width!r}, {height!r}.")
-        cameras.append(_camera(where, name=name, K=K, dist=dist, R=R, t=T, width=width, height=height))
+            raise CalibrationError(
+                f"{intri_path}: W_{name}/H_{name} must be integers, got {width!r}, {height!r}."
+            )
+        cameras.append(
+            _camera(where, name=name, K=K, dist=dist, R=R, t=T, width=width, height=height)
+        )
     return cameras
 
 
@@ -559,7 +650,9 @@ def _write_easymocap(path: Path, cameras) -> None:
         intri += _yaml_matrix(f"K_{c.name}", c.K) + _yaml_matrix(f"dist_{c.name}", c.dist[None])
         if c.width > 0:
             intri += [f"H_{c.name}: {c.height}", f"W_{c.name}: {c.width}"]
-        extri += _yaml_matrix(f"R_{c.name}", _rotvec(c.R)[:, None]) + _yaml_matrix(f"Rot_{c.name}", c.R)
+        extri += _yaml_matrix(f"R_{c.name}", _rotvec(c.R)[:, None]) + _yaml_matrix(
+            f"Rot_{c.name}", c.R
+        )
         extri += _yaml_matrix(f"T_{c.name}", c.t[:, None])
     # EasyMocap writes CRLF line ends; keep them so its tools see the same bytes.
     (folder / "intri.yml").write_bytes(("\r\n".join(intri) + "\r\n").encode())
@@ -576,7 +669,9 @@ def _read_npz(path: Path) -> list[CalibratedCamera]:
         with np.load(path, allow_pickle=False) as f:
             missing = [k for k in _NPZ_KEYS if k not in f]
             if missing:
-                raise CalibrationError(f"{path}: missing arrays {missing}; a jaxmocap calibration npz has {list(_NPZ_KEYS)}.")
+                raise CalibrationError(
+                    f"{path}: missing arrays {missing}; a jaxmocap calibration npz has {list(_NPZ_KEYS)}."
+                )
             data = {k: f[k] for k in _NPZ_KEYS}
     except (OSError, ValueError) as e:
         if isinstance(e, CalibrationError):

@@ -36,10 +36,10 @@ __all__ = [
     "KEYPOINT_COUNTS",
     "KeypointFileError",
     "KeypointRecording",
-    "read_openpose",
-    "write_openpose",
     "align_views",
     "normalise_view_name",
+    "read_openpose",
+    "write_openpose",
 ]
 
 KEYPOINT_COUNTS = {"body25": 25, "body25b": 25, "coco18": 18}
@@ -104,8 +104,12 @@ def _read_people(path: Path, layout: str) -> list[np.ndarray]:
             continue
         if len(flat) != 3 * K:
             fits = _layouts_for(len(flat))
-            hint = f"the layout that fits is {' or '.join(map(repr, fits))}" if fits else (
-                f"no known layout has {len(flat)} numbers ({sorted(KEYPOINT_COUNTS.items())} keypoints x 3)"
+            hint = (
+                f"the layout that fits is {' or '.join(map(repr, fits))}"
+                if fits
+                else (
+                    f"no known layout has {len(flat)} numbers ({sorted(KEYPOINT_COUNTS.items())} keypoints x 3)"
+                )
             )
             raise KeypointFileError(
                 f"{path}: people[{i}] has {len(flat)} numbers in pose_keypoints_2d, but layout "
@@ -114,14 +118,18 @@ def _read_people(path: Path, layout: str) -> list[np.ndarray]:
         try:
             rows = np.asarray(flat, np.float64).reshape(K, 3)
         except (TypeError, ValueError):
-            raise KeypointFileError(f"{path}: people[{i}].pose_keypoints_2d holds non-numbers.") from None
+            raise KeypointFileError(
+                f"{path}: people[{i}].pose_keypoints_2d holds non-numbers."
+            ) from None
         if not np.all(np.isfinite(rows)):
             raise KeypointFileError(f"{path}: people[{i}].pose_keypoints_2d holds NaN or infinity.")
         people.append(rows)
     return people
 
 
-def read_openpose(root, layout: str = "body25", views: Sequence[str] | None = None) -> KeypointRecording:
+def read_openpose(
+    root, layout: str = "body25", views: Sequence[str] | None = None
+) -> KeypointRecording:
     """Read OpenPose JSON from one folder per camera under `root`.
 
     Args:
@@ -135,22 +143,33 @@ def read_openpose(root, layout: str = "body25", views: Sequence[str] | None = No
     """
     root = Path(root)
     if layout not in KEYPOINT_COUNTS:
-        raise KeypointFileError(f"layout={layout!r} is not known; choose from {sorted(KEYPOINT_COUNTS)}.")
+        raise KeypointFileError(
+            f"layout={layout!r} is not known; choose from {sorted(KEYPOINT_COUNTS)}."
+        )
     if not root.is_dir():
-        raise KeypointFileError(f"{root}: no such folder; give the folder holding one keypoint folder per camera.")
+        raise KeypointFileError(
+            f"{root}: no such folder; give the folder holding one keypoint folder per camera."
+        )
     if views is None:
-        folders = sorted((p for p in root.iterdir() if p.is_dir() and _keypoint_files(p)), key=lambda p: _natural_key(p.name))
+        folders = sorted(
+            (p for p in root.iterdir() if p.is_dir() and _keypoint_files(p)),
+            key=lambda p: _natural_key(p.name),
+        )
         if not folders and _keypoint_files(root):
             folders = [root]  # a single camera's files directly under root
         if not folders:
-            raise KeypointFileError(f"{root}: no camera folders with OpenPose '*_keypoints.json' files.")
+            raise KeypointFileError(
+                f"{root}: no camera folders with OpenPose '*_keypoints.json' files."
+            )
     else:
         views = [views] if isinstance(views, str) else list(views)
         present = sorted(p.name for p in root.iterdir() if p.is_dir())
         folders = []
         for v in views:
             if not (root / v).is_dir():
-                raise KeypointFileError(f"{root / v}: missing camera folder; folders present in {root}: {present}.")
+                raise KeypointFileError(
+                    f"{root / v}: missing camera folder; folders present in {root}: {present}."
+                )
             folders.append(root / v)
     per_view = []
     for folder in folders:
@@ -161,7 +180,9 @@ def read_openpose(root, layout: str = "body25", views: Sequence[str] | None = No
         for f in files:
             frame = int(_FRAME.search(f.name).group(1))
             if frame in by_frame:
-                raise KeypointFileError(f"{folder}: frame {frame} appears twice: {by_frame[frame].name} and {f.name}.")
+                raise KeypointFileError(
+                    f"{folder}: frame {frame} appears twice: {by_frame[frame].name} and {f.name}."
+                )
             by_frame[frame] = f
         per_view.append({frame: _read_people(f, layout) for frame, f in by_frame.items()})
     frames = np.array(sorted(set().union(*per_view)), np.int64)
@@ -190,15 +211,21 @@ def write_openpose(root, views, keypoints, layout, frames=None) -> None:
     """
     root = Path(root)
     if layout not in KEYPOINT_COUNTS:
-        raise KeypointFileError(f"layout={layout!r} is not known; choose from {sorted(KEYPOINT_COUNTS)}.")
+        raise KeypointFileError(
+            f"layout={layout!r} is not known; choose from {sorted(KEYPOINT_COUNTS)}."
+        )
     views = [views] if isinstance(views, str) else list(views)
     if len(views) != len(keypoints):
-        raise ValueError(f"write_openpose: {len(views)} views but {len(keypoints)} keypoint arrays.")
+        raise ValueError(
+            f"write_openpose: {len(views)} views but {len(keypoints)} keypoint arrays."
+        )
     K = KEYPOINT_COUNTS[layout]
     for view, kp in zip(views, keypoints):
         kp = np.asarray(kp, np.float64)
         if kp.ndim != 4 or kp.shape[2:] != (K, 3):
-            raise ValueError(f"write_openpose: view {view!r} keypoints must be (T, P, {K}, 3) for {layout!r}; got {kp.shape}.")
+            raise ValueError(
+                f"write_openpose: view {view!r} keypoints must be (T, P, {K}, 3) for {layout!r}; got {kp.shape}."
+            )
         T = kp.shape[0]
         frame_numbers = np.arange(T) if frames is None else np.asarray(frames, np.int64)
         if frame_numbers.shape != (T,):
@@ -207,7 +234,11 @@ def write_openpose(root, views, keypoints, layout, frames=None) -> None:
         folder.mkdir(parents=True, exist_ok=True)
         for t, frame in enumerate(frame_numbers):
             people = [
-                {"person_id": [-1], "pose_keypoints_2d": person.reshape(-1).tolist(), **{k: [] for k in _EMPTY_PARTS}}
+                {
+                    "person_id": [-1],
+                    "pose_keypoints_2d": person.reshape(-1).tolist(),
+                    **{k: [] for k in _EMPTY_PARTS},
+                }
                 for person in kp[t]
                 if np.any(person[:, 2] > 0)
             ]
@@ -222,7 +253,9 @@ def normalise_view_name(name: str) -> tuple[str, ...]:
     return tuple(str(int(t)) if t.isdigit() else t for t in tokens if t != "json")
 
 
-def align_views(recording: KeypointRecording, cameras: Sequence[CalibratedCamera]) -> list[CalibratedCamera]:
+def align_views(
+    recording: KeypointRecording, cameras: Sequence[CalibratedCamera]
+) -> list[CalibratedCamera]:
     """The cameras of `recording.views`, in that order, matched by name.
 
     A view matches the camera of the same name, or else the one camera whose
@@ -247,7 +280,9 @@ def align_views(recording: KeypointRecording, cameras: Sequence[CalibratedCamera
             out[i] = match[0]
             used.add(match[0].name)
         else:
-            problems.append(f"{view!r} ({'ambiguous: ' + str([c.name for c in match]) if match else 'no camera'})")
+            problems.append(
+                f"{view!r} ({'ambiguous: ' + str([c.name for c in match]) if match else 'no camera'})"
+            )
     if problems:
         raise ValueError(
             f"align_views: keypoint views {list(recording.views)} do not match calibration cameras "
@@ -259,8 +294,14 @@ def align_views(recording: KeypointRecording, cameras: Sequence[CalibratedCamera
         if cam.width <= 0 or not seen.any():
             continue
         u, v = kp[..., 0][seen], kp[..., 1][seen]
-        margin = 2.0 + 0.005 * max(cam.width, cam.height)  # OpenPose never reports points outside the image
-        if u.max() > cam.width - 0.5 + margin or v.max() > cam.height - 0.5 + margin or min(u.min(), v.min()) < -0.5 - margin:
+        margin = 2.0 + 0.005 * max(
+            cam.width, cam.height
+        )  # OpenPose never reports points outside the image
+        if (
+            u.max() > cam.width - 0.5 + margin
+            or v.max() > cam.height - 0.5 + margin
+            or min(u.min(), v.min()) < -0.5 - margin
+        ):
             raise ValueError(
                 f"align_views: view {view!r} has detections in u {u.min():.0f}..{u.max():.0f}, "
                 f"v {v.min():.0f}..{v.max():.0f} px, outside "
