@@ -171,7 +171,9 @@ def camera_imu(R, t, fps: float) -> IMUReadings:
 def _dist5(dist) -> np.ndarray:
     d = np.asarray(dist, np.float64).reshape(-1)
     if d.size not in (0, 4, 5):
-        raise ValueError(f"dist must hold 4 or 5 OpenCV coefficients (k1, k2, p1, p2[, k3]); got {d.size}.")
+        raise ValueError(
+            f"dist must hold 4 or 5 OpenCV coefficients (k1, k2, p1, p2[, k3]); got {d.size}."
+        )
     return np.concatenate([d, np.zeros(5 - d.size)])
 
 
@@ -182,9 +184,9 @@ def distort_points(xy, dist) -> np.ndarray:
     x, y = xy[..., 0], xy[..., 1]
     r2 = x * x + y * y
     radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
-    return np.stack(
-        [x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x), y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y], -1
-    )
+    x_d = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
+    y_d = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+    return np.stack([x_d, y_d], -1)
 
 
 def _distort_jacobian(x, y, d) -> np.ndarray:
@@ -232,7 +234,13 @@ def undistort_pixels(uv, K, dist, iterations: int = 20) -> np.ndarray:
             break
     ok = np.all(np.abs(distort_points(xy, d) - target) < 1e-9, -1)
     xy = np.where(ok[..., None], xy, np.nan)
-    return np.stack([K[0, 0] * xy[..., 0] + K[0, 1] * xy[..., 1] + K[0, 2], K[1, 1] * xy[..., 1] + K[1, 2]], -1)
+    return _to_pixels(K, xy)
+
+
+def _to_pixels(K, xy):
+    """K applied to normalised coordinates (..., 2) -> pixels (..., 2)."""
+    u = K[0, 0] * xy[..., 0] + K[0, 1] * xy[..., 1] + K[0, 2]
+    return np.stack([u, K[1, 1] * xy[..., 1] + K[1, 2]], -1)
 
 
 def project_points(K, dist, R, t, points) -> tuple[np.ndarray, np.ndarray]:
@@ -247,5 +255,4 @@ def project_points(K, dist, R, t, points) -> tuple[np.ndarray, np.ndarray]:
     safe = np.where(np.abs(z) < 1e-12, 1e-12, z)
     xy = distort_points(pc[..., :2] / safe[..., None], dist)
     K = np.asarray(K, np.float64)
-    uv = np.stack([K[0, 0] * xy[..., 0] + K[0, 1] * xy[..., 1] + K[0, 2], K[1, 1] * xy[..., 1] + K[1, 2]], -1)
-    return uv, z
+    return _to_pixels(K, xy), z

@@ -1,4 +1,4 @@
-"""2D keypoints: COCO-18 / OpenPose BODY_25 / BODY_25B regressors on the body and a detector error model.
+"""2D keypoints: COCO-18 / BODY_25 / BODY_25B regressors on the body and a detector error model.
 
 Regressor: a (K, V) matrix 𝒦 with keypoints = 𝒦 · vertices (posed mesh), built per body
 from its rest mesh:
