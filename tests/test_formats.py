@@ -532,3 +532,25 @@ def test_wrong_image_size_is_caught_where_it_shows(tmp_path):
     write_openpose(tmp_path / "kp", ["cam01", "cam02"], [kp, kp * 0], "body25")
     with pytest.raises(ValueError, match=r"view 'cam01'.*outside camera 'cam01''s 640 x 360 image"):
         align_views(read_openpose(tmp_path / "kp", "body25"), small)
+
+
+def test_select_person_keeps_a_noisy_subject_with_swapped_legs(tmp_path):
+    rng = np.random.default_rng(5)
+    cams = _rig(3, seed=6)
+    subject, other = _body(rng, np.array([0.3, 0.9, 0.2])), _body(rng, np.array([1.0, 0.9, -0.3]))
+    T = 4
+    kps = [np.zeros((T, 2, 25, 3)) for _ in cams]
+    for v, cam in enumerate(cams):
+        for t in range(T):
+            for slot, X in ((v % 2, subject), (1 - v % 2, other)):
+                kps[v][t, slot, :, :2] = _pixel(cam, X + 0.01 * t) + rng.normal(0, 2.0, (25, 2))
+                kps[v][t, slot, :, 2] = rng.uniform(0.5, 1.0, 25)
+            kps[v][t, 1 - v % 2, ::3] = 0.0  # the other person is partly hidden: less support
+    left, right = [12, 13, 14], [9, 10, 11]  # BODY_25 legs
+    kps[0][1, 0, left + right] = kps[0][1, 0, right + left]  # cam01 swaps the subject's legs in frame 1
+    write_openpose(tmp_path, [c.name for c in cams], kps, "body25")
+    out = select_person(read_openpose(tmp_path, "body25"), cams)
+    for v, cam in enumerate(cams):  # the subject's own detections, swap and all, undistorted
+        expected = undistort_pixels(kps[v][:, v % 2, :, :2], cam.K, cam.dist)
+        np.testing.assert_allclose(out[v, ..., :2], expected, atol=1e-6)
+        np.testing.assert_array_equal(out[v, ..., 2], kps[v][:, v % 2, :, 2])
