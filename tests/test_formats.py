@@ -190,6 +190,17 @@ def test_easymocap_fixture_matches_and_either_file_or_folder_reads(tmp_path):
         np.testing.assert_allclose(_pixel(b, POINT), PIXEL_B, atol=1e-9)
 
 
+def test_easymocap_names_that_look_like_numbers_stay_strings(tmp_path):
+    cams = [
+        CalibratedCamera(n, c.K, c.dist, c.R, c.t, 1280, 720) for n, c in zip(("01", "02"), _rig(2))
+    ]
+    save_calibration(tmp_path, cams, "easymocap")
+    for f in ("intri.yml", "extri.yml"):  # as OpenCV writes them: names unquoted
+        text = (tmp_path / f).read_bytes().replace(b'- "01"', b"- 01").replace(b'- "02"', b"- 02")
+        (tmp_path / f).write_bytes(text)
+    assert [c.name for c in load_calibration(tmp_path)] == ["01", "02"]
+
+
 def _rig(num_views=4, width=1280, height=720, seed=0):
     rng = np.random.default_rng(seed)
     R, t = ring_cameras(num_views, 4.0, 1.5, [0.3, 0.9, 0.2], start_angle=0.3)
@@ -445,6 +456,14 @@ def test_view_names_match_exactly_then_normalised_else_both_sets_are_listed(tmp_
     rec = read_openpose(tmp_path / "a", "body25", views=["Cam_3", "cam1_json", "CAM02"])
     assert [c.name for c in align_views(rec, cams)] == ["cam03", "cam01", "cam02"]
     assert normalise_view_name("cam01") == normalise_view_name("Cam_1") == ("cam", "1")
+    # Pose2Sim names intrinsic calibrations after the image folders: matched by camera number
+    numbered = [
+        CalibratedCamera(f"int_cam{i:02d}_img", c.K, c.dist, c.R, c.t, 1280, 720)
+        for i, c in enumerate(cams, 1)
+    ]
+    write_openpose(tmp_path / "p2s", ["cam02_json", "cam01_json"], kp[:2], "body25")
+    rec = read_openpose(tmp_path / "p2s", "body25", views=["cam02_json", "cam01_json"])
+    assert [c.name for c in align_views(rec, numbered)] == ["int_cam02_img", "int_cam01_img"]
     write_openpose(tmp_path / "b", ["left", "cam01"], kp[:2], "body25")
     rec = read_openpose(tmp_path / "b", "body25")
     with pytest.raises(
@@ -547,7 +566,9 @@ def test_select_person_keeps_a_noisy_subject_with_swapped_legs(tmp_path):
                 kps[v][t, slot, :, 2] = rng.uniform(0.5, 1.0, 25)
             kps[v][t, 1 - v % 2, ::3] = 0.0  # the other person is partly hidden: less support
     left, right = [12, 13, 14], [9, 10, 11]  # BODY_25 legs
-    kps[0][1, 0, left + right] = kps[0][1, 0, right + left]  # cam01 swaps the subject's legs in frame 1
+    kps[0][1, 0, left + right] = kps[0][
+        1, 0, right + left
+    ]  # cam01 swaps the subject's legs in frame 1
     write_openpose(tmp_path, [c.name for c in cams], kps, "body25")
     out = select_person(read_openpose(tmp_path, "body25"), cams)
     for v, cam in enumerate(cams):  # the subject's own detections, swap and all, undistorted

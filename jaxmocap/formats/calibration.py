@@ -477,6 +477,13 @@ def _write_qualisys(path: Path, cameras) -> None:
 # ------------------------------------------------------------------- EasyMocap (OpenCV YAML)
 
 
+def _yaml_string(text: str) -> str:
+    """A list item as written ("01" stays "01": camera names are not numbers)."""
+    text = text.strip()
+    quoted = len(text) >= 2 and text[0] == text[-1] and text[0] in "\"'"
+    return text[1:-1] if quoted else text
+
+
 def _yaml_scalar(text: str):
     text = text.strip()
     if len(text) >= 2 and text[0] == text[-1] and text[0] in "\"'":
@@ -558,14 +565,14 @@ def _parse_opencv_yaml(path: Path) -> dict:
         elif rest == "":
             items = []
             while i < len(lines) and lines[i].strip().startswith("-"):
-                items.append(_yaml_scalar(lines[i].strip()[1:]))
+                items.append(_yaml_string(lines[i].strip()[1:]))
                 i += 1
             out[key] = items
         elif rest.startswith("["):
             while "]" not in rest and i < len(lines):
                 rest += " " + lines[i].strip()
                 i += 1
-            out[key] = [_yaml_scalar(x) for x in _flow_items(rest)]
+            out[key] = [_yaml_string(x) for x in _flow_items(rest)]
         else:
             out[key] = _yaml_scalar(rest)
     return out

@@ -253,50 +253,66 @@ def normalise_view_name(name: str) -> tuple[str, ...]:
     return tuple(str(int(t)) if t.isdigit() else t for t in tokens if t != "json")
 
 
+def _camera_number(name: str) -> int | None:
+    numbers = re.findall(r"\d+", name)
+    return int(numbers[0]) if len(numbers) == 1 else None
+
+
 def align_views(
     recording: KeypointRecording, cameras: Sequence[CalibratedCamera]
 ) -> list[CalibratedCamera]:
     """The cameras of `recording.views`, in that order, matched by name.
 
-    A view matches the camera of the same name, or else the one camera whose
-    `normalise_view_name` key is equal. Cameras without a view are left out. Raises
-    ValueError listing both name sets when a view has no (or no unique) camera, or when a
-    view's detections fall outside its camera's image (a wrong image size or camera).
+    A view takes, in this order of rules: the camera of the same name; the one camera with
+    an equal `normalise_view_name` key ("cam01" == "Cam_1" == "cam1_json"); the one camera
+    with the same number, when every name on both sides carries exactly one number and no
+    number repeats (Pose2Sim's "int_cam01_img" calibration for the "cam01_json" folder).
+    Cameras without a view are left out. Raises ValueError listing both name sets when a
+    view has no (or no unique) camera, or when a view's detections fall outside its
+    camera's image (a wrong image size or camera).
     """
     cameras = list(cameras)
     by_name = {c.name: c for c in cameras}
     out: list[CalibratedCamera | None] = [by_name.get(v) for v in recording.views]
     used = {c.name for c in out if c is not None}
-    keys: dict[tuple, list[CalibratedCamera]] = {}
-    for c in cameras:
-        if c.name not in used:
-            keys.setdefault(normalise_view_name(c.name), []).append(c)
-    problems = []
-    for i, view in enumerate(recording.views):
-        if out[i] is not None:
-            continue
-        match = keys.get(normalise_view_name(view), [])
-        if len(match) == 1 and match[0].name not in used:
-            out[i] = match[0]
-            used.add(match[0].name)
-        else:
-            problems.append(
-                f"{view!r} ({'ambiguous: ' + str([c.name for c in match]) if match else 'no camera'})"
-            )
+    rules = [normalise_view_name]
+    numbers = [_camera_number(n) for n in [*recording.views, *(c.name for c in cameras)]]
+    unique = len(set(numbers[: len(recording.views)])) == len(recording.views) and len(
+        set(numbers[len(recording.views) :])
+    ) == len(cameras)
+    if None not in numbers and unique:
+        rules.append(_camera_number)
+    problems: dict[int, str] = {}
+    for rule in rules:
+        keys: dict = {}
+        for c in cameras:
+            if c.name not in used:
+                keys.setdefault(rule(c.name), []).append(c)
+        for i, view in enumerate(recording.views):
+            if out[i] is not None:
+                continue
+            match = keys.get(rule(view), [])
+            if len(match) == 1 and match[0].name not in used:
+                out[i] = match[0]
+                used.add(match[0].name)
+                problems.pop(i, None)
+            else:
+                names = [c.name for c in match]
+                problems[i] = f"{view!r} ({f'ambiguous: {names}' if match else 'no camera'})"
     if problems:
         raise ValueError(
             f"align_views: keypoint views {list(recording.views)} do not match calibration cameras "
-            f"{[c.name for c in cameras]}: {', '.join(problems)}. Rename the folders or the cameras "
-            "(names match exactly, or ignoring case, separators, leading zeros and 'json')."
+            f"{[c.name for c in cameras]}: {', '.join(problems.values())}. Rename the folders or "
+            "the cameras (names match exactly, or ignoring case, separators, leading zeros and "
+            "'json', or by their one camera number)."
         )
     for view, cam, kp in zip(recording.views, out, recording.keypoints):
         seen = kp[..., 2] > 0
         if cam.width <= 0 or not seen.any():
             continue
         u, v = kp[..., 0][seen], kp[..., 1][seen]
-        margin = 2.0 + 0.005 * max(
-            cam.width, cam.height
-        )  # OpenPose never reports points outside the image
+        # OpenPose never reports points outside the image
+        margin = 2.0 + 0.005 * max(cam.width, cam.height)
         if (
             u.max() > cam.width - 0.5 + margin
             or v.max() > cam.height - 0.5 + margin
