@@ -77,7 +77,8 @@ class CalibratedCamera:
 
     name: the camera's name in the file (matched to keypoint folders by `align_views`).
     K: (3, 3) intrinsics in pixels; dist: (5,) k1, k2, p1, p2, k3 (zeros = none).
-    R: (3, 3) world-to-camera rotation; t: (3,) metres; p_c = R p_w + t.
+    R: (3, 3) world-to-camera rotation (the nearest exact rotation to the one given, which
+        must be orthonormal to 1e-4); t: (3,) metres; p_c = R p_w + t.
     width, height: image size in pixels (0 when the file does not say).
     """
 
@@ -110,12 +111,7 @@ class CalibratedCamera:
                 f"{where}: distortion must have 4 or 5 OpenCV coefficients (k1, k2, p1, p2[, k3]); "
                 f"got {dist.size}: {dist.tolist()} (rational/thin-prism models are not supported)."
             )
-        if not (
-            np.all(np.isfinite(K))
-            and np.all(np.isfinite(R))
-            and np.all(np.isfinite(t))
-            and np.all(np.isfinite(dist))
-        ):
+        if not all(np.isfinite(a).all() for a in (K, R, t, dist)):
             raise ValueError(f"{where}: K, dist, R and t must be finite.")
         if (
             K[0, 0] <= 0
@@ -127,10 +123,13 @@ class CalibratedCamera:
             raise ValueError(
                 f"{where}: K must be [[fx, s, cx], [0, fy, cy], [0, 0, 1]] with fx, fy > 0; got {K.tolist()}."
             )
-        if np.abs(R @ R.T - np.eye(3)).max() > 1e-5 or np.linalg.det(R) < 0:
+        if np.abs(R @ R.T - np.eye(3)).max() > 1e-4 or np.linalg.det(R) < 0:
             raise ValueError(
                 f"{where}: R is not a rotation matrix (RRᵀ ≠ I or det < 0): {R.tolist()}."
             )
+        # files round R to ~6 decimals (QTM, EasyMocap's Rot_): use the nearest rotation
+        U, _, Vt = np.linalg.svd(R)
+        R = U @ Vt
         width, height = int(self.width), int(self.height)
         if width < 0 or height < 0 or (width == 0) != (height == 0):
             raise ValueError(
