@@ -490,6 +490,16 @@ def test_body25_file_read_as_coco18_says_which_layout_fits(tmp_path):
         match=r"cam01_000000000000_keypoints\.json.*75 numbers.*'coco18' expects 54.*'body25' or 'body25b'",
     ):
         read_openpose(tmp_path, "coco18")
+    halpe = tmp_path / "halpe" / "cam01"
+    halpe.mkdir(parents=True)
+    (halpe / "cam01_000000000000_keypoints.json").write_text(
+        json.dumps({"people": [{"pose_keypoints_2d": [1.0] * 78}]})
+    )
+    with pytest.raises(
+        KeypointFileError,
+        match=r"78 numbers.*no known layout has 78 numbers \(body25: 75, body25b: 75, coco18: 54\)",
+    ):
+        read_openpose(tmp_path / "halpe", "body25")
     with pytest.raises(KeypointFileError, match="layout='body_25' is not known"):
         read_openpose(tmp_path, "body_25")
 
@@ -575,3 +585,18 @@ def test_select_person_keeps_a_noisy_subject_with_swapped_legs(tmp_path):
         expected = undistort_pixels(kps[v][:, v % 2, :, :2], cam.K, cam.dist)
         np.testing.assert_allclose(out[v, ..., :2], expected, atol=1e-6)
         np.testing.assert_array_equal(out[v, ..., 2], kps[v][:, v % 2, :, 2])
+
+
+def test_formats_is_the_data_layer_and_imports_no_observation_models():
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    code = "import sys, jaxmocap.formats; print(' '.join(m for m in sys.modules if m.startswith('jaxmocap.')))"
+    root = Path(__file__).resolve().parents[1]  # this checkout, not an installed copy
+    loaded = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=root
+    ).stdout
+    assert "jaxmocap.formats.openpose" in loaded.split()
+    layers = {m.split(".")[1] for m in loaded.split()}
+    assert not layers & {"sensors", "energies", "methods", "priors", "solve"}

@@ -108,7 +108,9 @@ def _read_people(path: Path, layout: str) -> list[np.ndarray]:
                 f"the layout that fits is {' or '.join(map(repr, fits))}"
                 if fits
                 else (
-                    f"no known layout has {len(flat)} numbers ({sorted(KEYPOINT_COUNTS.items())} keypoints x 3)"
+                    f"no known layout has {len(flat)} numbers ("
+                    + ", ".join(f"{n}: {3 * k}" for n, k in KEYPOINT_COUNTS.items())
+                    + ")"
                 )
             )
             raise KeypointFileError(
