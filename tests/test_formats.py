@@ -163,6 +163,7 @@ T_cam_b: !!opencv-matrix
 def test_pose2sim_toml_fixture_projects_to_the_hand_computed_pixels(tmp_path):
     path = tmp_path / "Calib.toml"
     path.write_text(TOML)
+    assert [c.name for c in load_calibration(tmp_path)] == ["cam_a", "cam_b"]  # its folder
     a, b = load_calibration(path)
     assert (a.name, b.name, a.width, a.height) == ("cam_a", "cam_b", 1280, 720)
     np.testing.assert_allclose(_pixel(a, POINT), PIXEL_A, atol=1e-9)

@@ -180,7 +180,8 @@ def _infer_format(path: Path) -> str:
         if (path / "intri.yml").exists() or (path / "extri.yml").exists():
             return "easymocap"
         raise CalibrationError(
-            f"{path}: a folder is read as an EasyMocap calibration, but it holds no intri.yml/extri.yml."
+            f"{path}: a folder is read as an EasyMocap calibration, but it holds no "
+            "intri.yml/extri.yml; give the calibration file itself."
         )
     if name.endswith(".toml"):
         return "pose2sim"
@@ -201,11 +202,15 @@ def _infer_format(path: Path) -> str:
     )
 
 
+_CALIBRATION_SUFFIXES = (".toml", ".qca.txt", ".npz")
+
+
 def load_calibration(path, format: str | None = None) -> list[CalibratedCamera]:
     """Cameras of a calibration file, in the file's order (module docstring: formats).
 
     Args:
-        path: the file (EasyMocap: intri.yml, extri.yml or their folder).
+        path: the file (EasyMocap: intri.yml, extri.yml or their folder), or a folder
+            holding exactly one .toml / .qca.txt / .npz calibration.
         format: "pose2sim" | "qualisys" | "easymocap" | "npz"; None infers it.
     Raises:
         CalibrationError naming the file and what is wrong.
@@ -217,6 +222,17 @@ def load_calibration(path, format: str | None = None) -> list[CalibratedCamera]:
         )
     if not path.exists():
         raise CalibrationError(f"{path}: no such file or folder.")
+    if path.is_dir() and format != "easymocap" and not (path / "intri.yml").exists():
+        # a calibration folder (Pose2Sim's calibration/) holding a single calibration file
+        found = [
+            p for p in sorted(path.iterdir()) if p.name.lower().endswith(_CALIBRATION_SUFFIXES)
+        ]
+        if len(found) != 1:
+            raise CalibrationError(
+                f"{path}: a folder needs intri.yml + extri.yml (EasyMocap) or exactly one "
+                f"calibration file ({', '.join(_CALIBRATION_SUFFIXES)}); found {[p.name for p in found]}."
+            )
+        path = found[0]
     format = format or _infer_format(path)
     cameras = {
         "pose2sim": _read_toml,
@@ -233,7 +249,11 @@ def load_calibration(path, format: str | None = None) -> list[CalibratedCamera]:
 
 
 def save_calibration(path, cameras, format: str) -> None:
-    """Write `cameras` in one of the real layouts (EasyMocap: `path` is the folder)."""
+    """Write `cameras` in one of the real layouts.
+
+    `path` is the file; for EasyMocap the folder that gets intri.yml and extri.yml (or
+    either of those two files' path).
+    """
     path = Path(path)
     if format not in FORMATS:
         raise CalibrationError(
