@@ -253,6 +253,18 @@ def test_hand_written_fixtures_survive_every_writer(tmp_path):
         np.testing.assert_allclose(_pixel(b, POINT), PIXEL_B, atol=1e-9)
 
 
+def test_pinhole_camera_moves_opencv_pixels_to_jaxmocap_pixel_centres():
+    from jaxmocap.sensors.camera import pinhole_camera, project
+
+    cam = _rig(1)[0]
+    pin = pinhole_camera(cam)
+    X = np.array([[0.3, 1.0, 0.2], [0.5, 0.4, -0.1]])
+    ideal = undistort_pixels(_pixel(cam, X), cam.K, cam.dist)  # OpenCV: centres at integers
+    uv, _ = project(pin.K, pin.R, pin.t, X)
+    np.testing.assert_allclose(np.asarray(uv), ideal + 0.5, atol=1e-9)
+    assert (pin.width, pin.height) == (1280, 720)
+
+
 # ---------------------------------------------------------------------------- lens model
 
 

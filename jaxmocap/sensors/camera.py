@@ -31,6 +31,7 @@ __all__ = [
     "distort_points",
     "undistort_pixels",
     "project_points",
+    "pinhole_camera",
 ]
 
 
@@ -256,3 +257,24 @@ def project_points(K, dist, R, t, points) -> tuple[np.ndarray, np.ndarray]:
     xy = distort_points(pc[..., :2] / safe[..., None], dist)
     K = np.asarray(K, np.float64)
     return _to_pixels(K, xy), z
+
+
+def pinhole_camera(calibrated) -> Camera:
+    """jaxmocap's `Camera` of a real calibration (`jaxmocap.formats.CalibratedCamera`).
+
+    Pixel conventions differ by half a pixel: OpenCV, OpenPose and the calibration files
+    put pixel centres at integers, jaxmocap's `project` and rasteriser at integer + 0.5.
+    The principal point is shifted by +0.5 so that projecting with this camera lands on
+    the detection's pixel + 0.5; compare it with `uv + 0.5` of undistorted detections
+    (`jaxmocap.sensors.triangulation.select_person`). The lens distortion is not part of
+    `Camera`: work with undistorted pixels.
+    """
+    if calibrated.width <= 0:
+        raise ValueError(
+            f"camera {calibrated.name!r}: the calibration gives no image size; "
+            "set it with dataclasses.replace(camera, width=..., height=...)."
+        )
+    K = np.array(calibrated.K, np.float64)
+    K[:2, 2] += 0.5
+    R, t = jnp.asarray(calibrated.R), jnp.asarray(calibrated.t)
+    return Camera(K=jnp.asarray(K), R=R, t=t, width=calibrated.width, height=calibrated.height)
