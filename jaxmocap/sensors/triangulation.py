@@ -176,8 +176,10 @@ def select_person(
     out = np.zeros((V, T, K, 3))
     if V == 1:
         return _follow_2d(dets[0])[None]
-    if min_views < 2:
-        raise ValueError(f"select_person: min_views must be >= 2 with {V} views (got {min_views}).")
+    if not 2 <= min_views <= V:
+        raise ValueError(
+            f"select_person: min_views must be in 2..{V} with {V} views (got {min_views})."
+        )
     P = projection_matrices(cams)
     tau = max_error * np.array([0.5 * (c.K[0, 0] + c.K[1, 1]) for c in cams])  # (V,) px
     previous, gap = None, 1
