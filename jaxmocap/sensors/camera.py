@@ -76,7 +76,8 @@ def project(K: Array, R: Array, t: Array, points: Array) -> tuple[Array, Array]:
     """Pixels and depths of world points (eq. 4.4).
 
     Args:
-        K: (3, 3); R: (..., 3, 3); t: (..., 3) world-to-camera; points: (..., N, 3).
+        K: (..., 3, 3); R: (..., 3, 3); t: (..., 3) world-to-camera; points: (..., N, 3);
+        leading axes broadcast (e.g. K, R (V, 1, 3, 3) against points (T, N, 3)).
     Returns:
         uv (..., N, 2) pixel coordinates (pixel centres at integer + 0.5) and depth
         z^c (..., N); points behind the camera get z <= 0 and meaningless uv.
@@ -85,7 +86,7 @@ def project(K: Array, R: Array, t: Array, points: Array) -> tuple[Array, Array]:
     z = pc[..., 2]
     safe = jnp.where(jnp.abs(z) < 1e-9, 1e-9, z)
     xy = pc[..., :2] / safe[..., None]
-    uv = jnp.einsum("ab,...nb->...na", K[:2, :2], xy) + K[:2, 2]
+    uv = jnp.einsum("...ab,...nb->...na", K[..., :2, :2], xy) + K[..., None, :2, 2]
     return uv, z
 
 

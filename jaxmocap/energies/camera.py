@@ -1,0 +1,252 @@
+"""Camera energies of Multi-view SMPLify (Huang §4.3): keypoints, silhouettes, DCT prior.
+
+Every term reads the shared posed body (`posed.posed_body`) and the `CameraData` of
+calibrated, static views; all are per frame (bandwidth 0), so a sequence is solved as
+one batch of independent frames (stage 1) or tied only through per-window DCT
+coefficients (stage 2).
+
+- E_J (eq. 4.3-4.4): Σ_views Σ_i w_i c_i ρ_σ(Π_K(J_i) - Ĵ_i), Geman-McClure ρ on the 2-D
+  residual's norm, c_i the detector's confidence, w_i a per-keypoint weight. Choice: ρ is
+  applied to the 2-D vector (not per coordinate) and scaled as in `solve.GemanMcClure`
+  (ρ(s) = σ²s/(σ²+s), i.e. Huang's ρ times σ², so weights keep their meaning near 0).
+- E_S (eq. 4.5): Σ_{x∈Ŝ} l(x, U)² + Σ_{x∈U} l(x, Ŝ).
+  First sum: the model's projected vertices stand for the points of Ŝ; l(x, U) is read
+  from the Euclidean distance transform of the observed mask (0 inside U), bilinearly
+  interpolated so it is differentiable in x. Second sum: M points sampled from the mask;
+  l(x, Ŝ) is the distance to the nearest projected model vertex (the argmin is taken
+  without gradient: the derivative of a minimum is that of its minimiser almost
+  everywhere), with a Huber loss of δ = 1 px giving the L1 tails of eq. 4.5 and a
+  smooth core. Both choices sample Ŝ by vertices instead of pixels; a vertex spacing of
+  1-2 px at our image sizes bounds the difference.
+- E_T (eq. 4.7-4.8): every 3-D joint coordinate trajectory of a window against its
+  reconstruction B c from the first `num_dct` DCT-II basis vectors, ρ_σ2 per coordinate.
+- E_β: ‖β‖² (shape coefficients are unit-variance PCA coordinates); E_θ: the Gaussian
+  pose prior of `priors` (a single Gaussian where SMPLify used a mixture).
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax import Array
+from scipy.ndimage import distance_transform_edt
+
+from ..body.model import Body
+from ..priors.pose_prior import PosePrior
+from ..sensors.camera import project
+from ..sensors.keypoints import regress_keypoints
+from ..solve import GemanMcClure, Huber, Term, Windows, window
+from .imu import mahalanobis_term
+from .posed import posed_body
+
+__all__ = [
+    "CameraData",
+    "Silhouettes",
+    "silhouette_data",
+    "dct_basis",
+    "keypoint_term",
+    "silhouette_terms",
+    "shape_term",
+    "pose_prior_term",
+    "dct_window",
+    "temporal_term",
+    "dct_coefficients",
+]
+
+
+class Silhouettes(eqx.Module):
+    """Observed masks of every frame and view, prepared for E_S (`silhouette_data`).
+
+    distance: (T, V, H, W) distance in px from each pixel to the mask (0 inside).
+    points: (T, V, M, 2) pixel centres sampled from the mask; valid: (T, V, M).
+    """
+
+    distance: Array
+    points: Array
+    valid: Array
+
+
+def silhouette_data(masks: np.ndarray, num_points: int = 256, seed: int = 0) -> Silhouettes:
+    """`Silhouettes` from boolean masks (T, V, H, W); an empty mask contributes nothing."""
+    masks = np.asarray(masks, bool)
+    if masks.ndim != 4:
+        raise ValueError(f"masks must be (T, V, H, W) booleans, got shape {masks.shape}.")
+    T, V, H, W = masks.shape
+    rng = np.random.default_rng(seed)
+    distance = np.zeros(masks.shape, np.float32)
+    points = np.zeros((T, V, num_points, 2), np.float32)
+    valid = np.zeros((T, V, num_points), bool)
+    for t in range(T):
+        for v in range(V):
+            m = masks[t, v]
+            ys, xs = np.nonzero(m)
+            if len(xs) == 0:
+                continue  # no observation: distance 0 everywhere and no points
+            distance[t, v] = distance_transform_edt(~m)
+            pick = rng.choice(len(xs), min(num_points, len(xs)), replace=False)
+            points[t, v, : len(pick)] = np.stack([xs[pick] + 0.5, ys[pick] + 0.5], -1)
+            valid[t, v, : len(pick)] = True
+    return Silhouettes(jnp.asarray(distance), jnp.asarray(points), jnp.asarray(valid))
+
+
+class CameraData(eqx.Module):
+    """Observations of calibrated static views and what the camera terms need.
+
+    body: the body model; prior: the pose prior; regressor: (K, N) keypoint regressor
+    (`sensors.keypoint_regressor`) mapping mesh vertices to the detector's keypoints.
+    K, R, t: (V, 3, 3), (V, 3, 3), (V, 3) intrinsics and world-to-camera extrinsics
+    (undistorted pixels: apply `undistort_pixels` to detections first).
+    keypoints: (T, V, K, 2) pixels; confidence: (T, V, K), 0 = missing (NaN keypoints
+    are masked as well). joint_weights: (K,) w_i. betas: (B,) fixed shape (stage 2) or
+    None (shape is an unknown). silhouettes: `Silhouettes` or None.
+    """
+
+    body: Body
+    prior: PosePrior
+    regressor: Array
+    K: Array
+    R: Array
+    t: Array
+    keypoints: Array
+    confidence: Array
+    joint_weights: Array
+    betas: Array | None = None
+    silhouettes: Silhouettes | None = None
+
+    @property
+    def num_frames(self) -> int:
+        return self.keypoints.shape[0]
+
+
+def _posed(params, data: CameraData):
+    betas = params["betas"] if "betas" in params else data.betas
+    return posed_body(params, data.body, betas)
+
+
+def _views(data: CameraData, points: Array) -> tuple[Array, Array]:
+    """Project (T, N, 3) world points into every view: uv (T, V, N, 2), depth (T, V, N)."""
+    return project(data.K[None], data.R[None], data.t[None], points[:, None])
+
+
+def keypoint_term(sigma: float = 100.0, weight: float = 1.0) -> Term:
+    """E_J (eq. 4.3): confidence-weighted Geman-McClure reprojection error, (T, V, K, 2)."""
+    loss = GemanMcClure(sigma)
+
+    def fn(params, data: CameraData):
+        kp = regress_keypoints(data.regressor, _posed(params, data).vertices)
+        uv, _ = _views(data, kp)
+        scale = jnp.sqrt(data.confidence * data.joint_weights)[..., None]
+        return scale * loss(uv - data.keypoints)
+
+    def mask(data: CameraData):
+        return (data.confidence > 0) & jnp.all(jnp.isfinite(data.keypoints), -1)
+
+    return Term("keypoints", fn, weight, mask=mask)
+
+
+def _bilinear(image: Array, uv: Array) -> Array:
+    """image (H, W) at continuous pixel coordinates uv (..., 2) (centres at +0.5);
+    outside the image the border value plus the distance to the image."""
+    H, W = image.shape
+    x = uv[..., 0] - 0.5
+    y = uv[..., 1] - 0.5
+    xc, yc = jnp.clip(x, 0.0, W - 1.0), jnp.clip(y, 0.0, H - 1.0)
+    x0 = jnp.clip(jnp.floor(xc), 0, W - 2).astype(jnp.int32)
+    y0 = jnp.clip(jnp.floor(yc), 0, H - 2).astype(jnp.int32)
+    fx, fy = xc - x0, yc - y0
+    v00, v01 = image[y0, x0], image[y0, x0 + 1]
+    v10, v11 = image[y0 + 1, x0], image[y0 + 1, x0 + 1]
+    inner = (1 - fy) * ((1 - fx) * v00 + fx * v01) + fy * ((1 - fx) * v10 + fx * v11)
+    return inner + jnp.abs(x - xc) + jnp.abs(y - yc)
+
+
+def silhouette_terms(w_model: float = 1.0, w_mask: float = 1.0, stride: int = 1) -> list[Term]:
+    """E_S (eq. 4.5) as two terms: model→mask (squared) and mask→model (L1 tails).
+
+    `stride` keeps every stride-th vertex as a model point (fewer residuals, faster).
+    """
+    huber = Huber(1.0)
+
+    def model_points(params, data: CameraData):
+        verts = _posed(params, data).vertices[:, ::stride]
+        uv, _ = _views(data, verts)  # (T, V, N, 2)
+        dist = jax.vmap(jax.vmap(_bilinear))(data.silhouettes.distance, uv)
+        return dist[..., None]  # (T, V, N, 1)
+
+    def mask_points(params, data: CameraData):
+        verts = _posed(params, data).vertices[:, ::stride]
+        uv, _ = _views(data, verts)  # (T, V, N, 2)
+        x = data.silhouettes.points  # (T, V, M, 2)
+        d2 = jnp.sum((x[..., :, None, :] - jax.lax.stop_gradient(uv)[..., None, :, :]) ** 2, -1)
+        nearest = jnp.argmin(d2, -1)  # (T, V, M)
+        closest = jnp.take_along_axis(uv, nearest[..., None], axis=-2)
+        return huber(x - closest)  # (T, V, M, 2)
+
+    def has_mask(data: CameraData):
+        return jnp.any(data.silhouettes.valid, -1)[..., None]  # (T, V, 1)
+
+    def point_valid(data: CameraData):
+        return data.silhouettes.valid
+
+    return [
+        Term("silhouette_model", model_points, w_model, mask=has_mask),
+        Term("silhouette_mask", mask_points, w_mask, mask=point_valid),
+    ]
+
+
+def shape_term(weight: float = 1.0) -> Term:
+    """E_β = ‖β‖² per frame (stage 1, where every frame has its own β)."""
+    return Term("shape", lambda params, data: params["betas"], weight, reads=(("betas", None),))
+
+
+def pose_prior_term(weight: float = 1.0) -> Term:
+    """E_θ: the Gaussian pose prior over the 23 non-root joints (eq. 4.2)."""
+    term = mahalanobis_term(1.0, 1.0)
+    return Term("pose_prior", term.fn, weight, reads=term.reads, jacobian=term.jacobian)
+
+
+def dct_basis(length: int, num: int) -> np.ndarray:
+    """B (length, num): the first `num` orthonormal DCT-II basis vectors as columns."""
+    n, k = np.arange(length)[:, None], np.arange(num)[None, :]
+    B = np.cos(np.pi * (n + 0.5) * k / length) * np.sqrt(2.0 / length)
+    B[:, 0] /= np.sqrt(2.0)
+    return B
+
+
+def dct_window(length: int = 30, stride: int | None = None):
+    """The per-window unknown of the DCT coefficients: non-overlapping windows of `length`
+    frames (Huang §4.3.3: 30-frame units), or overlapping ones with a smaller stride."""
+    return window(length, length if stride is None else stride)
+
+
+def temporal_term(windows: Windows, num_dct: int = 10, sigma: float = 0.05, weight: float = 1.0) -> Term:
+    """E_T (eq. 4.8): joints (T, J, 3) per window against B c, c = params["coef"]
+    (W, num_dct, J, 3); ρ_σ per coordinate (σ in metres)."""
+    B = jnp.asarray(dct_basis(windows.length, num_dct))
+    loss = GemanMcClure(sigma)
+
+    def fn(params, data: CameraData):
+        joints = _posed(params, data).joints
+        frames, _ = windows.frames(joints)  # (W, L, J, 3)
+        fit = jnp.einsum("lk,wkjd->wljd", B.astype(joints.dtype), params["coef"])
+        rows = windows.rows(frames - fit, joints.shape[0])  # (T, slots, J, 3)
+        return loss(rows[..., None])
+
+    return Term("temporal", fn, weight, reads=(("pose", None), ("trans", None), ("coef", None)))
+
+
+def dct_coefficients(joints: np.ndarray, windows: Windows, num_dct: int = 10) -> np.ndarray:
+    """Least-squares DCT coefficients (W, num_dct, J, 3) of joint trajectories (T, J, 3),
+    the last window fitted on its real frames only (starting values for E_T)."""
+    joints = np.asarray(joints)
+    T = joints.shape[0]
+    B = dct_basis(windows.length, num_dct)
+    out = []
+    for w in range(windows.count(T)):
+        start = w * windows.stride
+        seg = joints[start : start + windows.length]
+        coef, *_ = np.linalg.lstsq(B[: len(seg)], seg.reshape(len(seg), -1), rcond=None)
+        out.append(coef.reshape(num_dct, *joints.shape[1:]))
+    return np.stack(out)

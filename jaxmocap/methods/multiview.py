@@ -1,0 +1,333 @@
+"""Multi-view SMPLify (MuVS, Huang ch. 4): calibrated views, 2-D keypoints, silhouettes.
+
+- **Stage 1, per frame** (§4.3.1): E_M = λ_θ E_θ + λ_β E_β + Σ_v E_J (eq. 4.1-4.4), every
+  frame with its own pose, translation and shape, all frames solved as one batch; then
+  E_1 = E_M + Σ_v E_S (eq. 4.5-4.6) from that result ("joints first, then silhouettes").
+  The pose prior weight is annealed (`MuVSWeights.anneal`) during the joint fit, as in
+  SMPLify, whose initialisation MuVS reuses; weights are traced, so every annealing step
+  and ablation reuses one compiled solve.
+- **Stage 2, temporal** (§4.3.2): β fixed to the median of the stage-1 shapes; poses and
+  translations of all frames plus per-window DCT coefficients C (30-frame units, first
+  10 components, §4.3.3) minimise E_2 = Σ_n E_M + λ_T Σ E_T (eq. 4.7-4.8); variant "+H"
+  adds E_S here too.
+- **Monocular** (Table 4.5): the same code with one view.
+
+Initialisation (ours; MuVS reuses SMPLify's): per frame, the hips and shoulders are
+triangulated from every view that sees them (confidence-weighted DLT) and give the root
+position and orientation, the other joints start at the prior mean, β at 0; frames seen
+by fewer than two views use one view's depth from the torso length (SMPLify's rule) and
+a root facing the camera, turned round when the detected hips say the person faces away.
+
+The problems are `jaxmocap.solve.Problem`s of the terms in `energies.camera`; nothing
+here solves anything itself.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+from collections.abc import Sequence
+
+import jax.numpy as jnp
+import numpy as np
+
+from ..body.kinematics import forward, shaped_joints
+from ..body.model import Body
+from ..energies.camera import (
+    CameraData,
+    Silhouettes,
+    dct_coefficients,
+    dct_window,
+    keypoint_term,
+    pose_prior_term,
+    shape_term,
+    silhouette_terms,
+    temporal_term,
+)
+from ..priors.pose_prior import PosePrior, default_pose_prior
+from ..rotation import matrix_to_axis_angle
+from ..sensors.keypoints import KEYPOINT_FORMATS, keypoint_regressor
+from ..sensors.triangulation import triangulate
+from ..solve import Problem, frame, solve, with_weights
+
+__all__ = ["MuVSWeights", "MuVSResult", "camera_data", "initialise", "stage_one", "stage_two", "multiview_smplify"]
+
+
+@dataclasses.dataclass(frozen=True)
+class MuVSWeights:
+    """Weights and constants of eq. 4.1-4.8 (our choices: Huang gives none; tuned on the
+    CMU training clips, see experiments/muvs_tables.py). 0 switches a term off.
+
+    keypoints: E_J weight; sigma: its Geman-McClure σ₁ (px).
+    pose_prior, shape: λ_θ, λ_β; anneal: λ_θ multipliers of the stage-1 joint fit.
+    silhouette_model, silhouette_mask: the two sums of E_S (eq. 4.5); silhouette_stride:
+        every n-th vertex is a model point.
+    temporal: λ_T; temporal_sigma: σ₂ (m); window, num_dct: DCT unit and basis size.
+    """
+
+    keypoints: float = 1.0
+    sigma: float = 100.0
+    pose_prior: float = 20.0
+    shape: float = 50.0
+    anneal: tuple[float, ...] = (20.0, 4.0, 1.0)
+    silhouette_model: float = 0.5
+    silhouette_mask: float = 0.5
+    silhouette_stride: int = 2
+    temporal: float = 2e5
+    temporal_sigma: float = 0.05
+    window: int = 30
+    num_dct: int = 10
+    num_betas: int = 10
+
+    def replace(self, **changes) -> MuVSWeights:
+        return dataclasses.replace(self, **changes)
+
+
+@dataclasses.dataclass(frozen=True)
+class MuVSResult:
+    """Poses (T, 24, 3) axis-angle, trans (T, 3), betas (B,) of the final stage, the
+    stage-1 outcome (`stage1`: poses, trans, per-frame betas (T, B)), and per-stage costs."""
+
+    poses: np.ndarray
+    trans: np.ndarray
+    betas: np.ndarray
+    stage1: dict
+    costs: dict
+
+
+def camera_data(
+    body: Body,
+    K,
+    R,
+    t,
+    keypoints,
+    layout: str = "body25",
+    masks=None,
+    prior: PosePrior | None = None,
+    joint_weights=None,
+    silhouette_points: int = 256,
+    dtype=jnp.float32,
+) -> CameraData:
+    """`CameraData` from NumPy inputs: K, R (V, 3, 3), t (V, 3); keypoints (T, V, K, 3)
+    rows (u, v, confidence) in undistorted pixels; masks (T, V, H, W) booleans or None."""
+    keypoints = np.asarray(keypoints, np.float64)
+    K, R, t = (np.asarray(a, np.float64) for a in (K, R, t))
+    if layout not in KEYPOINT_FORMATS:
+        raise ValueError(f"unknown keypoint layout {layout!r}; choose from {sorted(KEYPOINT_FORMATS)}.")
+    names = KEYPOINT_FORMATS[layout]
+    if keypoints.ndim != 4 or keypoints.shape[-1] != 3 or keypoints.shape[2] != len(names):
+        raise ValueError(
+            f"keypoints must be (T, V, {len(names)}, 3) rows (u, v, confidence) of the {layout!r} "
+            f"layout; got shape {keypoints.shape}."
+        )
+    T, V = keypoints.shape[:2]
+    if T == 0:
+        raise ValueError("keypoints have no frames (T = 0).")
+    if K.shape != (V, 3, 3) or R.shape != (V, 3, 3) or t.shape != (V, 3):
+        raise ValueError(
+            f"cameras must be K (V, 3, 3), R (V, 3, 3), t (V, 3) for the V = {V} views of the "
+            f"keypoints; got {K.shape}, {R.shape}, {t.shape}."
+        )
+    conf = np.where(np.isfinite(keypoints).all(-1), keypoints[..., 2], 0.0).clip(0.0, None)
+    uv = np.nan_to_num(keypoints[..., :2])
+    sil = None
+    if masks is not None:
+        from ..energies.camera import silhouette_data
+
+        masks = np.asarray(masks, bool)
+        if masks.shape[:2] != (T, V):
+            raise ValueError(f"masks must be (T={T}, V={V}, H, W); got shape {masks.shape}.")
+        sil = silhouette_data(masks, silhouette_points)
+    w = np.ones(len(names)) if joint_weights is None else np.asarray(joint_weights, np.float64)
+    a = lambda x: jnp.asarray(x, dtype)  # noqa: E731
+    return CameraData(
+        body=body.astype(dtype), prior=prior if prior is not None else default_pose_prior(dtype),
+        regressor=a(keypoint_regressor(body, layout)), K=a(K), R=a(R), t=a(t), keypoints=a(uv),
+        confidence=a(conf), joint_weights=a(w), betas=None, silhouettes=sil,
+    )  # fmt: skip
+
+
+def _root_frames(left, right, up_from, up_to):
+    """Root rotations (T, 3, 3) with body +x towards `left`-`right`, +y along up_to-up_from."""
+    x = left - right
+    x = x / np.linalg.norm(x, axis=-1, keepdims=True)
+    y = up_to - up_from
+    y = y - np.sum(y * x, -1, keepdims=True) * x
+    y = y / np.linalg.norm(y, axis=-1, keepdims=True)
+    return np.stack([x, y, np.cross(x, y)], -1)
+
+
+def initialise(data: CameraData, num_betas: int = 10) -> dict:
+    """Starting values {pose (T, 24, 3), trans (T, 3), betas (T, B)} (module docstring)."""
+    body = data.body
+    names = KEYPOINT_FORMATS[_layout_of(data)]
+    idx = [names.index(n) for n in ("left_hip", "right_hip", "left_shoulder", "right_shoulder")]
+    K, R, t = (np.asarray(a, np.float64) for a in (data.K, data.R, data.t))
+    uv = np.asarray(data.keypoints, np.float64)[:, :, idx]  # (T, V, 4, 2)
+    conf = np.asarray(data.confidence, np.float64)[:, :, idx]
+    T, V = uv.shape[:2]
+    P = K @ np.concatenate([R, t[..., None]], -1)
+    X, _ = triangulate(P, np.moveaxis(uv, 1, 0), np.moveaxis(conf, 1, 0))  # (T, 4, 3)
+    lh, rh, ls, rs = (X[:, i] for i in range(4))
+    root = _root_frames(lh, rh, 0.5 * (lh + rh), 0.5 * (ls + rs))
+    mid_hip = 0.5 * (lh + rh)
+    missing = ~np.all(np.isfinite(root.reshape(T, -1)), -1) | ~np.all(np.isfinite(mid_hip), -1)
+    if missing.any():
+        root[missing], mid_hip[missing] = _monocular_root(data, uv[missing], conf[missing])
+    rest = np.asarray(shaped_joints(body, jnp.zeros((1, num_betas), body.dtype)))[0].astype(np.float64)
+    lj, rj = body.joint_index("left_hip"), body.joint_index("right_hip")
+    rest_mid = 0.5 * (rest[lj] + rest[rj])
+    trans = mid_hip - rest[0] - np.einsum("tab,b->ta", root, rest_mid - rest[0])
+    pose = np.zeros((T, body.num_joints, 3))
+    pose[:, 1:] = np.asarray(data.prior.mean, np.float64).reshape(23, 3)
+    pose[:, 0] = np.asarray(matrix_to_axis_angle(jnp.asarray(root)))
+    return {"pose": pose, "trans": trans, "betas": np.zeros((T, num_betas))}
+
+
+def _layout_of(data: CameraData) -> str:
+    for name, names in KEYPOINT_FORMATS.items():
+        if len(names) == data.keypoints.shape[2]:
+            return name
+    raise ValueError(f"no keypoint layout has {data.keypoints.shape[2]} keypoints.")
+
+
+def _monocular_root(data, uv, conf, torso: float = 0.5):
+    """Root rotation and mid-hip position from the most confident single view per frame
+    (SMPLify's depth from the torso length; facing the camera unless the hips say not)."""
+    K, R, t = (np.asarray(a, np.float64) for a in (data.K, data.R, data.t))
+    n = len(uv)
+    best = np.argmax(conf.sum(-1), 1)  # (n,)
+    rots, mids = np.zeros((n, 3, 3)), np.zeros((n, 3))
+    for i, v in enumerate(best):
+        p = uv[i, v]
+        hip, sho = 0.5 * (p[0] + p[1]), 0.5 * (p[2] + p[3])
+        length = max(float(np.linalg.norm(sho - hip)), 1.0)
+        depth = K[v, 0, 0] * torso / length if conf[i, v].min() > 0 else 4.0
+        ray = np.linalg.solve(K[v], np.array([hip[0], hip[1], 1.0]))
+        mids[i] = R[v].T @ (ray * depth - t[v])
+        up = R[v].T @ np.array([0.0, -1.0, 0.0])
+        forward = -R[v].T @ np.array([0.0, 0.0, 1.0])  # towards the camera
+        left = np.cross(up, forward)
+        rot = np.stack([left, up, forward], -1)
+        if p[0, 0] < p[1, 0] and conf[i, v, :2].min() > 0:  # left hip left of right: back view
+            rot = rot @ np.diag([-1.0, 1.0, -1.0])
+        rots[i] = rot
+    return rots, mids
+
+
+# --- problems: one compiled solve each, weights traced ------------------------------------
+
+
+@functools.lru_cache(maxsize=None)
+def _stage_one_problem(sigma: float, stride: int, silhouettes: bool) -> Problem:
+    # Cached: a term's function is static, so a new closure would mean a new compile.
+    terms = [keypoint_term(sigma), pose_prior_term(), shape_term()]
+    if silhouettes:
+        terms += silhouette_terms(stride=stride)
+    return Problem(terms, {"pose": frame("so3"), "trans": frame(), "betas": frame()})
+
+
+@functools.lru_cache(maxsize=None)
+def _stage_two_problem(sigma: float, stride: int, silhouettes: bool, length: int, num_dct: int,
+                       temporal_sigma: float) -> Problem:
+    windows = dct_window(length)
+    terms = [keypoint_term(sigma), pose_prior_term(), temporal_term(windows.windows, num_dct, temporal_sigma)]
+    if silhouettes:
+        terms += silhouette_terms(stride=stride)
+    return Problem(terms, {"pose": frame("so3"), "trans": frame(), "coef": windows})
+
+
+def _weighted(problem: Problem, w: MuVSWeights, dtype, prior_factor: float = 1.0) -> Problem:
+    """`problem` with the weights of `w` as traced arrays (no recompilation per value)."""
+    values = {
+        "keypoints": w.keypoints, "pose_prior": w.pose_prior * prior_factor, "shape": w.shape * prior_factor,
+        "silhouette_model": w.silhouette_model, "silhouette_mask": w.silhouette_mask, "temporal": w.temporal,
+    }  # fmt: skip
+    names = {t.name for t in problem.terms}
+    return with_weights(problem, {k: jnp.asarray(v, dtype) for k, v in values.items() if k in names})
+
+
+def stage_one(data: CameraData, params0: dict, weights: MuVSWeights = MuVSWeights(), silhouettes: bool = True,
+              max_steps: int = 50) -> tuple[dict, dict]:
+    """Per-frame fit (eq. 4.1-4.6): joints with an annealed prior, then + silhouettes.
+
+    Returns ({pose, trans, betas (T, B)}, {stage: cost}).
+    """
+    dtype = data.K.dtype
+    p = {k: jnp.asarray(v, dtype) for k, v in params0.items()}
+    costs = {}
+    joints_only = _stage_one_problem(weights.sigma, weights.silhouette_stride, False)
+    for i, factor in enumerate(weights.anneal):
+        prob = _weighted(joints_only, weights, dtype, factor)
+        sol = solve(prob, p, data, max_steps=max_steps)
+        p = sol.value
+        costs[f"joints_{i}"] = float(sol.cost)
+    if silhouettes and data.silhouettes is not None:
+        prob = _weighted(_stage_one_problem(weights.sigma, weights.silhouette_stride, True), weights, dtype)
+        sol = solve(prob, p, data, max_steps=max_steps)
+        p = sol.value
+        costs["silhouettes"] = float(sol.cost)
+    return {k: np.asarray(v) for k, v in p.items()}, costs
+
+
+def stage_two(data: CameraData, params1: dict, weights: MuVSWeights = MuVSWeights(), silhouettes: bool = False,
+              max_steps: int = 30) -> tuple[dict, dict]:
+    """Temporal fit (eq. 4.7-4.8) with β = median of the stage-1 shapes.
+
+    Returns ({pose, trans, betas (B,), coef}, {"temporal": cost}).
+    """
+    dtype = data.K.dtype
+    betas = np.median(np.asarray(params1["betas"]), 0)
+    data2 = dataclasses_replace(data, betas=jnp.asarray(betas, dtype))
+    windows = dct_window(weights.window).windows
+    joints = forward(data.body, jnp.asarray(params1["pose"], dtype), data2.betas, jnp.asarray(params1["trans"], dtype)).joints
+    coef = dct_coefficients(np.asarray(joints), windows, weights.num_dct)
+    p = {"pose": jnp.asarray(params1["pose"], dtype), "trans": jnp.asarray(params1["trans"], dtype),
+         "coef": jnp.asarray(coef, dtype)}  # fmt: skip
+    use_sil = silhouettes and data.silhouettes is not None
+    w = weights
+    prob = _stage_two_problem(w.sigma, w.silhouette_stride, use_sil, w.window, w.num_dct, w.temporal_sigma)
+    prob = _weighted(prob, w, dtype)
+    sol = solve(prob, p, data2, max_steps=max_steps)
+    out = {k: np.asarray(v) for k, v in sol.value.items()}
+    out["betas"] = betas
+    return out, {"temporal": float(sol.cost)}
+
+
+def dataclasses_replace(data: CameraData, **changes) -> CameraData:
+    """`data` with fields replaced (an equinox Module is immutable)."""
+    import equinox as eqx
+
+    keys = list(changes)
+    return eqx.tree_at(lambda d: [getattr(d, k) for k in keys], data, [changes[k] for k in keys],
+                       is_leaf=lambda x: x is None)
+
+
+def multiview_smplify(
+    data: CameraData,
+    weights: MuVSWeights = MuVSWeights(),
+    silhouettes: bool = True,
+    temporal: bool = True,
+    temporal_silhouettes: bool = False,
+    params0: dict | None = None,
+) -> MuVSResult:
+    """MuVS on one sequence: stage 1 (+S if masks are given), then stage 2 (+T, +H)."""
+    p0 = initialise(data, weights.num_betas) if params0 is None else params0
+    p1, costs = stage_one(data, p0, weights, silhouettes)
+    stage1 = {"poses": p1["pose"], "trans": p1["trans"], "betas": p1["betas"]}
+    if not temporal:
+        return MuVSResult(p1["pose"], p1["trans"], np.median(p1["betas"], 0), stage1, costs)
+    p2, c2 = stage_two(data, p1, weights, temporal_silhouettes)
+    return MuVSResult(p2["pose"], p2["trans"], p2["betas"], stage1, {**costs, **c2})
+
+
+def views(data: CameraData, keep: Sequence[int]) -> CameraData:
+    """`data` restricted to the views `keep` (e.g. the first 1, 2 or 3 of 4)."""
+    keep = list(keep)
+    sil = data.silhouettes
+    if sil is not None:
+        sil = Silhouettes(sil.distance[:, keep], sil.points[:, keep], sil.valid[:, keep])
+    return dataclasses_replace(
+        data, K=data.K[keep], R=data.R[keep], t=data.t[keep], keypoints=data.keypoints[:, keep],
+        confidence=data.confidence[:, keep], silhouettes=sil,
+    )  # fmt: skip
