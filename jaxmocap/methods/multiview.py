@@ -28,6 +28,7 @@ import dataclasses
 import functools
 from collections.abc import Sequence
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -48,9 +49,9 @@ from ..priors.pose_prior import PosePrior, default_pose_prior
 from ..rotation import matrix_to_axis_angle
 from ..sensors.keypoints import KEYPOINT_FORMATS, keypoint_regressor
 from ..sensors.triangulation import triangulate
-from ..solve import Problem, frame, solve, with_weights
+from ..solve import Problem, frame, solve, solve_batch, with_weights
 
-__all__ = ["MuVSWeights", "MuVSResult", "camera_data", "initialise", "stage_one", "stage_two", "multiview_smplify"]
+__all__ = ["MuVSWeights", "MuVSResult", "camera_data", "initialise", "stage_one", "stage_two", "multiview_smplify", "mask_views", "stack"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -61,7 +62,8 @@ class MuVSWeights:
     keypoints: E_J weight; sigma: its Geman-McClure σ₁ (px).
     pose_prior, shape: λ_θ, λ_β; anneal: λ_θ multipliers of the stage-1 joint fit.
     silhouette_model, silhouette_mask: the two sums of E_S (eq. 4.5); silhouette_stride:
-        every n-th vertex is a model point.
+        every n-th vertex is a model point; silhouette_slack: px within which a mask
+        point counts as covered by the model (`energies.camera.silhouette_terms`).
     temporal: λ_T; temporal_sigma: σ₂ (m); window, num_dct: DCT unit and basis size.
     """
 
@@ -73,6 +75,7 @@ class MuVSWeights:
     silhouette_model: float = 0.5
     silhouette_mask: float = 0.5
     silhouette_stride: int = 2
+    silhouette_slack: float = 2.0
     temporal: float = 2e5
     temporal_sigma: float = 0.05
     window: int = 30
@@ -158,7 +161,11 @@ def _root_frames(left, right, up_from, up_to):
 
 
 def initialise(data: CameraData, num_betas: int = 10) -> dict:
-    """Starting values {pose (T, 24, 3), trans (T, 3), betas (T, B)} (module docstring)."""
+    """Starting values {pose (T, 24, 3), trans (T, 3), betas (T, B)} (module docstring);
+    batched data gives a leading batch axis."""
+    if _batched(data):
+        each = [initialise(_member(data, i), num_betas) for i in range(data.keypoints.shape[0])]
+        return {k: np.stack([e[k] for e in each]) for k in each[0]}
     body = data.body
     names = KEYPOINT_FORMATS[_layout_of(data)]
     idx = [names.index(n) for n in ("left_hip", "right_hip", "left_shoulder", "right_shoulder")]
@@ -219,21 +226,21 @@ def _monocular_root(data, uv, conf, torso: float = 0.5):
 
 
 @functools.lru_cache(maxsize=None)
-def _stage_one_problem(sigma: float, stride: int, silhouettes: bool) -> Problem:
+def _stage_one_problem(sigma: float, stride: int, slack: float, silhouettes: bool) -> Problem:
     # Cached: a term's function is static, so a new closure would mean a new compile.
     terms = [keypoint_term(sigma), pose_prior_term(), shape_term()]
     if silhouettes:
-        terms += silhouette_terms(stride=stride)
+        terms += silhouette_terms(stride=stride, slack=slack)
     return Problem(terms, {"pose": frame("so3"), "trans": frame(), "betas": frame()})
 
 
 @functools.lru_cache(maxsize=None)
-def _stage_two_problem(sigma: float, stride: int, silhouettes: bool, length: int, num_dct: int,
+def _stage_two_problem(sigma: float, stride: int, slack: float, silhouettes: bool, length: int, num_dct: int,
                        temporal_sigma: float) -> Problem:
     windows = dct_window(length)
     terms = [keypoint_term(sigma), pose_prior_term(), temporal_term(windows.windows, num_dct, temporal_sigma)]
     if silhouettes:
-        terms += silhouette_terms(stride=stride)
+        terms += silhouette_terms(stride=stride, slack=slack)
     return Problem(terms, {"pose": frame("so3"), "trans": frame(), "coef": windows})
 
 
@@ -247,6 +254,25 @@ def _weighted(problem: Problem, w: MuVSWeights, dtype, prior_factor: float = 1.0
     return with_weights(problem, {k: jnp.asarray(v, dtype) for k, v in values.items() if k in names})
 
 
+def _batched(data: CameraData) -> bool:
+    return data.keypoints.ndim == 5
+
+
+def _member(data: CameraData, i: int) -> CameraData:
+    return jax.tree_util.tree_map(lambda x: x[i], data)
+
+
+def stack(datas: Sequence[CameraData]) -> CameraData:
+    """Sequences of equal T and V as one batched `CameraData` (leading axis B) for the
+    stage functions, which then solve all members at once (`solve_batch`)."""
+    return jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), *datas)
+
+
+def _solve(problem: Problem, params: dict, data: CameraData, max_steps: int):
+    run = solve_batch if _batched(data) else solve
+    return run(problem, params, data, max_steps=max_steps)
+
+
 def stage_one(data: CameraData, params0: dict, weights: MuVSWeights = MuVSWeights(), silhouettes: bool = True,
               max_steps: int = 50) -> tuple[dict, dict]:
     """Per-frame fit (eq. 4.1-4.6): joints with an annealed prior, then + silhouettes.
@@ -256,17 +282,19 @@ def stage_one(data: CameraData, params0: dict, weights: MuVSWeights = MuVSWeight
     dtype = data.K.dtype
     p = {k: jnp.asarray(v, dtype) for k, v in params0.items()}
     costs = {}
-    joints_only = _stage_one_problem(weights.sigma, weights.silhouette_stride, False)
+    joints_only = _stage_one_problem(weights.sigma, weights.silhouette_stride, weights.silhouette_slack, False)
     for i, factor in enumerate(weights.anneal):
         prob = _weighted(joints_only, weights, dtype, factor)
-        sol = solve(prob, p, data, max_steps=max_steps)
+        sol = _solve(prob, p, data, max_steps)
         p = sol.value
-        costs[f"joints_{i}"] = float(sol.cost)
+        costs[f"joints_{i}"] = np.asarray(sol.cost).tolist()
+        costs[f"joints_{i}_steps"] = np.asarray(sol.num_steps).tolist()
     if silhouettes and data.silhouettes is not None:
-        prob = _weighted(_stage_one_problem(weights.sigma, weights.silhouette_stride, True), weights, dtype)
-        sol = solve(prob, p, data, max_steps=max_steps)
+        prob = _weighted(_stage_one_problem(weights.sigma, weights.silhouette_stride, weights.silhouette_slack, True), weights, dtype)
+        sol = _solve(prob, p, data, max_steps)
         p = sol.value
-        costs["silhouettes"] = float(sol.cost)
+        costs["silhouettes"] = np.asarray(sol.cost).tolist()
+        costs["silhouettes_steps"] = np.asarray(sol.num_steps).tolist()
     return {k: np.asarray(v) for k, v in p.items()}, costs
 
 
@@ -277,21 +305,28 @@ def stage_two(data: CameraData, params1: dict, weights: MuVSWeights = MuVSWeight
     Returns ({pose, trans, betas (B,), coef}, {"temporal": cost}).
     """
     dtype = data.K.dtype
-    betas = np.median(np.asarray(params1["betas"]), 0)
+    betas = np.median(np.asarray(params1["betas"]), -2)  # over frames: (B,) or (batch, B)
     data2 = dataclasses_replace(data, betas=jnp.asarray(betas, dtype))
     windows = dct_window(weights.window).windows
-    joints = forward(data.body, jnp.asarray(params1["pose"], dtype), data2.betas, jnp.asarray(params1["trans"], dtype)).joints
-    coef = dct_coefficients(np.asarray(joints), windows, weights.num_dct)
+    body = _member(data, 0).body if _batched(data) else data.body
+    posed = forward(body, jnp.asarray(params1["pose"], dtype), data2.betas[..., None, :],
+                    jnp.asarray(params1["trans"], dtype))  # fmt: skip
+    joints = np.asarray(posed.joints)
+    if _batched(data):
+        coef = np.stack([dct_coefficients(j, windows, weights.num_dct) for j in joints])
+    else:
+        coef = dct_coefficients(joints, windows, weights.num_dct)
     p = {"pose": jnp.asarray(params1["pose"], dtype), "trans": jnp.asarray(params1["trans"], dtype),
          "coef": jnp.asarray(coef, dtype)}  # fmt: skip
     use_sil = silhouettes and data.silhouettes is not None
     w = weights
-    prob = _stage_two_problem(w.sigma, w.silhouette_stride, use_sil, w.window, w.num_dct, w.temporal_sigma)
+    prob = _stage_two_problem(w.sigma, w.silhouette_stride, w.silhouette_slack, use_sil, w.window, w.num_dct,
+                              w.temporal_sigma)
     prob = _weighted(prob, w, dtype)
-    sol = solve(prob, p, data2, max_steps=max_steps)
+    sol = _solve(prob, p, data2, max_steps)
     out = {k: np.asarray(v) for k, v in sol.value.items()}
     out["betas"] = betas
-    return out, {"temporal": float(sol.cost)}
+    return out, {"temporal": np.asarray(sol.cost).tolist(), "temporal_steps": np.asarray(sol.num_steps).tolist()}
 
 
 def dataclasses_replace(data: CameraData, **changes) -> CameraData:
@@ -316,18 +351,19 @@ def multiview_smplify(
     p1, costs = stage_one(data, p0, weights, silhouettes)
     stage1 = {"poses": p1["pose"], "trans": p1["trans"], "betas": p1["betas"]}
     if not temporal:
-        return MuVSResult(p1["pose"], p1["trans"], np.median(p1["betas"], 0), stage1, costs)
+        return MuVSResult(p1["pose"], p1["trans"], np.median(p1["betas"], -2), stage1, costs)
     p2, c2 = stage_two(data, p1, weights, temporal_silhouettes)
     return MuVSResult(p2["pose"], p2["trans"], p2["betas"], stage1, {**costs, **c2})
 
 
-def views(data: CameraData, keep: Sequence[int]) -> CameraData:
-    """`data` restricted to the views `keep` (e.g. the first 1, 2 or 3 of 4)."""
-    keep = list(keep)
+def mask_views(data: CameraData, keep: Sequence[int]) -> CameraData:
+    """`data` with only the views `keep` observed (the others get confidence 0 and no
+    mask): 1, 2, 3 of 4 views share one compiled solve with the full set."""
+    V = data.K.shape[0] if data.K.ndim == 3 else data.K.shape[1]
+    on = np.zeros(V, bool)
+    on[list(keep)] = True
+    on = jnp.asarray(on)
     sil = data.silhouettes
     if sil is not None:
-        sil = Silhouettes(sil.distance[:, keep], sil.points[:, keep], sil.valid[:, keep])
-    return dataclasses_replace(
-        data, K=data.K[keep], R=data.R[keep], t=data.t[keep], keypoints=data.keypoints[:, keep],
-        confidence=data.confidence[:, keep], silhouettes=sil,
-    )  # fmt: skip
+        sil = Silhouettes(sil.distance, sil.points, sil.valid & on[:, None])
+    return dataclasses_replace(data, confidence=data.confidence * on[:, None], silhouettes=sil)
