@@ -185,9 +185,13 @@ def initialise(data: CameraData, num_betas: int = 10) -> dict:
 
 
 def _layout_of(data: CameraData) -> str:
-    for name, names in KEYPOINT_FORMATS.items():
-        if len(names) == data.keypoints.shape[2]:
+    # BODY_25 and BODY_25B both have 25 keypoints: the regressor tells them apart.
+    fits = [n for n, names in KEYPOINT_FORMATS.items() if len(names) == data.keypoints.shape[2]]
+    for name in fits:
+        if np.allclose(np.asarray(data.regressor), keypoint_regressor(data.body, name), atol=1e-5):
             return name
+    if fits:
+        return fits[0]
     raise ValueError(f"no keypoint layout has {data.keypoints.shape[2]} keypoints.")
 
 
