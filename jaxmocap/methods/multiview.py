@@ -283,14 +283,19 @@ def stage_two(data: CameraData, params1: dict, weights: MuVSWeights = MuVSWeight
     dtype = data.K.dtype
     betas = np.median(np.asarray(params1["betas"]), 0)
     data2 = dataclasses_replace(data, betas=jnp.asarray(betas, dtype))
-    windows = dct_window(weights.window).windows
+    # A sequence shorter than a window gets a window of its length and the same bandwidth
+    # (10 of 30 frames): the first frames of a 30-frame DCT basis are so ill-conditioned
+    # that E_T would pull towards huge float32 coefficients instead of smoothing.
+    length = min(weights.window, data.num_frames)
+    num_dct = max(1, min(weights.num_dct, round(weights.num_dct * length / weights.window)))
+    windows = dct_window(length).windows
     joints = forward(data.body, jnp.asarray(params1["pose"], dtype), data2.betas, jnp.asarray(params1["trans"], dtype)).joints
-    coef = dct_coefficients(np.asarray(joints), windows, weights.num_dct)
+    coef = dct_coefficients(np.asarray(joints), windows, num_dct)
     p = {"pose": jnp.asarray(params1["pose"], dtype), "trans": jnp.asarray(params1["trans"], dtype),
          "coef": jnp.asarray(coef, dtype)}  # fmt: skip
     use_sil = silhouettes and data.silhouettes is not None
     w = weights
-    prob = _stage_two_problem(w.sigma, w.silhouette_stride, use_sil, w.window, w.num_dct, w.temporal_sigma)
+    prob = _stage_two_problem(w.sigma, w.silhouette_stride, use_sil, length, num_dct, w.temporal_sigma)
     prob = _weighted(prob, w, dtype)
     sol = solve(prob, p, data2, max_steps=max_steps)
     out = {k: np.asarray(v) for k, v in sol.value.items()}
