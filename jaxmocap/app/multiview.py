@@ -153,7 +153,8 @@ def _distorted_pixels(cam, uv_undistorted):
 
 
 def _overlay(path, cam, view, frame_numbers, picks, detections, model_kp, vertices, faces):
-    """One PNG per view: a panel per picked frame on the image-size canvas (no images)."""
+    """One PNG per view, a column per picked frame: the image-size canvas (no images are
+    read) on top, the same zoomed onto the person below; pixels are the video's own."""
     from matplotlib import colormaps
     from matplotlib.collections import LineCollection, PolyCollection
     from matplotlib.colors import Normalize
@@ -164,33 +165,43 @@ def _overlay(path, cam, view, frame_numbers, picks, detections, model_kp, vertic
     from ..viz.plot import save_figure
 
     W, H = (cam.width, cam.height) if cam.width > 0 else (int(2 * cam.K[0, 2]) + 1, int(2 * cam.K[1, 2]) + 1)
-    fig = Figure(figsize=(4.2 * len(picks), 4.2 * H / W + 0.9), dpi=110, layout="constrained")
-    axes = fig.subplots(1, len(picks), squeeze=False)[0]
-    cmap, norm = colormaps["viridis"], Normalize(0.0, 1.0)
-    for ax, t in zip(axes, picks):
-        ax.add_patch(Rectangle((-0.5, -0.5), W, H, facecolor="#f4f4f4", edgecolor="#888888", lw=0.8))
-        # the mesh, in the video's pixels: filled projected triangles in front of the camera
+    fig = Figure(figsize=(4.2 * len(picks) + 1.0, 4.2 * H / W + 4.6), dpi=110, layout="constrained")
+    axes = fig.subplots(2, len(picks), squeeze=False, height_ratios=[H / W, 1.0])
+    norm = Normalize(0.0, 1.0)
+    sc = None
+    for col, t in enumerate(picks):
         uv, z = project_points(cam.K, cam.dist, cam.R, cam.t, vertices[t])
         front = (z[faces] > 0).all(1)
-        ax.add_collection(PolyCollection(uv[faces[front]], facecolor="#c9a27e", edgecolor="none", alpha=0.45))
         model, zk = project_points(cam.K, cam.dist, cam.R, cam.t, model_kp[t])
         det = detections[t]
         seen = det[:, 2] > 0
         duv = _distorted_pixels(cam, det[:, :2])
-        ax.add_collection(LineCollection(
-            [np.stack([a, b]) for a, b in zip(duv[seen], model[seen])], colors="#c53030", lw=0.8))
-        ax.scatter(*model[zk > 0].T, marker="x", s=22, c="#c53030", lw=1.2, label="model (reprojected)")
-        sc = ax.scatter(*duv[seen].T, s=16, c=det[seen, 2], cmap=cmap, norm=norm, edgecolors="k",
-                        linewidths=0.3, label="detection")
         err = np.linalg.norm(model - duv, axis=-1)[seen]
-        ax.set_title(f"{view}, frame {frame_numbers[t]}: median {np.median(err):.1f} px"
-                     if seen.any() else f"{view}, frame {frame_numbers[t]}: no detection", fontsize=9)
-        ax.set_xlim(-0.5, W - 0.5)
-        ax.set_ylim(H - 0.5, -0.5)  # image rows grow downwards
-        ax.set_aspect("equal")
-        ax.tick_params(labelsize=7)
-    axes[0].legend(loc="lower left", fontsize=7, framealpha=0.8)
-    fig.colorbar(sc, ax=list(axes), shrink=0.8, label="detection confidence")
+        box = np.concatenate([uv[z > 0], duv[seen]])
+        lo, hi = box.min(0), box.max(0)
+        centre, half = 0.5 * (lo + hi), 0.6 * max(hi - lo) + 10.0
+        for row, ax in enumerate(axes[:, col]):
+            ax.add_patch(Rectangle((-0.5, -0.5), W, H, facecolor="#f4f4f4", edgecolor="#888888", lw=0.8))
+            # the mesh as filled projected triangles (those in front of the camera)
+            ax.add_collection(PolyCollection(uv[faces[front]], facecolor="#c9a27e", edgecolor="none", alpha=0.45))
+            ax.add_collection(LineCollection([np.stack([a, b]) for a, b in zip(duv[seen], model[seen])],
+                                             colors="#c53030", lw=0.8))
+            ax.scatter(*model[zk > 0].T, marker="x", s=22, c="#c53030", lw=1.2, label="model keypoint")
+            sc = ax.scatter(*duv[seen].T, s=16, c=det[seen, 2], cmap=colormaps["viridis"], norm=norm,
+                            edgecolors="k", linewidths=0.3, label="detection")
+            if row == 0:
+                ax.set_xlim(-0.5, W - 0.5)
+                ax.set_ylim(H - 0.5, -0.5)  # image rows grow downwards
+                ax.set_title(f"{view}, frame {frame_numbers[t]}: "
+                             + (f"median {np.median(err):.1f} px" if seen.any() else "no detection"), fontsize=9)
+            else:
+                ax.set_xlim(centre[0] - half, centre[0] + half)
+                ax.set_ylim(centre[1] + half, centre[1] - half)
+                ax.set_title("zoomed", fontsize=8)
+            ax.set_aspect("equal")
+            ax.tick_params(labelsize=7)
+    axes[0, 0].legend(loc="lower left", fontsize=7, framealpha=0.8)
+    fig.colorbar(sc, ax=axes.ravel().tolist(), shrink=0.6, label="detection confidence")
     return save_figure(fig, path)
 
 
