@@ -224,12 +224,58 @@ def _run_check(args) -> int:
     return run_check(args.motion, body=args.body, fps=args.fps, ground=args.ground, out=args.out)
 
 
+# --- multiview ----------------------------------------------------------------------
+
+
+def _frame_slice(text: str) -> slice:
+    start, sep, stop = text.partition(":")
+    try:
+        if not sep:
+            raise ValueError
+        return slice(int(start) if start else None, int(stop) if stop else None)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected START:STOP frame numbers (e.g. 0:300), got {text!r}") from None
+
+
+def _configure_multiview(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--keypoints", required=True, metavar="DIR", help="folder with one OpenPose JSON folder per camera")
+    p.add_argument("--calib", required=True, metavar="FILE",
+                   help="calibration: Pose2Sim .toml, Qualisys .qca.txt, EasyMocap intri/extri.yml (folder), .npz")
+    p.add_argument("--out", required=True, metavar="DIR", help="output folder")
+    p.add_argument("--layout", default="body25", choices=("body25", "body25b", "coco18"),
+                   help="the OpenPose model the keypoints come from (default: body25)")
+    _add_body_option(p)
+    p.add_argument("--views", type=lambda s: [v for v in s.split(",") if v], metavar="A,B",
+                   help="camera folders to use (default: all)")
+    p.add_argument("--frames", type=_frame_slice, metavar="START:STOP", help="frame numbers to fit (default: all)")
+    p.add_argument("--fps", type=_positive(float), default=30.0, help="frame rate of the recording (default: 30)")
+    p.add_argument("--no-temporal", action="store_true", help="stop after stage 1 (no DCT temporal prior)")
+
+
+def _run_multiview(args) -> int:
+    from .app.multiview import fit_recording
+
+    r = fit_recording(args.keypoints, args.calib, args.out, layout=args.layout, body=args.body, views=args.views,
+                      frames=args.frames, temporal=not args.no_temporal, fps=args.fps, progress=sys.stderr.isatty())
+    final, out = r["reprojection"]["final"], Path(args.out)
+    per_view = ", ".join(f"{v} {s['median_px']:.1f}" for v, s in final["per_view"].items() if s["count"])
+    print(f"fitted   {r['frames']['count']} frames x {len(r['views'])} views ({r['layout']}) in "
+          f"{r['timings_s']['total']:.1f} s")
+    print(f"reproj   median {final['overall']['median_px']:.1f} px, mean {final['overall']['mean_px']:.1f} px "
+          f"(per view median: {per_view})")
+    print(f"jitter   stage 1 {r['jitter_mm_s2']['stage1']:.0f} mm/s^2, final {r['jitter_mm_s2']['final']:.0f} mm/s^2")
+    print(f"wrote    {out / r['outputs']['smpl']}, {len(r['outputs']['overlays'])} overlays in {out / 'overlays'}, "
+          f"meshes in {out / 'meshes'}, {out / 'report.md'}")
+    return 0
+
+
 COMMANDS: list[Command] = [
     Command("inspect", "summarise a motion file or a body model file", _configure_inspect, _run_inspect),
     Command("convert", "convert any readable motion to an AMASS-style .npz", _configure_convert, _run_convert),
     Command("export", "pose a body with a motion; write meshes (and pictures)", _configure_export, _run_export),
     Command("demo", "walk → posed body → meshes and pictures (the `make demo` job)", _configure_demo, _run_demo),
     Command("check", "physical plausibility: ground penetration, floating, foot skating", _configure_check, _run_check),
+    Command("multiview", "fit SMPL to multi-camera OpenPose keypoints (Multi-view SMPLify)", _configure_multiview, _run_multiview),
 ]
 
 

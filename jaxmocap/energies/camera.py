@@ -100,7 +100,8 @@ class CameraData(eqx.Module):
     (undistorted pixels: apply `undistort_pixels` to detections first).
     keypoints: (T, V, K, 2) pixels; confidence: (T, V, K), 0 = missing (NaN keypoints
     are masked as well). joint_weights: (K,) w_i. betas: (B,) fixed shape (stage 2) or
-    None (shape is an unknown). silhouettes: `Silhouettes` or None.
+    None (shape is an unknown). silhouettes: `Silhouettes` or None. layout: the name of
+    the keypoint layout (`sensors.keypoints.KEYPOINT_FORMATS`).
     """
 
     body: Body
@@ -114,6 +115,7 @@ class CameraData(eqx.Module):
     joint_weights: Array
     betas: Array | None = None
     silhouettes: Silhouettes | None = None
+    layout: str = eqx.field(static=True, default="body25")
 
     @property
     def num_frames(self) -> int:

@@ -146,7 +146,7 @@ def camera_data(
     return CameraData(
         body=body.astype(dtype), prior=prior if prior is not None else default_pose_prior(dtype),
         regressor=a(keypoint_regressor(body, layout)), K=a(K), R=a(R), t=a(t), keypoints=a(uv),
-        confidence=a(conf), joint_weights=a(w), betas=None, silhouettes=sil,
+        confidence=a(conf), joint_weights=a(w), betas=None, silhouettes=sil, layout=layout,
     )  # fmt: skip
 
 
@@ -167,7 +167,7 @@ def initialise(data: CameraData, num_betas: int = 10) -> dict:
         each = [initialise(_member(data, i), num_betas) for i in range(data.keypoints.shape[0])]
         return {k: np.stack([e[k] for e in each]) for k in each[0]}
     body = data.body
-    names = KEYPOINT_FORMATS[_layout_of(data)]
+    names = KEYPOINT_FORMATS[data.layout]
     idx = [names.index(n) for n in ("left_hip", "right_hip", "left_shoulder", "right_shoulder")]
     K, R, t = (np.asarray(a, np.float64) for a in (data.K, data.R, data.t))
     uv = np.asarray(data.keypoints, np.float64)[:, :, idx]  # (T, V, 4, 2)
@@ -189,13 +189,6 @@ def initialise(data: CameraData, num_betas: int = 10) -> dict:
     pose[:, 1:] = np.asarray(data.prior.mean, np.float64).reshape(23, 3)
     pose[:, 0] = np.asarray(matrix_to_axis_angle(jnp.asarray(root)))
     return {"pose": pose, "trans": trans, "betas": np.zeros((T, num_betas))}
-
-
-def _layout_of(data: CameraData) -> str:
-    for name, names in KEYPOINT_FORMATS.items():
-        if len(names) == data.keypoints.shape[2]:
-            return name
-    raise ValueError(f"no keypoint layout has {data.keypoints.shape[2]} keypoints.")
 
 
 def _monocular_root(data, uv, conf, torso: float = 0.5):
@@ -307,20 +300,25 @@ def stage_two(data: CameraData, params1: dict, weights: MuVSWeights = MuVSWeight
     dtype = data.K.dtype
     betas = np.median(np.asarray(params1["betas"]), -2)  # over frames: (B,) or (batch, B)
     data2 = dataclasses_replace(data, betas=jnp.asarray(betas, dtype))
-    windows = dct_window(weights.window).windows
+    # A sequence shorter than a window gets a window of its length and the same bandwidth
+    # (10 of 30 frames): the first frames of a 30-frame DCT basis are so ill-conditioned
+    # that E_T would pull towards huge float32 coefficients instead of smoothing.
+    length = min(weights.window, data.keypoints.shape[-4])
+    num_dct = max(1, min(weights.num_dct, round(weights.num_dct * length / weights.window)))
+    windows = dct_window(length).windows
     body = _member(data, 0).body if _batched(data) else data.body
     posed = forward(body, jnp.asarray(params1["pose"], dtype), data2.betas[..., None, :],
                     jnp.asarray(params1["trans"], dtype))  # fmt: skip
     joints = np.asarray(posed.joints)
     if _batched(data):
-        coef = np.stack([dct_coefficients(j, windows, weights.num_dct) for j in joints])
+        coef = np.stack([dct_coefficients(j, windows, num_dct) for j in joints])
     else:
-        coef = dct_coefficients(joints, windows, weights.num_dct)
+        coef = dct_coefficients(joints, windows, num_dct)
     p = {"pose": jnp.asarray(params1["pose"], dtype), "trans": jnp.asarray(params1["trans"], dtype),
          "coef": jnp.asarray(coef, dtype)}  # fmt: skip
     use_sil = silhouettes and data.silhouettes is not None
     w = weights
-    prob = _stage_two_problem(w.sigma, w.silhouette_stride, w.silhouette_slack, use_sil, w.window, w.num_dct,
+    prob = _stage_two_problem(w.sigma, w.silhouette_stride, w.silhouette_slack, use_sil, length, num_dct,
                               w.temporal_sigma)
     prob = _weighted(prob, w, dtype)
     sol = _solve(prob, p, data2, max_steps)

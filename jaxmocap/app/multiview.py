@@ -1,0 +1,473 @@
+"""Multi-view SMPLify on a lab recording: OpenPose folders + calibration → SMPL, pictures, report.
+
+`fit_recording` is the pipeline behind ``jaxmocap multiview``:
+
+    read_openpose → load_calibration → align_views → select_person → camera_data
+    → MuVS stage 1 (per frame) → stage 2 (temporal, DCT) → files in `out_dir`
+
+Pixel convention: `select_person` returns undistorted pixels with OpenCV's centres at
+integers, while the camera energies project with jaxmocap's centres at integer + 0.5
+(`sensors.camera.project`). We follow `sensors.camera.pinhole_camera`: the principal
+point of every K is moved by +0.5 and the detections by +0.5, so residuals are the
+same and future silhouettes (rasterised at +0.5 centres) would line up too. Overlays
+are drawn back in the video's own (distorted, integer-centred) pixels.
+
+World frame: the fit happens in the calibration's world (Qualisys and Pose2Sim scenes are
+usually z up). The outputs meant for other tools are re-expressed in jaxmocap's y-up
+world first: the world axis closest to the cameras' mean "up" (-y of every camera) is
+taken as up. `smpl.npz` then goes through `motion.amass.save_amass` (z up, as AMASS) and
+the meshes are written y up (glTF's convention).
+
+Outputs (`out_dir`):
+    smpl.npz            AMASS layout: poses (T, 72) SMPL axis-angle (all 24 joints; the
+                        hands 22/23 are not SMPL-H's), trans (T, 3), betas (16,) (the fit's
+                        10, zero-padded), gender "neutral", mocap_framerate.
+    overlays/<view>.png detections (coloured by confidence) vs the model's reprojected
+                        keypoints and its projected mesh, first/middle/last frame.
+    meshes/frame_XXXX.ply, meshes/sequence.glb   posed meshes (y up, metres).
+    report.json, report.md   reprojection error per view and keypoint, jitter, timings.
+
+Masks (`masks_dir`) are not supported yet: `multiview_smplify` takes them, but reading,
+undistorting and holding full-resolution distance transforms for long recordings needs a
+memory plan first; the argument is there so the interface will not change.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["fit_recording", "jitter", "reprojection_errors", "world_to_y_up"]
+
+#: Detections with at least this confidence count in the reprojection statistics.
+MIN_CONFIDENCE = 0.2
+#: At most this many PLY files (every n-th frame beyond) and GLB nodes are written.
+MAX_PLY, MAX_GLB_NODES = 300, 30
+_AXES = {"+x": (0, 1), "-x": (0, -1), "+y": (1, 1), "-y": (1, -1), "+z": (2, 1), "-z": (2, -1)}
+# World rotations taking each axis to +y with the smallest turn (+z: AMASS's rot_x(-90°)).
+_TO_Y_UP = {
+    "+y": np.eye(3),
+    "-y": np.diag([1.0, -1.0, -1.0]),
+    "+z": np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]]),
+    "-z": np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]]),
+    "+x": np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]),
+    "-x": np.array([[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]),
+}
+
+
+def world_to_y_up(cameras) -> tuple[str, np.ndarray]:
+    """The calibration world's up axis ("+z", ...) and the rotation taking it to +y.
+
+    Up is the world axis nearest to the mean of the cameras' up directions (their -y axes
+    in the world): cameras are mounted roughly upright, even when tilted down.
+    """
+    up = sum(c.R.T @ np.array([0.0, -1.0, 0.0]) for c in cameras)
+    i = int(np.argmax(np.abs(up)))
+    name = ("+" if up[i] > 0 else "-") + "xyz"[i]
+    return name, _TO_Y_UP[name]
+
+
+def jitter(joints, fps: float) -> float:
+    """Mean ‖second difference‖ · fps² of 3-D joints (T, J, 3) in metres, as mm/s²."""
+    joints = np.asarray(joints, np.float64)
+    if len(joints) < 3:
+        return float("nan")
+    acc = np.linalg.norm(joints[2:] - 2 * joints[1:-1] + joints[:-2], axis=-1) * fps**2
+    return float(1000.0 * acc.mean())
+
+
+def reprojection_errors(uv_model, keypoints, min_confidence: float = MIN_CONFIDENCE) -> np.ndarray:
+    """Pixel distances (T, V, K) of model keypoints (T, V, K, 2) to detections (T, V, K, 3);
+    NaN where the detection's confidence is below `min_confidence`."""
+    err = np.linalg.norm(np.asarray(uv_model) - keypoints[..., :2], axis=-1)
+    return np.where(keypoints[..., 2] >= min_confidence, err, np.nan)
+
+
+def _stats(err) -> dict:
+    err = err[np.isfinite(err)]
+    if err.size == 0:
+        return {"median_px": None, "mean_px": None, "count": 0}
+    return {"median_px": float(np.median(err)), "mean_px": float(err.mean()), "count": int(err.size)}
+
+
+def _frame_filter(frames: np.ndarray, selection: slice | None) -> np.ndarray:
+    """Positions of the frame numbers that `selection` keeps (start <= n < stop, step)."""
+    if selection is None:
+        return np.arange(len(frames))
+    if not isinstance(selection, slice):
+        raise ValueError(f"frames must be a slice of frame numbers (e.g. slice(0, 100)), got {selection!r}.")
+    start = frames.min() if selection.start is None else selection.start
+    stop = frames.max() + 1 if selection.stop is None else selection.stop
+    step = 1 if selection.step is None else selection.step
+    if step < 1:
+        raise ValueError(f"frames: the step must be a positive integer, got {step}.")
+    keep = (frames >= start) & (frames < stop) & ((frames - start) % step == 0)
+    if not keep.any():
+        raise ValueError(
+            f"frames {start}:{stop}" + (f":{step}" if step != 1 else "")
+            + f" selects no frame; the recording has frame numbers {frames.min()}..{frames.max()}."
+        )
+    return np.flatnonzero(keep)
+
+
+def _fill_empty_frames(params: dict, empty: np.ndarray) -> dict:
+    """Starting values of frames no view sees copied from the nearest frame that is seen
+    (the fit then leaves them to the priors and, in stage 2, to their neighbours)."""
+    if not empty.any():
+        return params
+    seen = np.flatnonzero(~empty)
+    nearest = seen[np.abs(np.arange(len(empty))[:, None] - seen[None]).argmin(1)]
+    return {k: np.asarray(v)[nearest] for k, v in params.items()}
+
+
+def _posed(body, poses, betas, trans, chunk: int = 256):
+    """Vertices (T, N, 3) and joints (T, 24, 3) for per-frame (T, B) or shared (B,) betas."""
+    import jax.numpy as jnp
+
+    from ..body.kinematics import forward
+
+    T = len(poses)
+    betas = np.broadcast_to(np.asarray(betas), (T, np.shape(betas)[-1]))
+    verts, joints = [], []
+    for s in range(0, T, chunk):
+        out = forward(body, jnp.asarray(poses[s : s + chunk], body.dtype),
+                      jnp.asarray(betas[s : s + chunk], body.dtype), jnp.asarray(trans[s : s + chunk], body.dtype))
+        verts.append(np.asarray(out.vertices, np.float64))
+        joints.append(np.asarray(out.joints, np.float64))
+    return np.concatenate(verts), np.concatenate(joints)
+
+
+def _distorted_pixels(cam, uv_undistorted):
+    """Undistorted OpenCV pixels (..., 2) → the video's distorted pixels (same K)."""
+    from ..sensors.camera import _to_pixels, distort_points
+
+    K = cam.K
+    y = (uv_undistorted[..., 1] - K[1, 2]) / K[1, 1]
+    x = (uv_undistorted[..., 0] - K[0, 2] - K[0, 1] * y) / K[0, 0]
+    return _to_pixels(K, distort_points(np.stack([x, y], -1), cam.dist))
+
+
+def _overlay(path, cam, view, frame_numbers, picks, detections, model_kp, vertices, faces):
+    """One PNG per view, a column per picked frame: the image-size canvas (no images are
+    read) on top, the same zoomed onto the person below; pixels are the video's own."""
+    from matplotlib import colormaps
+    from matplotlib.collections import LineCollection, PolyCollection
+    from matplotlib.colors import Normalize
+    from matplotlib.figure import Figure
+    from matplotlib.patches import Rectangle
+
+    from ..sensors.camera import project_points
+    from ..viz.plot import save_figure
+
+    W, H = (cam.width, cam.height) if cam.width > 0 else (int(2 * cam.K[0, 2]) + 1, int(2 * cam.K[1, 2]) + 1)
+    fig = Figure(figsize=(4.2 * len(picks) + 1.0, 4.2 * H / W + 4.6), dpi=110, layout="constrained")
+    axes = fig.subplots(2, len(picks), squeeze=False, height_ratios=[H / W, 1.0])
+    norm = Normalize(0.0, 1.0)
+    sc = None
+    for col, t in enumerate(picks):
+        uv, z = project_points(cam.K, cam.dist, cam.R, cam.t, vertices[t])
+        front = (z[faces] > 0).all(1)
+        model, zk = project_points(cam.K, cam.dist, cam.R, cam.t, model_kp[t])
+        det = detections[t]
+        seen = det[:, 2] > 0
+        duv = _distorted_pixels(cam, det[:, :2])
+        err = np.linalg.norm(model - duv, axis=-1)[seen]
+        box = np.concatenate([uv[z > 0], duv[seen]])
+        lo, hi = box.min(0), box.max(0)
+        centre, half = 0.5 * (lo + hi), 0.6 * max(hi - lo) + 10.0
+        for row, ax in enumerate(axes[:, col]):
+            ax.add_patch(Rectangle((-0.5, -0.5), W, H, facecolor="#f4f4f4", edgecolor="#888888", lw=0.8))
+            # the mesh as filled projected triangles (those in front of the camera)
+            ax.add_collection(PolyCollection(uv[faces[front]], facecolor="#c9a27e", edgecolor="none", alpha=0.45))
+            ax.add_collection(LineCollection([np.stack([a, b]) for a, b in zip(duv[seen], model[seen])],
+                                             colors="#c53030", lw=0.8))
+            ax.scatter(*model[zk > 0].T, marker="x", s=22, c="#c53030", lw=1.2, label="model keypoint")
+            sc = ax.scatter(*duv[seen].T, s=16, c=det[seen, 2], cmap=colormaps["viridis"], norm=norm,
+                            edgecolors="k", linewidths=0.3, label="detection")
+            if row == 0:
+                ax.set_xlim(-0.5, W - 0.5)
+                ax.set_ylim(H - 0.5, -0.5)  # image rows grow downwards
+                ax.set_title(f"{view}, frame {frame_numbers[t]}: "
+                             + (f"median {np.median(err):.1f} px" if seen.any() else "no detection"), fontsize=9)
+            else:
+                ax.set_xlim(centre[0] - half, centre[0] + half)
+                ax.set_ylim(centre[1] + half, centre[1] - half)
+                ax.set_title("zoomed", fontsize=8)
+            ax.set_aspect("equal")
+            ax.tick_params(labelsize=7)
+    axes[0, 0].legend(loc="lower left", fontsize=7, framealpha=0.8)
+    fig.colorbar(sc, ax=axes.ravel().tolist(), shrink=0.6, label="detection confidence")
+    return save_figure(fig, path)
+
+
+def fit_recording(
+    keypoints_dir,
+    calib_path,
+    out_dir,
+    layout: str = "body25",
+    body="default-low",
+    views=None,
+    frames: slice | None = None,
+    temporal: bool = True,
+    masks_dir=None,
+    fps: float = 30.0,
+    weights=None,
+    progress: bool = True,
+) -> dict:
+    """Fit SMPL to a multi-camera OpenPose recording and write results to `out_dir`.
+
+    Args:
+        keypoints_dir: folder with one OpenPose ``--write_json`` folder per camera.
+        calib_path: calibration file (Pose2Sim .toml, Qualisys .qca.txt, EasyMocap
+            intri/extri.yml or their folder, jaxmocap .npz); cameras matched to the
+            keypoint folders by name (`formats.align_views`).
+        out_dir: output folder (created); see the module docstring for what is written.
+        layout: "body25" | "body25b" | "coco18", the model OpenPose ran with.
+        body: "default-low", "default-full", "mannequin" or a model file.
+        views: camera folder names to use (default: all).
+        frames: slice of frame numbers (as in the file names) to fit; default all.
+        temporal: run stage 2 (DCT temporal prior); otherwise stop after stage 1.
+        masks_dir: not supported yet (module docstring); must be None.
+        fps: the recording's frame rate (OpenPose files do not store it).
+        weights: `methods.multiview.MuVSWeights` (default: its defaults).
+        progress: show a tqdm bar over the stages on stderr.
+    Returns:
+        The report (also written as report.json): frames, views, reprojection errors,
+        jitter, timings, output paths.
+    Raises:
+        ValueError (KeypointFileError, CalibrationError) naming the file or argument.
+    """
+    from ..formats import align_views, load_calibration, read_openpose
+    from ..methods.multiview import MuVSWeights, camera_data, initialise, stage_one, stage_two
+    from ..sensors.keypoints import KEYPOINT_FORMATS, keypoint_regressor
+    from ..sensors.triangulation import select_person
+    from ..viz.demo import resolve_body
+
+    if masks_dir is not None:
+        raise ValueError(
+            f"masks_dir={str(masks_dir)!r}: silhouettes from mask folders are not supported yet; "
+            "fit from keypoints only (leave masks out)."
+        )
+    if not fps > 0:
+        raise ValueError(f"fps must be positive, got {fps}.")
+    weights = MuVSWeights() if weights is None else weights
+    out_dir = Path(out_dir)
+    timings: dict[str, float] = {}
+    stages = ["read", "select person", "initialise", "stage 1", "stage 2", "write"]
+    if not temporal:
+        stages.remove("stage 2")
+    bar = None
+    if progress:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=len(stages), unit="stage", leave=False)
+    clock = [time.perf_counter()]
+
+    def begin(name):
+        if bar is not None:
+            bar.set_description(f"multiview: {name}")
+
+    def done(name):
+        now = time.perf_counter()
+        timings[name] = now - clock[0]
+        clock[0] = now
+        if bar is not None:
+            bar.update()
+
+    try:
+        begin("read")
+        recording = read_openpose(keypoints_dir, layout, views)
+        keep = _frame_filter(recording.frames, frames)
+        recording = dataclasses.replace(
+            recording, frames=recording.frames[keep], keypoints=tuple(k[keep] for k in recording.keypoints)
+        )
+        cameras = align_views(recording, load_calibration(calib_path))
+        body_model = resolve_body(body)
+        done("read")
+
+        begin("select person")
+        if len(cameras) < 2:
+            raise ValueError(f"{keypoints_dir}: multi-view fitting needs at least 2 camera folders, "
+                             f"got {list(recording.views)}.")
+        subject = select_person(recording, cameras)  # (V, T, K, 3), undistorted, OpenCV centres
+        keypoints = np.moveaxis(subject, 0, 1).copy()  # (T, V, K, 3)
+        # never NaN: a view without the subject in a frame is confidence 0 at (0, 0)
+        bad = ~np.isfinite(keypoints).all(-1) | (keypoints[..., 2] <= 0)
+        keypoints[bad] = 0.0
+        empty = ~(keypoints[..., 2] > 0).any((1, 2))  # frames no view sees
+        if empty.all():
+            raise ValueError(
+                f"{keypoints_dir}: no frame has the same person in two views consistently with "
+                f"{calib_path}; check that the calibration belongs to this recording."
+            )
+        done("select person")
+
+        begin("initialise")
+        K = np.stack([c.K for c in cameras])
+        K[:, :2, 2] += 0.5  # jaxmocap's pixel centres (module docstring), as pinhole_camera
+        shifted = keypoints.copy()
+        shifted[..., :2] += 0.5 * (keypoints[..., 2:] > 0)
+        data = camera_data(body_model, K, np.stack([c.R for c in cameras]), np.stack([c.t for c in cameras]),
+                           shifted, layout)  # fmt: skip
+        p0 = _fill_empty_frames(initialise(data, weights.num_betas), empty)
+        done("initialise")
+
+        begin("stage 1")
+        p1, costs = stage_one(data, p0, weights, silhouettes=False)
+        done("stage 1")
+        final = {"pose": p1["pose"], "trans": p1["trans"], "betas": np.median(p1["betas"], 0)}
+        if temporal:
+            begin("stage 2")
+            p2, c2 = stage_two(data, p1, weights, silhouettes=False)
+            costs.update(c2)
+            final = {"pose": p2["pose"], "trans": p2["trans"], "betas": p2["betas"]}
+            done("stage 2")
+
+        begin("write")
+        for name, p in (("stage 1", p1), ("final", final)):
+            if not all(np.isfinite(v).all() for v in p.values()):
+                raise FloatingPointError(f"the {name} fit produced NaN; please report this recording.")
+        report = _write_outputs(
+            out_dir, (keypoints_dir, calib_path), recording, cameras, body_model, layout, keypoints, empty, p1, final, costs, fps,
+            regressor=keypoint_regressor(body_model, layout), names=KEYPOINT_FORMATS[layout],
+            temporal=temporal, weights=weights,
+        )  # fmt: skip
+        done("write")
+    finally:
+        if bar is not None:
+            bar.close()
+    report["timings_s"] = {k: round(v, 3) for k, v in timings.items()}
+    report["timings_s"]["total"] = round(sum(timings.values()), 3)
+    _save_reports(out_dir, report)
+    return report
+
+
+def _write_outputs(out_dir, sources, recording, cameras, body, layout, keypoints, empty, p1, final, costs, fps,
+                   regressor, names, temporal, weights) -> dict:
+    from ..motion.amass import _pose_world, pelvis_rest, save_amass
+    from ..motion.sequence import Motion
+    from ..sensors.triangulation import projection_matrices
+    from ..viz.mesh import export_sequence
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    T, V = keypoints.shape[:2]
+    verts1, joints1 = _posed(body, p1["pose"], p1["betas"], p1["trans"])
+    verts, joints = _posed(body, final["pose"], final["betas"], final["trans"])
+
+    # reprojection in undistorted OpenCV pixels (the detections' frame)
+    P = projection_matrices(cameras)  # (V, 3, 4)
+    errors = {}
+    for name, v in (("stage1", verts1), ("final", verts)):
+        kp3 = np.einsum("kn,tnc->tkc", regressor, v)
+        x = np.einsum("vab,tkb->tvka", P[:, :, :3], kp3) + P[None, :, None, :, 3]
+        errors[name] = reprojection_errors(x[..., :2] / x[..., 2:], keypoints)
+    kp_final = np.einsum("kn,tnc->tkc", regressor, verts)
+
+    # AMASS npz: calibration world → y up → (save_amass) z up
+    up, to_y = world_to_y_up(cameras)
+    betas16 = np.zeros(16)
+    betas16[: len(final["betas"])] = final["betas"]
+    j0 = pelvis_rest(body, betas16)
+    poses_y, trans_y = _pose_world(final["pose"].astype(np.float64), final["trans"].astype(np.float64), to_y, j0)
+    motion = Motion(poses_y, trans_y, fps, betas=betas16, gender="neutral", name="multiview")
+    npz = save_amass(motion, out_dir / "smpl.npz", body=body, layout="smpl")
+
+    # meshes, y up
+    verts_y = verts @ to_y.T
+    ply = export_sequence(verts_y, body.faces, out_dir / "meshes", fmt="ply", every=math.ceil(T / MAX_PLY))
+    glb = export_sequence(verts_y, body.faces, out_dir / "meshes", fmt="glb", every=math.ceil(T / MAX_GLB_NODES))
+
+    picks = sorted({0, T // 2, T - 1})
+    faces = np.asarray(body.faces)
+    overlays = [
+        _overlay(out_dir / "overlays" / f"{view}.png", cam, view, recording.frames, picks, keypoints[:, v],
+                 kp_final, verts, faces)
+        for v, (view, cam) in enumerate(zip(recording.views, cameras))
+    ]  # fmt: skip
+
+    def table(err):
+        return {
+            "overall": _stats(err),
+            "per_view": {view: _stats(err[:, v]) for v, view in enumerate(recording.views)},
+            "per_keypoint": {n: _stats(err[:, :, k]) for k, n in enumerate(names)},
+        }
+
+    seen = keypoints[..., 2] > 0
+    return {
+        "keypoints": str(sources[0]),
+        "calibration": str(sources[1]),
+        "layout": layout,
+        "body": body.kind,
+        "frames": {
+            "count": T, "first": int(recording.frames[0]), "last": int(recording.frames[-1]),
+            "fps": fps, "without_subject": [int(f) for f in recording.frames[empty]],
+        },
+        "views": {
+            view: {"camera": cam.name, "frames_with_subject": int(seen[:, v].any(-1).sum()),
+                   "image_size": [cam.width, cam.height]}
+            for v, (view, cam) in enumerate(zip(recording.views, cameras))
+        },
+        "world_up": up,
+        "min_confidence": MIN_CONFIDENCE,
+        "reprojection": {"stage1": table(errors["stage1"]), "final": table(errors["final"])},
+        "jitter_mm_s2": {"stage1": jitter(joints1, fps), "final": jitter(joints, fps)},
+        "temporal": temporal,
+        "betas": [float(b) for b in final["betas"]],
+        "costs": {k: float(c) for k, c in costs.items()},
+        "weights": {k: (list(v) if isinstance(v, tuple) else v) for k, v in dataclasses.asdict(weights).items()},
+        "outputs": {
+            "smpl": npz.name,
+            "meshes": [str(p.relative_to(out_dir)) for p in ply + glb],
+            "overlays": [str(p.relative_to(out_dir)) for p in overlays],
+        },
+    }  # fmt: skip
+
+
+def _fmt(x, spec=".1f"):
+    return "-" if x is None or (isinstance(x, float) and not math.isfinite(x)) else format(x, spec)
+
+
+def _save_reports(out_dir: Path, report: dict) -> None:
+    (out_dir / "report.json").write_text(json.dumps(report, indent=2, allow_nan=False) + "\n")
+    r, f = report["reprojection"], report["frames"]
+    lines = [
+        "# Multi-view SMPLify report",
+        "",
+        f"{f['count']} frames ({f['first']}..{f['last']} at {f['fps']:g} fps), {len(report['views'])} views, "
+        f"layout {report['layout']}, body {report['body']}, world up {report['world_up']}"
+        + (f"; frames without the subject in any view: {f['without_subject']}" if f["without_subject"] else "")
+        + ".",
+        "",
+        f"Reprojection error in pixels over detections with confidence ≥ {report['min_confidence']} "
+        "(undistorted pixels):",
+        "",
+        "| view | frames with subject | stage 1 median | final median | final mean | detections |",
+        "|---|---|---|---|---|---|",
+    ]
+    for view, info in report["views"].items():
+        s1, fin = r["stage1"]["per_view"][view], r["final"]["per_view"][view]
+        lines.append(f"| {view} | {info['frames_with_subject']} | {_fmt(s1['median_px'])} | "
+                     f"{_fmt(fin['median_px'])} | {_fmt(fin['mean_px'])} | {fin['count']} |")
+    s1, fin = r["stage1"]["overall"], r["final"]["overall"]
+    lines += [f"| **all** | | {_fmt(s1['median_px'])} | {_fmt(fin['median_px'])} | {_fmt(fin['mean_px'])} | "
+              f"{fin['count']} |", "", "| keypoint | final median | final mean | detections |", "|---|---|---|---|"]
+    for name, s in r["final"]["per_keypoint"].items():
+        lines.append(f"| {name} | {_fmt(s['median_px'])} | {_fmt(s['mean_px'])} | {s['count']} |")
+    j = report["jitter_mm_s2"]
+    lines += [
+        "",
+        "Jitter of the 24 SMPL joints, mean ‖second difference‖·fps² (mm/s²): "
+        f"stage 1 {_fmt(j['stage1'], '.0f')}, final {_fmt(j['final'], '.0f')}"
+        + ("" if report["temporal"] else " (stage 2 skipped: --no-temporal)") + ".",
+        "",
+        "Timings (s): " + ", ".join(f"{k} {v:.1f}" for k, v in report["timings_s"].items()) + ".",
+        "",
+        "Outputs: " + ", ".join([report["outputs"]["smpl"], *report["outputs"]["overlays"], "meshes/"]) + ".",
+        "",
+    ]
+    (out_dir / "report.md").write_text("\n".join(lines))

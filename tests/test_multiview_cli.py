@@ -1,0 +1,149 @@
+"""`jaxmocap multiview` end to end on a recording written in the real file layouts (issue 17).
+
+The fixture is what a lab would hand over: four Qualisys cameras (z-up world, mm, 1/64-px
+intrinsics, mild distortion) in a `.qca.txt`, and OpenPose BODY_25B JSON folders named as
+Pose2Sim names them (cam01_json, ...), with a second person in two views and one frame in
+which a camera sees no one. The keypoints are the default body's BODY_25B keypoints of a
+walk, projected through the lens distortion.
+"""
+
+import json
+
+import matplotlib.image
+import numpy as np
+import pytest
+import trimesh
+
+from jaxmocap.body.io import default_body
+from jaxmocap.cli import main
+from jaxmocap.formats import CalibratedCamera, save_calibration, write_openpose
+from jaxmocap.motion.amass import Z_UP_TO_Y_UP, load_amass
+from jaxmocap.motion.library import walk
+from jaxmocap.sensors.camera import project_points, ring_cameras
+from jaxmocap.sensors.keypoints import keypoint_regressor
+from jaxmocap.viz.mesh import posed_vertices
+
+W, H, T, FPS = 1280, 720, 9, 30.0
+EMPTY = (3, 4)  # (view, frame): camera 4 sees no one in frame 4
+
+
+def _cameras():
+    """Four cameras on a 4.5 m ring around the walk, in a z-up world (Qualisys's)."""
+    R, t = ring_cameras(4, 4.5, 1.6, [0.0, 0.9, 0.2], start_angle=0.4)  # y-up world
+    # the same rig in z-up coordinates: x_y = Z x_z, so R_z = R Z
+    rng = np.random.default_rng(0)
+    cams = []
+    for v in range(4):
+        f = 980.0 + 35.0 * v
+        K = [[f, 0.0, W / 2 - 4.0 + 3 * v], [0.0, f, H / 2 + 2.0 - 2 * v], [0.0, 0.0, 1.0]]
+        dist = [-0.12 + 0.02 * v, 0.04, 2e-4 * rng.normal(), 2e-4 * rng.normal(), -0.005]
+        cams.append(CalibratedCamera(f"cam{v + 1:02d}", K, dist, R[v] @ Z_UP_TO_Y_UP, t[v], W, H))
+    return cams
+
+
+def _detections(cam, points_z, conf, rng):
+    """OpenPose rows (K, 3) of world points (K, 3): distorted pixels, off-image points missed."""
+    uv, z = project_points(cam.K, cam.dist, cam.R, cam.t, points_z)
+    uv = uv + rng.normal(scale=0.3, size=uv.shape)
+    inside = (z > 0) & (uv >= -0.5).all(-1) & (uv[:, 0] < W - 0.5) & (uv[:, 1] < H - 0.5)
+    rows = np.concatenate([uv, np.full((len(uv), 1), conf)], -1)
+    return np.where(inside[:, None], rows, 0.0)
+
+
+@pytest.fixture(scope="module")
+def recording(tmp_path_factory):
+    """(root, truth joints (T, 24, 3) y up, cameras) of a written recording."""
+    root = tmp_path_factory.mktemp("lab")
+    body = default_body("low")
+    motion = walk(T, fps=FPS, body=body)
+    verts, joints = posed_vertices(body, motion)
+    reg = keypoint_regressor(body, "body25b")
+    subject = np.einsum("kn,tnc->tkc", reg, verts.astype(np.float64)) @ Z_UP_TO_Y_UP  # z-up world
+    other = subject[0] + np.array([1.3, -1.2, 0.0])  # a second person standing to the side
+    cams = _cameras()
+    rng = np.random.default_rng(1)
+    people = np.zeros((4, T, 2, 25, 3))
+    for v, cam in enumerate(cams):
+        for t in range(T):
+            if (v, t) == EMPTY:
+                continue  # "people": []
+            people[v, t, 0] = _detections(cam, subject[t], 0.85, rng)
+            if v in (0, 2):  # the bystander comes first in these views
+                people[v, t] = people[v, t, ::-1]
+                people[v, t, 0] = _detections(cam, other, 0.7, rng)
+    write_openpose(root / "pose", [f"{c.name}_json" for c in cams], list(people), "body25b")
+    save_calibration(root / "Calib.qca.txt", cams, "qualisys")
+    return root, joints.astype(np.float64), cams
+
+
+def _run(args, capsys):
+    code = main(["multiview", *map(str, args)])
+    return code, capsys.readouterr()
+
+
+def test_multiview_fits_a_body25b_qualisys_recording_end_to_end(recording, tmp_path, capsys):
+    root, truth, _ = recording
+    out = tmp_path / "out"
+    code, io = _run(["--keypoints", root / "pose", "--calib", root / "Calib.qca.txt", "--out", out,
+                     "--layout", "body25b", "--fps", FPS], capsys)  # fmt: skip
+    assert code == 0, io.err
+    assert "reproj   median" in io.out
+    report = json.loads((out / "report.json").read_text())
+    final = report["reprojection"]["final"]
+    assert final["overall"]["median_px"] < 10.0, final["overall"]
+    assert all(s["median_px"] < 15.0 for s in final["per_view"].values()), final["per_view"]
+    assert report["frames"]["count"] == T and report["frames"]["without_subject"] == []
+    assert report["views"]["cam04_json"]["frames_with_subject"] == T - 1  # the empty frame
+    assert report["views"]["cam01_json"]["frames_with_subject"] == T  # bystander not chosen
+    assert report["world_up"] == "+z"
+    assert set(report["timings_s"]) >= {"read", "select person", "stage 1", "stage 2", "write", "total"}
+    assert np.isfinite([report["jitter_mm_s2"]["stage1"], report["jitter_mm_s2"]["final"]]).all()
+    assert "| cam04_json |" in (out / "report.md").read_text()
+
+    with np.load(out / "smpl.npz") as f:
+        assert f["poses"].shape == (T, 72) and f["trans"].shape == (T, 3) and f["betas"].shape == (16,)
+        assert all(np.isfinite(f[k]).all() for k in ("poses", "trans", "betas"))
+        assert float(f["mocap_framerate"]) == FPS and str(f["gender"]) == "neutral"
+    # read back as AMASS (z up → y up): the fitted joints are where the walk's were
+    body = default_body("low")
+    motion = load_amass(out / "smpl.npz", body=body)
+    _, joints = posed_vertices(body, motion)
+    mpjpe = np.linalg.norm(joints - truth, axis=-1).mean()
+    assert mpjpe < 0.05, f"MPJPE {1000 * mpjpe:.0f} mm after the AMASS round trip"
+
+    for path in report["outputs"]["overlays"]:
+        image = matplotlib.image.imread(out / path)
+        assert image.ndim == 3 and min(image.shape[:2]) > 200
+    meshes = [out / p for p in report["outputs"]["meshes"]]
+    assert sum(p.suffix == ".ply" for p in meshes) == T and any(p.suffix == ".glb" for p in meshes)
+    mesh = trimesh.load(meshes[0], process=False)
+    assert mesh.vertices.shape == (body.num_vertices, 3) and np.isfinite(mesh.vertices).all()
+    assert np.ptp(mesh.vertices[:, 1]) > 1.2  # written y up: the body's height is along y
+
+
+def test_camera_names_that_match_no_keypoint_folder_are_listed(recording, tmp_path, capsys):
+    root, _, cams = recording
+    renamed = [CalibratedCamera(f"Miqus_{'ABCD'[i]}", c.K, c.dist, c.R, c.t, W, H) for i, c in enumerate(cams)]
+    save_calibration(tmp_path / "other.qca.txt", renamed, "qualisys")
+    code, io = _run(["--keypoints", root / "pose", "--calib", tmp_path / "other.qca.txt", "--out", tmp_path / "o",
+                     "--layout", "body25b"], capsys)  # fmt: skip
+    assert code == 2
+    assert io.err.startswith("jaxmocap multiview: error: align_views:") and io.err.count("\n") == 1
+    assert "cam01_json" in io.err and "Miqus_A" in io.err
+
+
+def test_missing_keypoint_folders_and_empty_frame_ranges_are_named(recording, tmp_path, capsys):
+    root, _, _ = recording
+    calib = root / "Calib.qca.txt"
+    code, io = _run(["--keypoints", tmp_path / "nope", "--calib", calib, "--out", tmp_path / "o"], capsys)
+    assert code == 2 and str(tmp_path / "nope") in io.err and "no such folder" in io.err
+    code, io = _run(["--keypoints", root / "pose", "--calib", calib, "--out", tmp_path / "o",
+                     "--views", "cam01_json,cam09_json", "--layout", "body25b"], capsys)  # fmt: skip
+    assert code == 2 and "cam09_json: missing camera folder" in io.err
+    code, io = _run(["--keypoints", root / "pose", "--calib", calib, "--out", tmp_path / "o",
+                     "--frames", "100:200", "--layout", "body25b"], capsys)  # fmt: skip
+    assert code == 2 and "frames 100:200 selects no frame" in io.err and "0..8" in io.err
+    with pytest.raises(SystemExit):
+        main(["multiview", "--keypoints", str(root), "--calib", str(calib), "--out", "o", "--frames", "7"])
+    assert "START:STOP" in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()  # nothing written before the inputs are checked
