@@ -4,7 +4,8 @@ Data: CMU clips the library has never seen (`../shared/data/cmu_cc`: the pose pr
 MuVS's weights came from `../shared/data/cmu` and the procedural library), each on a
 default body with random shape, filmed by 4 static cameras on a ring (256 x 192 px),
 BODY_25 keypoints through the detector error model (pixel noise, misses, outliers and
-left/right swap runs at a known rate), silhouettes rasterised from the true mesh.
+left/right swap runs at a known rate), silhouettes rasterised from the true mesh with
+segmentation-like boundary errors (`segmentation_errors`).
 For 1-4 views (the others masked, so one compiled solve serves all), every clip is fitted
 as one batch: stage 1 on joints (MuVS^n), + silhouettes (^S), stage 2 (^S,T), stage 2 with
 silhouettes (^S,T,H). MPJPE over SMPL's 24 joints in mm without alignment (Huang §4.4.1);
@@ -66,6 +67,22 @@ def pick_clips(n: int, frames: int) -> list[Path]:
     return order
 
 
+def segmentation_errors(masks, rng):
+    """Masks as a segmentation CNN might return them: each (frame, view) eroded by 1 px,
+    kept, or dilated by 1 or 2 px at random (a stand-in for the boundary errors of the
+    CNN segmentations MuVS used; rasterised masks are otherwise exact)."""
+    from scipy.ndimage import binary_dilation, binary_erosion
+
+    out = masks.copy()
+    for idx in np.ndindex(masks.shape[:2]):
+        k = rng.integers(4)
+        if k == 0:
+            out[idx] = binary_erosion(masks[idx])
+        elif k >= 2:
+            out[idx] = binary_dilation(masks[idx], iterations=int(k - 1))
+    return out
+
+
 def build(clips, frames, seed, body):
     cfg = ScenarioConfig(
         max_frames=frames, imu_set=None, betas_std=1.0, num_betas=10, keypoints="body25", detector=DETECTOR,
@@ -83,7 +100,7 @@ def build(clips, frames, seed, body):
                 hit = np.flatnonzero(who[v, t] == 0)
                 if len(hit):
                     kp[t, v], swapped[t, v] = det[v, t, hit[0]], s["det_swapped"][v, t, hit[0]]
-        masks = np.moveaxis(s["labels"] == 0, 0, 1)
+        masks = segmentation_errors(np.moveaxis(s["labels"] == 0, 0, 1), np.random.default_rng(seed + 1000 + i))
         datas.append(mv.camera_data(body, s["cam_K"], s["cam_R"][:, 0], s["cam_t"][:, 0], kp, "body25", masks=masks))
         truth.append({"poses": s["poses"][0], "trans": s["trans"][0], "betas": s["betas"][0], "swapped": swapped,
                       "name": clip.stem})  # fmt: skip

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import warnings
 from collections.abc import Sequence
 
 import jax
@@ -174,13 +175,24 @@ def initialise(data: CameraData, num_betas: int = 10) -> dict:
     conf = np.asarray(data.confidence, np.float64)[:, :, idx]
     T, V = uv.shape[:2]
     P = K @ np.concatenate([R, t[..., None]], -1)
-    X, _ = triangulate(P, np.moveaxis(uv, 1, 0), np.moveaxis(conf, 1, 0))  # (T, 4, 3)
+    X = _robust_triangulation(P, np.moveaxis(uv, 1, 0), np.moveaxis(conf, 1, 0), 0.05 * float(np.mean(K[:, 0, 0])))
     lh, rh, ls, rs = (X[:, i] for i in range(4))
     root = _root_frames(lh, rh, 0.5 * (lh + rh), 0.5 * (ls + rs))
     mid_hip = 0.5 * (lh + rh)
-    missing = ~np.all(np.isfinite(root.reshape(T, -1)), -1) | ~np.all(np.isfinite(mid_hip), -1)
-    if missing.any():
-        root[missing], mid_hip[missing] = _monocular_root(data, uv[missing], conf[missing])
+    valid = np.all(np.isfinite(root.reshape(T, -1)), -1) & np.all(np.isfinite(mid_hip), -1)
+    if valid.sum() >= 3:  # a frame far from its neighbours' median is a bad triangulation
+        with warnings.catch_warnings():  # windows without a valid frame give NaN, then False
+            warnings.simplefilter("ignore", RuntimeWarning)
+            med = np.stack([np.nanmedian(np.where(valid[:, None], mid_hip, np.nan)[max(0, i - 4) : i + 5], 0)
+                            for i in range(T)])  # fmt: skip
+        valid &= np.linalg.norm(mid_hip - med, axis=-1) < 0.3
+    if valid.any():  # fill the others from the nearest good frames
+        good = np.flatnonzero(valid)
+        near = good[np.abs(np.arange(T)[:, None] - good[None]).argmin(1)]
+        root = root[near]
+        mid_hip = np.stack([np.interp(np.arange(T), good, mid_hip[good, k]) for k in range(3)], -1)
+    else:
+        root, mid_hip = _monocular_root(data, uv, conf)
     rest = np.asarray(shaped_joints(body, jnp.zeros((1, num_betas), body.dtype)))[0].astype(np.float64)
     lj, rj = body.joint_index("left_hip"), body.joint_index("right_hip")
     rest_mid = 0.5 * (rest[lj] + rest[rj])
@@ -189,6 +201,23 @@ def initialise(data: CameraData, num_betas: int = 10) -> dict:
     pose[:, 1:] = np.asarray(data.prior.mean, np.float64).reshape(23, 3)
     pose[:, 0] = np.asarray(matrix_to_axis_angle(jnp.asarray(root)))
     return {"pose": pose, "trans": trans, "betas": np.zeros((T, num_betas))}
+
+
+def _robust_triangulation(P, uv, conf, max_error: float) -> np.ndarray:
+    """`triangulate`, dropping the worst view of a point while its reprojection error
+    exceeds `max_error` px (a swapped or outlying detection) and two views remain."""
+    conf = conf.copy()
+    for _ in range(len(P) - 2):
+        X, err = triangulate(P, uv, conf)
+        err = np.where(conf > 0, np.nan_to_num(err, nan=np.inf), -1.0)
+        worst = err.max(0)
+        bad = (worst > max_error) & ((conf > 0).sum(0) > 2)
+        if not bad.any():
+            break
+        drop = (err == worst[None]) & bad[None]
+        conf = np.where(drop, 0.0, conf)
+    X, _ = triangulate(P, uv, conf)
+    return X
 
 
 def _monocular_root(data, uv, conf, torso: float = 0.5):
@@ -202,7 +231,9 @@ def _monocular_root(data, uv, conf, torso: float = 0.5):
         p = uv[i, v]
         hip, sho = 0.5 * (p[0] + p[1]), 0.5 * (p[2] + p[3])
         length = max(float(np.linalg.norm(sho - hip)), 1.0)
-        depth = K[v, 0, 0] * torso / length if conf[i, v].min() > 0 else 4.0
+        # A foreshortened torso (bending towards the camera) would put the body kilometres
+        # away: depths are kept to 1-10 m.
+        depth = np.clip(K[v, 0, 0] * torso / length, 1.0, 10.0) if conf[i, v].min() > 0 else 4.0
         ray = np.linalg.solve(K[v], np.array([hip[0], hip[1], 1.0]))
         mids[i] = R[v].T @ (ray * depth - t[v])
         up = R[v].T @ np.array([0.0, -1.0, 0.0])
