@@ -10,7 +10,8 @@ method does: initialisation, medians, DCT starting values). Stage 1 = the joint 
 the annealed prior (3 solves) + the silhouette solve; stage 2 = the temporal solve.
 The thesis (Huang §4.3.3): ~70 s per frame (stage 1) and ~12 min per 30-frame unit
 (stage 2) on a 4-core PC with four 500 x 500 views; `*_vs_thesis` are our time / theirs.
-Baseline in the same process: one forward pass of the body (mesh + keypoints + projection
+`silhouette_images_per_s`: synthetic masks (256 x 192, the low body) rasterised per second,
+after compilation. Baseline in the same process: one forward pass of the body (mesh + keypoints + projection
 into all views) for the same frames, so `stage1_per_frame_in_forward_passes` says how many
 residual evaluations' worth of time a frame costs.
 """
@@ -32,6 +33,7 @@ from jaxmocap.energies.camera import _views
 from jaxmocap.methods import multiview as mv
 from jaxmocap.sensors import CameraConfig, DetectorErrorModel, ScenarioConfig, make_scenario
 from jaxmocap.sensors.keypoints import regress_keypoints
+from jaxmocap.sensors.silhouette import rasterize_views
 
 CLIP = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "cmu" / "02_01.amc"
 
@@ -87,6 +89,16 @@ def main(argv=None):
 
     floor = time_call(residual_floor, jnp.asarray(p0["pose"] if args.batch == 1 else p0["pose"][0], jnp.float32),
                       jnp.asarray(p0["trans"] if args.batch == 1 else p0["trans"][0], jnp.float32))  # fmt: skip
+    # Silhouette synthesis for benchmark sets (issue 17 item 5): views x frames per second.
+    posed = forward(body, jnp.asarray(p0["pose"] if args.batch == 1 else p0["pose"][0], jnp.float32), None,
+                    jnp.asarray(p0["trans"] if args.batch == 1 else p0["trans"][0], jnp.float32))  # fmt: skip
+    V = 4
+    Rb = np.repeat(np.asarray(one.R)[None], args.frames, 0).reshape(-1, 3, 3)
+    tb = np.repeat(np.asarray(one.t)[None], args.frames, 0).reshape(-1, 3)
+    vb = np.repeat(np.asarray(posed.vertices)[:, None], V, 1).reshape(args.frames * V, -1, 3)
+    labels = np.zeros(len(body.faces), int)
+    raster = lambda: rasterize_views(np.asarray(one.K[0]), Rb, tb, vb, body.faces, labels, 256, 192)  # noqa: E731
+    _, t_raster = timed(lambda: jax.block_until_ready(raster()))
     stage1 = t_joints + t_sil
     result = {
         "frames": args.frames, "batch": args.batch, "views": 4, "image": [256, 192],
@@ -100,6 +112,7 @@ def main(argv=None):
         "baseline_forward_pass_s": floor["median_s"],
         "stage1_per_frame_in_forward_passes": stage1 / args.batch / floor["median_s"],
         "targets": {"stage1_s_per_frame": 0.05, "stage2_s_per_window": 1.0},
+        "silhouette_images_per_s": args.frames * V / t_raster,
         "peak_memory_bytes": peak_memory_bytes(),
         "machine": machine(),
     }  # fmt: skip

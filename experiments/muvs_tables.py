@@ -11,7 +11,7 @@ as one batch: stage 1 on joints (MuVS^n), + silhouettes (^S), stage 2 (^S,T), st
 silhouettes (^S,T,H). MPJPE over SMPL's 24 joints in mm without alignment (Huang §4.4.1);
 monocular also after per-frame similarity alignment ("Sim", Table 4.5). Shape error: mean
 vertex distance of the zero-pose meshes (Table 4.2). Leg-swap repair: of the (view, frame)
-pairs whose detected legs were swapped while the true ankles were >= 15 cm apart, the
+pairs whose detected legs were swapped while the true knees and ankles were >= 15 cm apart, the
 share whose fitted 3-D knees and ankles are on the correct side (and, for reference, the
 same share over all such frames, swapped or not).
 
@@ -126,16 +126,19 @@ LEGS = (("left_knee", "right_knee"), ("left_ankle", "right_ankle"))
 
 def legs_correct(pred, true, body, separation: float = 0.15):
     """(T,) whether the fitted knees and ankles are on the correct side, and (T,) whether
-    the true ankles are `separation` m apart or more (closer legs have no "side" to get
-    wrong: a swap of two nearly coincident points is not an error to repair)."""
+    the true knees and ankles are `separation` m apart or more (closer legs have no "side"
+    to get wrong: a swap of two nearly coincident points is not an error to repair)."""
     ok = np.ones(len(pred), bool)
     for a, b in LEGS:
         i, j = body.joint_index(a), body.joint_index(b)
         same = np.linalg.norm(pred[:, i] - true[:, i], axis=-1) + np.linalg.norm(pred[:, j] - true[:, j], axis=-1)
         cross = np.linalg.norm(pred[:, i] - true[:, j], axis=-1) + np.linalg.norm(pred[:, j] - true[:, i], axis=-1)
         ok &= same < cross
-    i, j = body.joint_index("left_ankle"), body.joint_index("right_ankle")
-    return ok, np.linalg.norm(true[:, i] - true[:, j], axis=-1) >= separation
+    apart = np.ones(len(pred), bool)
+    for a, b in LEGS:
+        i, j = body.joint_index(a), body.joint_index(b)
+        apart &= np.linalg.norm(true[:, i] - true[:, j], axis=-1) >= separation
+    return ok, apart
 
 
 def main(argv=None):
@@ -194,6 +197,8 @@ def main(argv=None):
         ph, _ = mv.stage_two(d, ps, w, silhouettes=True)
         timing[f"views_{n}_s"] = time.perf_counter() - t1
         fits = {"stage1": pj, "S": ps, "S_T": pt, "S_T_H": ph}
+        np.savez_compressed(args.out / f"muvs_fits_views_{n}.npz", **{f"{k}_{q}": v[q] for k, v in fits.items()
+                                                                        for q in ("pose", "trans", "betas")})  # fmt: skip
         row, srow, wrow, mrow, legs_ok, legs_n = {}, {}, {}, {}, {}, {}
         for key, p in fits.items():
             betas = p["betas"] if p["betas"].ndim == 2 else np.median(p["betas"], 1)
