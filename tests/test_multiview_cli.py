@@ -147,3 +147,36 @@ def test_missing_keypoint_folders_and_empty_frame_ranges_are_named(recording, tm
         main(["multiview", "--keypoints", str(root), "--calib", str(calib), "--out", "o", "--frames", "7"])
     assert "START:STOP" in capsys.readouterr().err
     assert not (tmp_path / "o").exists()  # nothing written before the inputs are checked
+
+
+def test_masks_are_undistorted_onto_the_fit_pixels_and_bad_ones_are_named(tmp_path):
+    from PIL import Image
+
+    from jaxmocap.app.multiview import read_masks
+    from jaxmocap.sensors.camera import undistort_pixels
+
+    cam = _cameras()[0]
+    centre, radius = np.array([150.0, 120.0]), 40.0  # near a corner: the lens moves it ~10 px
+    v, u = np.mgrid[0:H, 0:W].astype(np.float64)
+    video = np.linalg.norm(undistort_pixels(np.stack([u, v], -1), cam.K, cam.dist) - centre, axis=-1) < radius
+    folder = tmp_path / "masks" / "cam01_json"
+    folder.mkdir(parents=True)
+    Image.fromarray(np.uint8(255 * video)).save(folder / "cam01_json_000000000003.png")
+    rgba = np.zeros((H, W, 4), np.uint8)
+    rgba[..., 3] = 255 * video  # a transparent background counts as "no person"
+    Image.fromarray(rgba).save(folder / "cam01_json_000000000005.png")
+
+    masks = read_masks(tmp_path / "masks", ["cam01_json"], [3, 4, 5], [cam])
+    assert masks.shape == (3, 1, H, W) and not masks[1].any()  # frame 4 has no file
+    disk = np.linalg.norm(np.stack([u, v], -1) - centre, axis=-1) < radius
+    for m in (masks[0, 0], masks[2, 0]):
+        assert (m & disk).sum() / (m | disk).sum() > 0.95
+    assert (video & disk).sum() / (video | disk).sum() < 0.8  # so undistortion mattered
+
+    Image.fromarray(np.zeros((H // 2, W // 2), np.uint8)).save(folder / "cam01_json_000000000006.png")
+    with pytest.raises(ValueError, match=r"000000000006\.png: mask is 640 x 360 px but camera 'cam01' records 1280 x 720"):
+        read_masks(tmp_path / "masks", ["cam01_json"], [6], [cam])
+    with pytest.raises(ValueError, match=r"cam02_json: missing mask folder.*\['cam01_json'\]"):
+        read_masks(tmp_path / "masks", ["cam02_json"], [3], [cam])
+    with pytest.raises(ValueError, match=r"need 1\d\.\d GiB.*--frames"):
+        read_masks(tmp_path / "masks", ["cam01_json"], range(5000), [cam])
