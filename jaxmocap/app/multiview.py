@@ -145,11 +145,11 @@ def read_masks(masks_dir, views, frame_numbers, cameras) -> np.ndarray:
         files = {}
         for p in sorted(folder.glob("*.png")):
             m = _LAST_NUMBER.search(p.stem)
-            if m and int(m.group(1)) in index:
-                if int(m.group(1)) in files:
-                    raise ValueError(f"{folder}: frame {int(m.group(1))} has two masks, {files[int(m.group(1))].name} "
-                                     f"and {p.name}.")
-                files[int(m.group(1))] = p
+            frame = int(m.group(1)) if m else None
+            if frame in index:
+                if frame in files:
+                    raise ValueError(f"{folder}: frame {frame} has two masks, {files[frame].name} and {p.name}.")
+                files[frame] = p
         # where every undistorted pixel centre lies in the video (the same for all frames)
         j, i = np.meshgrid(np.arange(cam.width, dtype=np.float64), np.arange(cam.height, dtype=np.float64))
         y = (i - cam.K[1, 2]) / cam.K[1, 1]
@@ -209,7 +209,11 @@ def _forward_jit():
 
     from ..body.kinematics import forward
 
-    return jax.jit(lambda body, pose, betas, trans: (lambda o: (o.vertices, o.joints))(forward(body, pose, betas, trans)))
+    def posed(body, pose, betas, trans):
+        out = forward(body, pose, betas, trans)
+        return out.vertices, out.joints
+
+    return jax.jit(posed)
 
 
 def _posed(body, poses, betas, trans, chunk: int = 256):
@@ -220,7 +224,8 @@ def _posed(body, poses, betas, trans, chunk: int = 256):
     betas = np.broadcast_to(np.asarray(betas), (T, np.shape(betas)[-1]))  # one jit shape for both stages
     verts, joints = [], []
     for s in range(0, T, chunk):
-        v, j = _forward_jit()(body, *(jnp.asarray(a[s : s + chunk], body.dtype) for a in (poses, betas, trans)))
+        part = (jnp.asarray(a[s : s + chunk], body.dtype) for a in (poses, betas, trans))
+        v, j = _forward_jit()(body, *part)
         verts.append(np.asarray(v, np.float64))
         joints.append(np.asarray(j, np.float64))
     return np.concatenate(verts), np.concatenate(joints)
@@ -380,9 +385,6 @@ def fit_recording(
         done("read")
 
         begin("select person")
-        if len(cameras) < 2:
-            raise ValueError(f"{keypoints_dir}: multi-view fitting needs at least 2 camera folders, "
-                             f"got {list(recording.views)}.")
         subject = select_person(recording, cameras)  # (V, T, K, 3), undistorted, OpenCV centres
         keypoints = np.moveaxis(subject, 0, 1).copy()  # (T, V, K, 3)
         # never NaN: a view without the subject in a frame is confidence 0 at (0, 0)
@@ -423,9 +425,9 @@ def fit_recording(
             if not all(np.isfinite(v).all() for v in p.values()):
                 raise FloatingPointError(f"the {name} fit produced NaN; please report this recording.")
         report = _write_outputs(
-            out_dir, (keypoints_dir, calib_path), recording, cameras, body_model, layout, keypoints, empty, p1, final, costs, fps,
-            regressor=keypoint_regressor(body_model, layout), names=KEYPOINT_FORMATS[layout],
-            temporal=temporal, weights=weights, data_has_masks=masks is not None,
+            out_dir, (keypoints_dir, calib_path), recording, cameras, body_model, layout, keypoints, empty,
+            p1, final, costs, fps, regressor=keypoint_regressor(body_model, layout),
+            names=KEYPOINT_FORMATS[layout], temporal=temporal, weights=weights, silhouettes=masks is not None,
         )  # fmt: skip
         done("write")
     finally:
@@ -438,7 +440,7 @@ def fit_recording(
 
 
 def _write_outputs(out_dir, sources, recording, cameras, body, layout, keypoints, empty, p1, final, costs, fps,
-                   regressor, names, temporal, weights, data_has_masks) -> dict:
+                   regressor, names, temporal, weights, silhouettes) -> dict:
     from ..motion.amass import _pose_world, pelvis_rest, save_amass
     from ..motion.sequence import Motion
     from ..sensors.triangulation import projection_matrices
@@ -507,7 +509,7 @@ def _write_outputs(out_dir, sources, recording, cameras, body, layout, keypoints
         "reprojection": {"stage1": table(errors["stage1"]), "final": table(errors["final"])},
         "jitter_mm_s2": {"stage1": jitter(joints1, fps), "final": jitter(joints, fps)},
         "temporal": temporal,
-        "silhouettes": data_has_masks,
+        "silhouettes": silhouettes,
         "betas": [float(b) for b in final["betas"]],
         "costs": {k: float(c) for k, c in costs.items()},
         "weights": {k: (list(v) if isinstance(v, tuple) else v) for k, v in dataclasses.asdict(weights).items()},
