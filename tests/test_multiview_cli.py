@@ -132,6 +132,16 @@ def test_camera_names_that_match_no_keypoint_folder_are_listed(recording, tmp_pa
     assert code == 2
     assert io.err.startswith("jaxmocap multiview: error: align_views:") and io.err.count("\n") == 1
     assert "cam01_json" in io.err and "Miqus_A" in io.err
+    # the calibration of another video mode: detections fall outside the image it gives
+    small = [CalibratedCamera(c.name, np.diag([0.5, 0.5, 1.0]) @ c.K, c.dist, c.R, c.t, W // 2, H // 2) for c in cams]
+    save_calibration(tmp_path / "small.qca.txt", small, "qualisys")
+    code, io = _run(["--keypoints", root / "pose", "--calib", tmp_path / "small.qca.txt", "--out", tmp_path / "o",
+                     "--layout", "body25b"], capsys)  # fmt: skip
+    assert code == 2 and "outside camera 'cam01'" in io.err and "640 x 360 image" in io.err
+    code, io = _run(["--keypoints", root / "pose", "--calib", root / "Calib.qca.txt", "--out", tmp_path / "o",
+                     "--layout", "coco18"], capsys)  # fmt: skip
+    assert code == 2 and "75 numbers" in io.err and "'body25' or 'body25b'" in io.err
+    assert not (tmp_path / "o").exists()
 
 
 def test_missing_keypoint_folders_and_empty_frame_ranges_are_named(recording, tmp_path, capsys):
