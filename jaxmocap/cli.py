@@ -260,12 +260,15 @@ def _run_multiview(args) -> int:
                       frames=args.frames, temporal=not args.no_temporal, masks_dir=args.masks, fps=args.fps,
                       progress=sys.stderr.isatty())
     final, out = r["reprojection"]["final"], Path(args.out)
+    num = lambda x, spec: "-" if x is None else format(x, spec)  # noqa: E731 (None: nothing to measure)
     per_view = ", ".join(f"{v} {s['median_px']:.1f}" for v, s in final["per_view"].items() if s["count"])
     print(f"fitted   {r['frames']['count']} frames x {len(r['views'])} views ({r['layout']}) in "
           f"{r['timings_s']['total']:.1f} s")
-    print(f"reproj   median {final['overall']['median_px']:.1f} px, mean {final['overall']['mean_px']:.1f} px "
+    print(f"reproj   median {num(final['overall']['median_px'], '.1f')} px, "
+          f"mean {num(final['overall']['mean_px'], '.1f')} px "
           f"(per view median: {per_view})")
-    print(f"jitter   stage 1 {r['jitter_mm_s2']['stage1']:.0f} mm/s^2, final {r['jitter_mm_s2']['final']:.0f} mm/s^2")
+    jitter = r["jitter_mm_s2"]
+    print(f"jitter   stage 1 {num(jitter['stage1'], '.0f')} mm/s^2, final {num(jitter['final'], '.0f')} mm/s^2")
     print(f"wrote    {out / r['outputs']['smpl']}, {len(r['outputs']['overlays'])} overlays in {out / 'overlays'}, "
           f"meshes in {out / 'meshes'}, {out / 'report.md'}")
     return 0

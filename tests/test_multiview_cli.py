@@ -205,3 +205,21 @@ def test_muvs_initialisation_tells_body25b_from_body25():
         data = camera_data(body, np.stack([c.K for c in cams]), np.stack([c.R for c in cams]),
                            np.stack([c.t for c in cams]), np.zeros((1, 4, n, 3)), layout)  # fmt: skip
         assert _layout_of(data) == layout
+
+
+def test_frame_ranges_are_frame_numbers_and_unseen_frames_start_from_their_neighbours():
+    from jaxmocap.app.multiview import _fill_empty_frames, _frame_filter, jitter
+
+    frames = np.array([10, 11, 12, 14, 15])
+    assert _frame_filter(frames, None).tolist() == [0, 1, 2, 3, 4]
+    assert _frame_filter(frames, slice(11, 15)).tolist() == [1, 2, 3]
+    assert _frame_filter(frames, slice(None, None, 2)).tolist() == [0, 2, 3]  # 10, 12, 14
+    with pytest.raises(ValueError, match="frames 20:30 selects no frame.*10..15"):
+        _frame_filter(frames, slice(20, 30))
+    params = {"trans": np.arange(5.0)[:, None] * [1.0, 0.0, 0.0], "pose": np.full((5, 24, 3), np.nan)}
+    params["pose"][[0, 3]] = 0.0
+    filled = _fill_empty_frames(params, np.array([False, True, True, False, True]))
+    assert filled["trans"][:, 0].tolist() == [0.0, 0.0, 3.0, 3.0, 3.0] and not np.isnan(filled["pose"]).any()
+    assert jitter(np.zeros((2, 24, 3)), 30.0) != jitter(np.zeros((2, 24, 3)), 30.0)  # NaN below 3 frames
+    line = np.linspace(0.0, 1.0, 10)[:, None, None] * np.ones((1, 24, 3))
+    assert jitter(line, 30.0) == pytest.approx(0.0, abs=1e-9)  # uniform motion has no jitter

@@ -276,6 +276,8 @@ def _overlay(path, cam, view, frame_numbers, picks, detections, model_kp, vertic
         rgba[..., :3] = (0.79, 0.64, 0.49)
         rgba[..., 3] = 0.55 * (np.asarray(sil) > 0)
         box = np.concatenate([uv[z > 0], duv[seen]])
+        if len(box) == 0:  # nothing to zoom onto: the whole image
+            box = np.array([[-0.5, -0.5], [W - 0.5, H - 0.5]])
         lo, hi = box.min(0), box.max(0)
         centre, half = 0.5 * (lo + hi), 0.6 * max(hi - lo) + 10.0
         for row, ax in enumerate(axes[:, col]):
@@ -525,7 +527,17 @@ def _fmt(x, spec=".1f"):
     return "-" if x is None or (isinstance(x, float) and not math.isfinite(x)) else format(x, spec)
 
 
+def _finite(x):
+    """The report with NaN/inf (e.g. jitter of fewer than 3 frames) as null: strict JSON."""
+    if isinstance(x, dict):
+        return {k: _finite(v) for k, v in x.items()}
+    if isinstance(x, list):
+        return [_finite(v) for v in x]
+    return None if isinstance(x, float) and not math.isfinite(x) else x
+
+
 def _save_reports(out_dir: Path, report: dict) -> None:
+    report.update(_finite(report))
     (out_dir / "report.json").write_text(json.dumps(report, indent=2, allow_nan=False) + "\n")
     r, f = report["reprojection"], report["frames"]
     lines = [
