@@ -26,8 +26,10 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import warnings
 from collections.abc import Sequence
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -48,9 +50,9 @@ from ..priors.pose_prior import PosePrior, default_pose_prior
 from ..rotation import matrix_to_axis_angle
 from ..sensors.keypoints import KEYPOINT_FORMATS, keypoint_regressor
 from ..sensors.triangulation import triangulate
-from ..solve import Problem, frame, solve, with_weights
+from ..solve import Problem, frame, solve, solve_batch, with_weights
 
-__all__ = ["MuVSWeights", "MuVSResult", "camera_data", "initialise", "stage_one", "stage_two", "multiview_smplify"]
+__all__ = ["MuVSWeights", "MuVSResult", "camera_data", "initialise", "stage_one", "stage_two", "multiview_smplify", "mask_views", "stack"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -61,7 +63,8 @@ class MuVSWeights:
     keypoints: E_J weight; sigma: its Geman-McClure σ₁ (px).
     pose_prior, shape: λ_θ, λ_β; anneal: λ_θ multipliers of the stage-1 joint fit.
     silhouette_model, silhouette_mask: the two sums of E_S (eq. 4.5); silhouette_stride:
-        every n-th vertex is a model point.
+        every n-th vertex is a model point; silhouette_slack: px within which a mask
+        point counts as covered by the model (`energies.camera.silhouette_terms`).
     temporal: λ_T; temporal_sigma: σ₂ (m); window, num_dct: DCT unit and basis size.
     """
 
@@ -73,6 +76,7 @@ class MuVSWeights:
     silhouette_model: float = 0.5
     silhouette_mask: float = 0.5
     silhouette_stride: int = 2
+    silhouette_slack: float = 2.0
     temporal: float = 2e5
     temporal_sigma: float = 0.05
     window: int = 30
@@ -143,7 +147,7 @@ def camera_data(
     return CameraData(
         body=body.astype(dtype), prior=prior if prior is not None else default_pose_prior(dtype),
         regressor=a(keypoint_regressor(body, layout)), K=a(K), R=a(R), t=a(t), keypoints=a(uv),
-        confidence=a(conf), joint_weights=a(w), betas=None, silhouettes=sil,
+        confidence=a(conf), joint_weights=a(w), betas=None, silhouettes=sil, layout=layout,
     )  # fmt: skip
 
 
@@ -158,22 +162,37 @@ def _root_frames(left, right, up_from, up_to):
 
 
 def initialise(data: CameraData, num_betas: int = 10) -> dict:
-    """Starting values {pose (T, 24, 3), trans (T, 3), betas (T, B)} (module docstring)."""
+    """Starting values {pose (T, 24, 3), trans (T, 3), betas (T, B)} (module docstring);
+    batched data gives a leading batch axis."""
+    if _batched(data):
+        each = [initialise(_member(data, i), num_betas) for i in range(data.keypoints.shape[0])]
+        return {k: np.stack([e[k] for e in each]) for k in each[0]}
     body = data.body
-    names = KEYPOINT_FORMATS[_layout_of(data)]
+    names = KEYPOINT_FORMATS[data.layout]
     idx = [names.index(n) for n in ("left_hip", "right_hip", "left_shoulder", "right_shoulder")]
     K, R, t = (np.asarray(a, np.float64) for a in (data.K, data.R, data.t))
     uv = np.asarray(data.keypoints, np.float64)[:, :, idx]  # (T, V, 4, 2)
     conf = np.asarray(data.confidence, np.float64)[:, :, idx]
     T, V = uv.shape[:2]
     P = K @ np.concatenate([R, t[..., None]], -1)
-    X, _ = triangulate(P, np.moveaxis(uv, 1, 0), np.moveaxis(conf, 1, 0))  # (T, 4, 3)
+    X = _robust_triangulation(P, np.moveaxis(uv, 1, 0), np.moveaxis(conf, 1, 0), 0.05 * float(np.mean(K[:, 0, 0])))
     lh, rh, ls, rs = (X[:, i] for i in range(4))
     root = _root_frames(lh, rh, 0.5 * (lh + rh), 0.5 * (ls + rs))
     mid_hip = 0.5 * (lh + rh)
-    missing = ~np.all(np.isfinite(root.reshape(T, -1)), -1) | ~np.all(np.isfinite(mid_hip), -1)
-    if missing.any():
-        root[missing], mid_hip[missing] = _monocular_root(data, uv[missing], conf[missing])
+    valid = np.all(np.isfinite(root.reshape(T, -1)), -1) & np.all(np.isfinite(mid_hip), -1)
+    if valid.sum() >= 3:  # a frame far from its neighbours' median is a bad triangulation
+        with warnings.catch_warnings():  # windows without a valid frame give NaN, then False
+            warnings.simplefilter("ignore", RuntimeWarning)
+            med = np.stack([np.nanmedian(np.where(valid[:, None], mid_hip, np.nan)[max(0, i - 4) : i + 5], 0)
+                            for i in range(T)])  # fmt: skip
+        valid &= np.linalg.norm(mid_hip - med, axis=-1) < 0.3
+    if valid.any():  # fill the others from the nearest good frames
+        good = np.flatnonzero(valid)
+        near = good[np.abs(np.arange(T)[:, None] - good[None]).argmin(1)]
+        root = root[near]
+        mid_hip = np.stack([np.interp(np.arange(T), good, mid_hip[good, k]) for k in range(3)], -1)
+    else:
+        root, mid_hip = _monocular_root(data, uv, conf)
     rest = np.asarray(shaped_joints(body, jnp.zeros((1, num_betas), body.dtype)))[0].astype(np.float64)
     lj, rj = body.joint_index("left_hip"), body.joint_index("right_hip")
     rest_mid = 0.5 * (rest[lj] + rest[rj])
@@ -184,15 +203,21 @@ def initialise(data: CameraData, num_betas: int = 10) -> dict:
     return {"pose": pose, "trans": trans, "betas": np.zeros((T, num_betas))}
 
 
-def _layout_of(data: CameraData) -> str:
-    # BODY_25 and BODY_25B both have 25 keypoints: the regressor tells them apart.
-    fits = [n for n, names in KEYPOINT_FORMATS.items() if len(names) == data.keypoints.shape[2]]
-    for name in fits:
-        if np.allclose(np.asarray(data.regressor), keypoint_regressor(data.body, name), atol=1e-5):
-            return name
-    if fits:
-        return fits[0]
-    raise ValueError(f"no keypoint layout has {data.keypoints.shape[2]} keypoints.")
+def _robust_triangulation(P, uv, conf, max_error: float) -> np.ndarray:
+    """`triangulate`, dropping the worst view of a point while its reprojection error
+    exceeds `max_error` px (a swapped or outlying detection) and two views remain."""
+    conf = conf.copy()
+    for _ in range(len(P) - 2):
+        X, err = triangulate(P, uv, conf)
+        err = np.where(conf > 0, np.nan_to_num(err, nan=np.inf), -1.0)
+        worst = err.max(0)
+        bad = (worst > max_error) & ((conf > 0).sum(0) > 2)
+        if not bad.any():
+            break
+        drop = (err == worst[None]) & bad[None]
+        conf = np.where(drop, 0.0, conf)
+    X, _ = triangulate(P, uv, conf)
+    return X
 
 
 def _monocular_root(data, uv, conf, torso: float = 0.5):
@@ -206,7 +231,9 @@ def _monocular_root(data, uv, conf, torso: float = 0.5):
         p = uv[i, v]
         hip, sho = 0.5 * (p[0] + p[1]), 0.5 * (p[2] + p[3])
         length = max(float(np.linalg.norm(sho - hip)), 1.0)
-        depth = K[v, 0, 0] * torso / length if conf[i, v].min() > 0 else 4.0
+        # A foreshortened torso (bending towards the camera) would put the body kilometres
+        # away: depths are kept to 1-10 m.
+        depth = np.clip(K[v, 0, 0] * torso / length, 1.0, 10.0) if conf[i, v].min() > 0 else 4.0
         ray = np.linalg.solve(K[v], np.array([hip[0], hip[1], 1.0]))
         mids[i] = R[v].T @ (ray * depth - t[v])
         up = R[v].T @ np.array([0.0, -1.0, 0.0])
@@ -223,21 +250,21 @@ def _monocular_root(data, uv, conf, torso: float = 0.5):
 
 
 @functools.lru_cache(maxsize=None)
-def _stage_one_problem(sigma: float, stride: int, silhouettes: bool) -> Problem:
+def _stage_one_problem(sigma: float, stride: int, slack: float, silhouettes: bool) -> Problem:
     # Cached: a term's function is static, so a new closure would mean a new compile.
     terms = [keypoint_term(sigma), pose_prior_term(), shape_term()]
     if silhouettes:
-        terms += silhouette_terms(stride=stride)
+        terms += silhouette_terms(stride=stride, slack=slack)
     return Problem(terms, {"pose": frame("so3"), "trans": frame(), "betas": frame()})
 
 
 @functools.lru_cache(maxsize=None)
-def _stage_two_problem(sigma: float, stride: int, silhouettes: bool, length: int, num_dct: int,
+def _stage_two_problem(sigma: float, stride: int, slack: float, silhouettes: bool, length: int, num_dct: int,
                        temporal_sigma: float) -> Problem:
     windows = dct_window(length)
     terms = [keypoint_term(sigma), pose_prior_term(), temporal_term(windows.windows, num_dct, temporal_sigma)]
     if silhouettes:
-        terms += silhouette_terms(stride=stride)
+        terms += silhouette_terms(stride=stride, slack=slack)
     return Problem(terms, {"pose": frame("so3"), "trans": frame(), "coef": windows})
 
 
@@ -251,6 +278,25 @@ def _weighted(problem: Problem, w: MuVSWeights, dtype, prior_factor: float = 1.0
     return with_weights(problem, {k: jnp.asarray(v, dtype) for k, v in values.items() if k in names})
 
 
+def _batched(data: CameraData) -> bool:
+    return data.keypoints.ndim == 5
+
+
+def _member(data: CameraData, i: int) -> CameraData:
+    return jax.tree_util.tree_map(lambda x: x[i], data)
+
+
+def stack(datas: Sequence[CameraData]) -> CameraData:
+    """Sequences of equal T and V as one batched `CameraData` (leading axis B) for the
+    stage functions, which then solve all members at once (`solve_batch`)."""
+    return jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), *datas)
+
+
+def _solve(problem: Problem, params: dict, data: CameraData, max_steps: int):
+    run = solve_batch if _batched(data) else solve
+    return run(problem, params, data, max_steps=max_steps)
+
+
 def stage_one(data: CameraData, params0: dict, weights: MuVSWeights = MuVSWeights(), silhouettes: bool = True,
               max_steps: int = 50) -> tuple[dict, dict]:
     """Per-frame fit (eq. 4.1-4.6): joints with an annealed prior, then + silhouettes.
@@ -260,17 +306,19 @@ def stage_one(data: CameraData, params0: dict, weights: MuVSWeights = MuVSWeight
     dtype = data.K.dtype
     p = {k: jnp.asarray(v, dtype) for k, v in params0.items()}
     costs = {}
-    joints_only = _stage_one_problem(weights.sigma, weights.silhouette_stride, False)
+    joints_only = _stage_one_problem(weights.sigma, weights.silhouette_stride, weights.silhouette_slack, False)
     for i, factor in enumerate(weights.anneal):
         prob = _weighted(joints_only, weights, dtype, factor)
-        sol = solve(prob, p, data, max_steps=max_steps)
+        sol = _solve(prob, p, data, max_steps)
         p = sol.value
-        costs[f"joints_{i}"] = float(sol.cost)
+        costs[f"joints_{i}"] = np.asarray(sol.cost).tolist()
+        costs[f"joints_{i}_steps"] = np.asarray(sol.num_steps).tolist()
     if silhouettes and data.silhouettes is not None:
-        prob = _weighted(_stage_one_problem(weights.sigma, weights.silhouette_stride, True), weights, dtype)
-        sol = solve(prob, p, data, max_steps=max_steps)
+        prob = _weighted(_stage_one_problem(weights.sigma, weights.silhouette_stride, weights.silhouette_slack, True), weights, dtype)
+        sol = _solve(prob, p, data, max_steps)
         p = sol.value
-        costs["silhouettes"] = float(sol.cost)
+        costs["silhouettes"] = np.asarray(sol.cost).tolist()
+        costs["silhouettes_steps"] = np.asarray(sol.num_steps).tolist()
     return {k: np.asarray(v) for k, v in p.items()}, costs
 
 
@@ -281,26 +329,33 @@ def stage_two(data: CameraData, params1: dict, weights: MuVSWeights = MuVSWeight
     Returns ({pose, trans, betas (B,), coef}, {"temporal": cost}).
     """
     dtype = data.K.dtype
-    betas = np.median(np.asarray(params1["betas"]), 0)
+    betas = np.median(np.asarray(params1["betas"]), -2)  # over frames: (B,) or (batch, B)
     data2 = dataclasses_replace(data, betas=jnp.asarray(betas, dtype))
     # A sequence shorter than a window gets a window of its length and the same bandwidth
     # (10 of 30 frames): the first frames of a 30-frame DCT basis are so ill-conditioned
     # that E_T would pull towards huge float32 coefficients instead of smoothing.
-    length = min(weights.window, data.num_frames)
+    length = min(weights.window, data.keypoints.shape[-4])
     num_dct = max(1, min(weights.num_dct, round(weights.num_dct * length / weights.window)))
     windows = dct_window(length).windows
-    joints = forward(data.body, jnp.asarray(params1["pose"], dtype), data2.betas, jnp.asarray(params1["trans"], dtype)).joints
-    coef = dct_coefficients(np.asarray(joints), windows, num_dct)
+    body = _member(data, 0).body if _batched(data) else data.body
+    posed = forward(body, jnp.asarray(params1["pose"], dtype), data2.betas[..., None, :],
+                    jnp.asarray(params1["trans"], dtype))  # fmt: skip
+    joints = np.asarray(posed.joints)
+    if _batched(data):
+        coef = np.stack([dct_coefficients(j, windows, num_dct) for j in joints])
+    else:
+        coef = dct_coefficients(joints, windows, num_dct)
     p = {"pose": jnp.asarray(params1["pose"], dtype), "trans": jnp.asarray(params1["trans"], dtype),
          "coef": jnp.asarray(coef, dtype)}  # fmt: skip
     use_sil = silhouettes and data.silhouettes is not None
     w = weights
-    prob = _stage_two_problem(w.sigma, w.silhouette_stride, use_sil, length, num_dct, w.temporal_sigma)
+    prob = _stage_two_problem(w.sigma, w.silhouette_stride, w.silhouette_slack, use_sil, length, num_dct,
+                              w.temporal_sigma)
     prob = _weighted(prob, w, dtype)
-    sol = solve(prob, p, data2, max_steps=max_steps)
+    sol = _solve(prob, p, data2, max_steps)
     out = {k: np.asarray(v) for k, v in sol.value.items()}
     out["betas"] = betas
-    return out, {"temporal": float(sol.cost)}
+    return out, {"temporal": np.asarray(sol.cost).tolist(), "temporal_steps": np.asarray(sol.num_steps).tolist()}
 
 
 def dataclasses_replace(data: CameraData, **changes) -> CameraData:
@@ -325,18 +380,19 @@ def multiview_smplify(
     p1, costs = stage_one(data, p0, weights, silhouettes)
     stage1 = {"poses": p1["pose"], "trans": p1["trans"], "betas": p1["betas"]}
     if not temporal:
-        return MuVSResult(p1["pose"], p1["trans"], np.median(p1["betas"], 0), stage1, costs)
+        return MuVSResult(p1["pose"], p1["trans"], np.median(p1["betas"], -2), stage1, costs)
     p2, c2 = stage_two(data, p1, weights, temporal_silhouettes)
     return MuVSResult(p2["pose"], p2["trans"], p2["betas"], stage1, {**costs, **c2})
 
 
-def views(data: CameraData, keep: Sequence[int]) -> CameraData:
-    """`data` restricted to the views `keep` (e.g. the first 1, 2 or 3 of 4)."""
-    keep = list(keep)
+def mask_views(data: CameraData, keep: Sequence[int]) -> CameraData:
+    """`data` with only the views `keep` observed (the others get confidence 0 and no
+    mask): 1, 2, 3 of 4 views share one compiled solve with the full set."""
+    V = data.K.shape[0] if data.K.ndim == 3 else data.K.shape[1]
+    on = np.zeros(V, bool)
+    on[list(keep)] = True
+    on = jnp.asarray(on)
     sil = data.silhouettes
     if sil is not None:
-        sil = Silhouettes(sil.distance[:, keep], sil.points[:, keep], sil.valid[:, keep])
-    return dataclasses_replace(
-        data, K=data.K[keep], R=data.R[keep], t=data.t[keep], keypoints=data.keypoints[:, keep],
-        confidence=data.confidence[:, keep], silhouettes=sil,
-    )  # fmt: skip
+        sil = Silhouettes(sil.distance, sil.points, sil.valid & on[:, None])
+    return dataclasses_replace(data, confidence=data.confidence * on[:, None], silhouettes=sil)

@@ -113,7 +113,26 @@ CMU_BVH_HAHNE_MAP: dict[str, str | tuple[str, str]] = {
     "right_hand": ("RightFingerBase", "RightHandIndex1"),
 }  # fmt: skip
 
-_TABLES = (("lfemur", CMU_ASF_MAP), ("LeftHip", CMU_BVH_MAP), ("LeftUpLeg", CMU_BVH_HAHNE_MAP))
+# Reallusion Character Creator rig (../shared/data/cmu_cc): CMU motion re-exported from
+# iClone. Its twist, "share", finger and face bones are left out (hands stay at rest).
+CC_BASE_MAP: dict[str, str | tuple[str, str]] = {
+    "pelvis": "CC_Base_Pelvis",
+    "left_hip": "CC_Base_L_Thigh", "right_hip": "CC_Base_R_Thigh",
+    "left_knee": "CC_Base_L_Calf", "right_knee": "CC_Base_R_Calf",
+    "left_ankle": "CC_Base_L_Foot", "right_ankle": "CC_Base_R_Foot",
+    "left_foot": "CC_Base_L_ToeBase", "right_foot": "CC_Base_R_ToeBase",
+    "spine1": "CC_Base_Waist", "spine2": "CC_Base_Spine01", "spine3": "CC_Base_Spine02",
+    "neck": "CC_Base_NeckTwist01", "head": "CC_Base_Head",
+    "left_collar": "CC_Base_L_Clavicle", "right_collar": "CC_Base_R_Clavicle",
+    "left_shoulder": "CC_Base_L_Upperarm", "right_shoulder": "CC_Base_R_Upperarm",
+    "left_elbow": "CC_Base_L_Forearm", "right_elbow": "CC_Base_R_Forearm",
+    "left_wrist": "CC_Base_L_Hand", "right_wrist": "CC_Base_R_Hand",
+}  # fmt: skip
+
+_TABLES = (
+    ("lfemur", CMU_ASF_MAP), ("LeftHip", CMU_BVH_MAP), ("LeftUpLeg", CMU_BVH_HAHNE_MAP),
+    ("CC_Base_L_Thigh", CC_BASE_MAP),
+)  # fmt: skip
 
 # Primary child of each SMPL joint (-1 for leaves): the only child, neck for spine3.
 _CHILD = [-1] * 24

@@ -1,0 +1,132 @@
+"""Multi-view SMPLify (Huang ch. 4): energies against independent references, and the
+two stages end to end on a short synthetic sequence with known truth."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from scipy.ndimage import distance_transform_edt, map_coordinates
+
+from jaxmocap.body import default_body, forward
+from jaxmocap.energies import camera as ec
+from jaxmocap.methods import multiview as mv
+from jaxmocap.rotation import axis_angle_to_matrix
+from jaxmocap.sensors.camera import intrinsics, project, ring_cameras
+from jaxmocap.sensors.keypoints import keypoint_regressor, regress_keypoints
+from jaxmocap.sensors.silhouette import rasterize_views
+
+
+def test_dct_basis_is_orthonormal_and_coefficients_reconstruct_its_span():
+    B = ec.dct_basis(30, 10)
+    np.testing.assert_allclose(B.T @ B, np.eye(10), atol=1e-12)
+    # DCT-II: column k is cos(pi (n + 1/2) k / N), checked at one entry by hand.
+    assert B[3, 2] == pytest.approx(np.sqrt(2 / 30) * np.cos(np.pi * 3.5 * 2 / 30))
+    rng = np.random.default_rng(0)
+    windows = ec.dct_window(30).windows
+    coef = rng.normal(size=(2, 10, 24, 3))
+    traj = np.concatenate([np.einsum("lk,kjd->ljd", B, c) for c in coef])[:45]  # last window clipped
+    got = ec.dct_coefficients(traj, windows, 10)
+    np.testing.assert_allclose(np.einsum("lk,kjd->ljd", B, got[0]), traj[:30], atol=1e-10)
+    np.testing.assert_allclose(np.einsum("lk,kjd->ljd", B[:15], got[1]), traj[30:], atol=1e-8)
+
+
+def test_bilinear_distance_matches_scipy_and_grows_outside_the_image():
+    mask = np.zeros((20, 30), bool)
+    mask[5:12, 8:20] = True
+    dist = distance_transform_edt(~mask)
+    uv = np.array([[3.3, 2.7], [25.1, 17.9], [10.5, 8.5]])
+    got = np.asarray(ec._bilinear(jnp.asarray(dist), jnp.asarray(uv)))
+    ref = map_coordinates(dist, [uv[:, 1] - 0.5, uv[:, 0] - 0.5], order=1)
+    np.testing.assert_allclose(got, ref, rtol=1e-6)
+    # 4 px left of the image: the border value plus the 4 px.
+    out = float(ec._bilinear(jnp.asarray(dist), jnp.asarray([[-3.5, 8.5]]))[0])
+    assert out == pytest.approx(dist[8, 0] + 4.0, rel=1e-6)
+    g = jax.grad(lambda p: ec._bilinear(jnp.asarray(dist), p).sum())(jnp.asarray(uv))
+    assert np.all(np.isfinite(np.asarray(g)))
+
+
+@pytest.fixture(scope="module")
+def scene():
+    """6 frames of a body turning its arms and legs, 3 ring views, clean keypoints, masks."""
+    body = default_body("low")
+    T, V = 6, 3
+    rng = np.random.default_rng(1)
+    pose = np.zeros((T, 24, 3))
+    s = np.linspace(0, 1, T)
+    pose[:, 0, 1] = 0.4
+    pose[:, 16, 2] = -1.0 + 0.5 * s  # left shoulder
+    pose[:, 17, 2] = 1.0 - 0.3 * s
+    pose[:, 1, 0] = -0.5 * s  # left hip flexion
+    pose[:, 5, 0] = 0.6 * s  # right knee
+    betas = np.zeros(10)
+    betas[:3] = rng.normal(size=3)
+    trans = np.stack([0.1 * s, np.full(T, 0.9), 0.05 * s], -1)
+    out = forward(body, jnp.asarray(pose, jnp.float32), jnp.asarray(betas, jnp.float32), jnp.asarray(trans, jnp.float32))
+    K = intrinsics(256, 192, 55.0)
+    R, t = ring_cameras(V, 4.0, 1.4, np.array([0.0, 0.9, 0.0]), 0.3)
+    reg = keypoint_regressor(body, "body25")
+    kp3 = regress_keypoints(reg, out.vertices)
+    uv, _ = project(jnp.asarray(K)[None, None], jnp.asarray(R)[None], jnp.asarray(t)[None], kp3[:, None])
+    kp = np.concatenate([np.asarray(uv), np.full(uv.shape[:-1] + (1,), 0.9)], -1)  # (T, V, K, 3)
+    Rb = np.repeat(R[None], T, 0).reshape(-1, 3, 3)
+    tb = np.repeat(t[None], T, 0).reshape(-1, 3)
+    vb = np.repeat(np.asarray(out.vertices)[:, None], V, 1).reshape(T * V, -1, 3)
+    _, labels = rasterize_views(K, Rb, tb, vb, body.faces, np.zeros(len(body.faces), int), 256, 192)
+    masks = np.asarray(labels).reshape(T, V, 192, 256) == 0
+    return {"body": body, "K": np.repeat(K[None], V, 0), "R": R, "t": t, "kp": kp, "masks": masks,
+            "joints": np.asarray(out.joints), "pose": pose, "betas": betas, "trans": trans}  # fmt: skip
+
+
+def _mpjpe(body, p, betas, truth):
+    b = np.broadcast_to(betas, (len(p["pose"]), betas.shape[-1])) if betas.ndim == 1 else betas
+    j = forward(body, jnp.asarray(p["pose"], jnp.float32), jnp.asarray(b, jnp.float32), jnp.asarray(p["trans"], jnp.float32)).joints
+    return float(np.mean(np.linalg.norm(np.asarray(j) - truth, axis=-1))) * 1000
+
+
+def test_keypoint_term_is_the_confidence_weighted_geman_mcclure_cost(scene):
+    body = scene["body"]
+    data = mv.camera_data(body, scene["K"], scene["R"], scene["t"], scene["kp"], "body25")
+    params = {"pose": axis_angle_to_matrix(jnp.asarray(scene["pose"], jnp.float32)),
+              "trans": jnp.asarray(scene["trans"], jnp.float32), "betas": jnp.asarray(np.broadcast_to(scene["betas"], (6, 10)), jnp.float32)}  # fmt: skip
+    term = ec.keypoint_term(sigma=50.0)
+    assert float(jnp.abs(term.fn(params, data)).max()) < 1e-2  # the truth reprojects exactly
+    shifted = mv.dataclasses_replace(data, keypoints=data.keypoints + jnp.asarray([3.0, -4.0]))
+    r = np.asarray(term.fn(params, shifted))
+    s = 25.0  # |(3, -4)|^2
+    expected = 0.9 * 50.0**2 * s / (50.0**2 + s)  # c · σ² s / (σ² + s)
+    np.testing.assert_allclose((r**2).sum(-1), expected, rtol=2e-3)
+
+
+def test_stage_one_and_two_recover_a_known_motion(scene):
+    body = scene["body"]
+    data = mv.camera_data(body, scene["K"], scene["R"], scene["t"], scene["kp"], "body25", masks=scene["masks"])
+    w = mv.MuVSWeights(window=6)
+    p0 = mv.initialise(data, w.num_betas)
+    init = _mpjpe(body, p0, p0["betas"], scene["joints"])
+    p1, _ = mv.stage_one(data, p0, w, silhouettes=True)
+    e1 = _mpjpe(body, p1, p1["betas"], scene["joints"])
+    assert np.all(np.isfinite(p1["pose"]))
+    assert e1 < 0.5 * init and e1 < 40.0, (init, e1)
+    p2, costs = mv.stage_two(data, p1, w)
+    e2 = _mpjpe(body, p2, p2["betas"], scene["joints"])
+    assert e2 < 40.0 and np.isfinite(costs["temporal"]), e2
+    # A view that sees nothing (no detections, empty mask) leaves the fit finite.
+    kp = scene["kp"].copy()
+    kp[:, 2] = 0.0
+    masks = scene["masks"].copy()
+    masks[:, 2] = False
+    blind = mv.camera_data(body, scene["K"], scene["R"], scene["t"], kp, "body25", masks=masks)
+    p3, _ = mv.stage_one(blind, p0, w.replace(anneal=(1.0,)), silhouettes=True)
+    assert np.all(np.isfinite(p3["pose"])) and _mpjpe(body, p3, p3["betas"], scene["joints"]) < 60.0
+
+
+def test_camera_data_refuses_wrong_shapes(scene):
+    body = scene["body"]
+    with pytest.raises(ValueError, match=r"\(T, V, 25, 3\)"):
+        mv.camera_data(body, scene["K"], scene["R"], scene["t"], scene["kp"][..., :18, :], "body25")
+    with pytest.raises(ValueError, match="V = 3 views"):
+        mv.camera_data(body, scene["K"][:2], scene["R"][:2], scene["t"][:2], scene["kp"], "body25")
+    with pytest.raises(ValueError, match="unknown keypoint layout"):
+        mv.camera_data(body, scene["K"], scene["R"], scene["t"], scene["kp"], "body99")
