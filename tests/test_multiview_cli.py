@@ -194,19 +194,6 @@ def test_masks_are_undistorted_onto_the_fit_pixels_and_bad_ones_are_named(tmp_pa
         read_masks(tmp_path / "masks", ["cam01_json"], range(5000), [cam])
 
 
-def test_muvs_initialisation_tells_body25b_from_body25():
-    # same keypoint count, other order: the hips and shoulders must be BODY_25B's
-    from jaxmocap.methods.multiview import _layout_of, camera_data
-
-    body = default_body("low")
-    cams = _cameras()
-    for layout in ("body25", "body25b", "coco18"):
-        n = 18 if layout == "coco18" else 25
-        data = camera_data(body, np.stack([c.K for c in cams]), np.stack([c.R for c in cams]),
-                           np.stack([c.t for c in cams]), np.zeros((1, 4, n, 3)), layout)  # fmt: skip
-        assert _layout_of(data) == layout
-
-
 def test_frame_ranges_are_frame_numbers_and_unseen_frames_start_from_their_neighbours():
     from jaxmocap.app.multiview import _fill_empty_frames, _frame_filter, jitter
 
