@@ -250,20 +250,25 @@ def _configure_multiview(p: argparse.ArgumentParser) -> None:
     p.add_argument("--frames", type=_frame_slice, metavar="START:STOP", help="frame numbers to fit (default: all)")
     p.add_argument("--fps", type=_positive(float), default=30.0, help="frame rate of the recording (default: 30)")
     p.add_argument("--no-temporal", action="store_true", help="stop after stage 1 (no DCT temporal prior)")
+    p.add_argument("--masks", metavar="DIR", help="person masks: one folder of PNGs per camera (adds silhouettes)")
 
 
 def _run_multiview(args) -> int:
     from .app.multiview import fit_recording
 
     r = fit_recording(args.keypoints, args.calib, args.out, layout=args.layout, body=args.body, views=args.views,
-                      frames=args.frames, temporal=not args.no_temporal, fps=args.fps, progress=sys.stderr.isatty())
+                      frames=args.frames, temporal=not args.no_temporal, masks_dir=args.masks, fps=args.fps,
+                      progress=sys.stderr.isatty())
     final, out = r["reprojection"]["final"], Path(args.out)
+    num = lambda x, spec: "-" if x is None else format(x, spec)  # noqa: E731 (None: nothing to measure)
     per_view = ", ".join(f"{v} {s['median_px']:.1f}" for v, s in final["per_view"].items() if s["count"])
     print(f"fitted   {r['frames']['count']} frames x {len(r['views'])} views ({r['layout']}) in "
           f"{r['timings_s']['total']:.1f} s")
-    print(f"reproj   median {final['overall']['median_px']:.1f} px, mean {final['overall']['mean_px']:.1f} px "
+    print(f"reproj   median {num(final['overall']['median_px'], '.1f')} px, "
+          f"mean {num(final['overall']['mean_px'], '.1f')} px "
           f"(per view median: {per_view})")
-    print(f"jitter   stage 1 {r['jitter_mm_s2']['stage1']:.0f} mm/s^2, final {r['jitter_mm_s2']['final']:.0f} mm/s^2")
+    jitter = r["jitter_mm_s2"]
+    print(f"jitter   stage 1 {num(jitter['stage1'], '.0f')} mm/s^2, final {num(jitter['final'], '.0f')} mm/s^2")
     print(f"wrote    {out / r['outputs']['smpl']}, {len(r['outputs']['overlays'])} overlays in {out / 'overlays'}, "
           f"meshes in {out / 'meshes'}, {out / 'report.md'}")
     return 0

@@ -9,7 +9,7 @@ Pixel convention: `select_person` returns undistorted pixels with OpenCV's centr
 integers, while the camera energies project with jaxmocap's centres at integer + 0.5
 (`sensors.camera.project`). We follow `sensors.camera.pinhole_camera`: the principal
 point of every K is moved by +0.5 and the detections by +0.5, so residuals are the
-same and future silhouettes (rasterised at +0.5 centres) would line up too. Overlays
+same and masks (`read_masks`, pixel centres at +0.5) line up too. Overlays
 are drawn back in the video's own (distorted, integer-centred) pixels.
 
 World frame: the fit happens in the calibration's world (Qualisys and Pose2Sim scenes are
@@ -27,27 +27,35 @@ Outputs (`out_dir`):
     meshes/frame_XXXX.ply, meshes/sequence.glb   posed meshes (y up, metres).
     report.json, report.md   reprojection error per view and keypoint, jitter, timings.
 
-Masks (`masks_dir`) are not supported yet: `multiview_smplify` takes them, but reading,
-undistorting and holding full-resolution distance transforms for long recordings needs a
-memory plan first; the argument is there so the interface will not change.
+Masks (optional, `masks_dir`): one folder per camera named like the keypoint folders,
+PNG files whose last number is the frame number (``cam01_000000000042.png``), white (or
+opaque) = person, in the video's pixels; `read_masks` undistorts them onto the fit's
+pixels. A missing file is a frame without an observation. Stage 1 then adds the
+silhouette term (eq. 4.5-4.6); the distance transforms are held for every frame and view
+at full resolution, so long recordings are refused above `MAX_MASK_BYTES` (fit them in
+pieces with `frames=`).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 import math
+import re
 import time
 from pathlib import Path
 
 import numpy as np
 
-__all__ = ["fit_recording", "jitter", "reprojection_errors", "world_to_y_up"]
+__all__ = ["fit_recording", "jitter", "read_masks", "reprojection_errors", "world_to_y_up"]
 
 #: Detections with at least this confidence count in the reprojection statistics.
 MIN_CONFIDENCE = 0.2
 #: At most this many PLY files (every n-th frame beyond) and GLB nodes are written.
 MAX_PLY, MAX_GLB_NODES = 300, 30
+#: Masks are refused when their distance transforms (float32, every frame and view) exceed this.
+MAX_MASK_BYTES = 2 << 30
 _AXES = {"+x": (0, 1), "-x": (0, -1), "+y": (1, 1), "-y": (1, -1), "+z": (2, 1), "-z": (2, -1)}
 # World rotations taking each axis to +y with the smallest turn (+z: AMASS's rot_x(-90°)).
 _TO_Y_UP = {
@@ -88,6 +96,76 @@ def reprojection_errors(uv_model, keypoints, min_confidence: float = MIN_CONFIDE
     return np.where(keypoints[..., 2] >= min_confidence, err, np.nan)
 
 
+_LAST_NUMBER = re.compile(r"(\d+)(?!.*\d)")
+
+
+def _mask_image(path: Path) -> np.ndarray:
+    from PIL import Image
+
+    try:
+        with Image.open(path) as im:
+            if im.mode in ("RGBA", "LA", "PA") and im.getchannel("A").getextrema()[0] < 255:
+                return np.asarray(im.getchannel("A")) > 127  # transparent background
+            return np.asarray(im.convert("L")) > 127
+    except OSError as e:
+        raise ValueError(f"{path}: not a readable PNG mask ({e}).") from None
+
+
+def read_masks(masks_dir, views, frame_numbers, cameras) -> np.ndarray:
+    """Person masks (T, V, H, W) on the fit's undistorted pixels (module docstring).
+
+    Mask pixel (row i, column j) is the undistorted OpenCV pixel (j, i), i.e. jaxmocap's
+    (j + 0.5, i + 0.5), the convention of `energies.camera.silhouette_data`; each is looked
+    up at its distorted position in the PNG (nearest pixel). Cameras of different sizes
+    are padded to the largest with "no person".
+    """
+    masks_dir = Path(masks_dir)
+    if not masks_dir.is_dir():
+        raise ValueError(f"{masks_dir}: no such folder (masks_dir: one folder of PNG masks per camera).")
+    frame_numbers = [int(f) for f in frame_numbers]
+    if any(c.width <= 0 for c in cameras):
+        raise ValueError("masks need the image size of every camera; the calibration gives none for "
+                         f"{[c.name for c in cameras if c.width <= 0]}.")
+    T, V = len(frame_numbers), len(cameras)
+    H, W = max(c.height for c in cameras), max(c.width for c in cameras)
+    if T * V * H * W * 4 > MAX_MASK_BYTES:
+        raise ValueError(
+            f"masks of {T} frames x {V} views at {W} x {H} need {T * V * H * W * 4 / 2**30:.1f} GiB of distance "
+            f"transforms (limit {MAX_MASK_BYTES / 2**30:.0f} GiB); fit fewer frames at a time (frames=/--frames)."
+        )
+    from ..sensors.camera import _to_pixels, distort_points
+
+    out = np.zeros((T, V, H, W), bool)
+    index = {f: i for i, f in enumerate(frame_numbers)}
+    for v, (view, cam) in enumerate(zip(views, cameras)):
+        folder = masks_dir / view
+        if not folder.is_dir():
+            present = sorted(p.name for p in masks_dir.iterdir() if p.is_dir())
+            raise ValueError(f"{folder}: missing mask folder for camera {view!r}; folders present: {present}.")
+        files = {}
+        for p in sorted(folder.glob("*.png")):
+            m = _LAST_NUMBER.search(p.stem)
+            frame = int(m.group(1)) if m else None
+            if frame in index:
+                if frame in files:
+                    raise ValueError(f"{folder}: frame {frame} has two masks, {files[frame].name} and {p.name}.")
+                files[frame] = p
+        # where every undistorted pixel centre lies in the video (the same for all frames)
+        j, i = np.meshgrid(np.arange(cam.width, dtype=np.float64), np.arange(cam.height, dtype=np.float64))
+        y = (i - cam.K[1, 2]) / cam.K[1, 1]
+        x = (j - cam.K[0, 2] - cam.K[0, 1] * y) / cam.K[0, 0]
+        src = np.rint(_to_pixels(cam.K, distort_points(np.stack([x, y], -1), cam.dist))).astype(np.int64)
+        inside = (src[..., 0] >= 0) & (src[..., 0] < cam.width) & (src[..., 1] >= 0) & (src[..., 1] < cam.height)
+        su, sv = np.where(inside, src[..., 0], 0), np.where(inside, src[..., 1], 0)
+        for frame, path in files.items():
+            image = _mask_image(path)
+            if image.shape != (cam.height, cam.width):
+                raise ValueError(f"{path}: mask is {image.shape[1]} x {image.shape[0]} px but camera {cam.name!r} "
+                                 f"records {cam.width} x {cam.height}.")
+            out[index[frame], v, : cam.height, : cam.width] = image[sv, su] & inside
+    return out
+
+
 def _stats(err) -> dict:
     err = err[np.isfinite(err)]
     if err.size == 0:
@@ -125,20 +203,31 @@ def _fill_empty_frames(params: dict, empty: np.ndarray) -> dict:
     return {k: np.asarray(v)[nearest] for k, v in params.items()}
 
 
+@functools.cache
+def _forward_jit():
+    import jax
+
+    from ..body.kinematics import forward
+
+    def posed(body, pose, betas, trans):
+        out = forward(body, pose, betas, trans)
+        return out.vertices, out.joints
+
+    return jax.jit(posed)
+
+
 def _posed(body, poses, betas, trans, chunk: int = 256):
     """Vertices (T, N, 3) and joints (T, 24, 3) for per-frame (T, B) or shared (B,) betas."""
     import jax.numpy as jnp
 
-    from ..body.kinematics import forward
-
     T = len(poses)
-    betas = np.broadcast_to(np.asarray(betas), (T, np.shape(betas)[-1]))
+    betas = np.broadcast_to(np.asarray(betas), (T, np.shape(betas)[-1]))  # one jit shape for both stages
     verts, joints = [], []
     for s in range(0, T, chunk):
-        out = forward(body, jnp.asarray(poses[s : s + chunk], body.dtype),
-                      jnp.asarray(betas[s : s + chunk], body.dtype), jnp.asarray(trans[s : s + chunk], body.dtype))
-        verts.append(np.asarray(out.vertices, np.float64))
-        joints.append(np.asarray(out.joints, np.float64))
+        part = (jnp.asarray(a[s : s + chunk], body.dtype) for a in (poses, betas, trans))
+        v, j = _forward_jit()(body, *part)
+        verts.append(np.asarray(v, np.float64))
+        joints.append(np.asarray(j, np.float64))
     return np.concatenate(verts), np.concatenate(joints)
 
 
@@ -156,10 +245,11 @@ def _overlay(path, cam, view, frame_numbers, picks, detections, model_kp, vertic
     """One PNG per view, a column per picked frame: the image-size canvas (no images are
     read) on top, the same zoomed onto the person below; pixels are the video's own."""
     from matplotlib import colormaps
-    from matplotlib.collections import LineCollection, PolyCollection
+    from matplotlib.collections import LineCollection
     from matplotlib.colors import Normalize
     from matplotlib.figure import Figure
     from matplotlib.patches import Rectangle
+    from PIL import Image, ImageDraw
 
     from ..sensors.camera import project_points
     from ..viz.plot import save_figure
@@ -177,13 +267,23 @@ def _overlay(path, cam, view, frame_numbers, picks, detections, model_kp, vertic
         seen = det[:, 2] > 0
         duv = _distorted_pixels(cam, det[:, :2])
         err = np.linalg.norm(model - duv, axis=-1)[seen]
+        # the mesh's silhouette, drawn as an image (one artist instead of thousands of triangles)
+        sil = Image.new("L", (W, H))
+        draw = ImageDraw.Draw(sil)
+        for tri in uv[faces[front]]:
+            draw.polygon(tri.ravel().tolist(), fill=255)
+        rgba = np.zeros((H, W, 4))
+        rgba[..., :3] = (0.79, 0.64, 0.49)
+        rgba[..., 3] = 0.55 * (np.asarray(sil) > 0)
         box = np.concatenate([uv[z > 0], duv[seen]])
+        if len(box) == 0:  # nothing to zoom onto: the whole image
+            box = np.array([[-0.5, -0.5], [W - 0.5, H - 0.5]])
         lo, hi = box.min(0), box.max(0)
         centre, half = 0.5 * (lo + hi), 0.6 * max(hi - lo) + 10.0
         for row, ax in enumerate(axes[:, col]):
-            ax.add_patch(Rectangle((-0.5, -0.5), W, H, facecolor="#f4f4f4", edgecolor="#888888", lw=0.8))
-            # the mesh as filled projected triangles (those in front of the camera)
-            ax.add_collection(PolyCollection(uv[faces[front]], facecolor="#c9a27e", edgecolor="none", alpha=0.45))
+            ax.add_patch(Rectangle((-0.5, -0.5), W, H, facecolor="#f4f4f4", edgecolor="#888888", lw=0.8,
+                                   zorder=0))
+            ax.imshow(rgba, extent=(-0.5, W - 0.5, H - 0.5, -0.5), interpolation="nearest", zorder=0.5)
             ax.add_collection(LineCollection([np.stack([a, b]) for a, b in zip(duv[seen], model[seen])],
                                              colors="#c53030", lw=0.8))
             ax.scatter(*model[zk > 0].T, marker="x", s=22, c="#c53030", lw=1.2, label="model keypoint")
@@ -232,7 +332,8 @@ def fit_recording(
         views: camera folder names to use (default: all).
         frames: slice of frame numbers (as in the file names) to fit; default all.
         temporal: run stage 2 (DCT temporal prior); otherwise stop after stage 1.
-        masks_dir: not supported yet (module docstring); must be None.
+        masks_dir: optional folder of per-camera PNG person masks (module docstring);
+            they add the silhouette term to stage 1.
         fps: the recording's frame rate (OpenPose files do not store it).
         weights: `methods.multiview.MuVSWeights` (default: its defaults).
         progress: show a tqdm bar over the stages on stderr.
@@ -248,11 +349,6 @@ def fit_recording(
     from ..sensors.triangulation import select_person
     from ..viz.demo import resolve_body
 
-    if masks_dir is not None:
-        raise ValueError(
-            f"masks_dir={str(masks_dir)!r}: silhouettes from mask folders are not supported yet; "
-            "fit from keypoints only (leave masks out)."
-        )
     if not fps > 0:
         raise ValueError(f"fps must be positive, got {fps}.")
     weights = MuVSWeights() if weights is None else weights
@@ -291,9 +387,6 @@ def fit_recording(
         done("read")
 
         begin("select person")
-        if len(cameras) < 2:
-            raise ValueError(f"{keypoints_dir}: multi-view fitting needs at least 2 camera folders, "
-                             f"got {list(recording.views)}.")
         subject = select_person(recording, cameras)  # (V, T, K, 3), undistorted, OpenCV centres
         keypoints = np.moveaxis(subject, 0, 1).copy()  # (T, V, K, 3)
         # never NaN: a view without the subject in a frame is confidence 0 at (0, 0)
@@ -312,13 +405,14 @@ def fit_recording(
         K[:, :2, 2] += 0.5  # jaxmocap's pixel centres (module docstring), as pinhole_camera
         shifted = keypoints.copy()
         shifted[..., :2] += 0.5 * (keypoints[..., 2:] > 0)
+        masks = None if masks_dir is None else read_masks(masks_dir, recording.views, recording.frames, cameras)
         data = camera_data(body_model, K, np.stack([c.R for c in cameras]), np.stack([c.t for c in cameras]),
-                           shifted, layout)  # fmt: skip
+                           shifted, layout, masks=masks)  # fmt: skip
         p0 = _fill_empty_frames(initialise(data, weights.num_betas), empty)
         done("initialise")
 
         begin("stage 1")
-        p1, costs = stage_one(data, p0, weights, silhouettes=False)
+        p1, costs = stage_one(data, p0, weights, silhouettes=masks is not None)
         done("stage 1")
         final = {"pose": p1["pose"], "trans": p1["trans"], "betas": np.median(p1["betas"], 0)}
         if temporal:
@@ -333,9 +427,9 @@ def fit_recording(
             if not all(np.isfinite(v).all() for v in p.values()):
                 raise FloatingPointError(f"the {name} fit produced NaN; please report this recording.")
         report = _write_outputs(
-            out_dir, (keypoints_dir, calib_path), recording, cameras, body_model, layout, keypoints, empty, p1, final, costs, fps,
-            regressor=keypoint_regressor(body_model, layout), names=KEYPOINT_FORMATS[layout],
-            temporal=temporal, weights=weights,
+            out_dir, (keypoints_dir, calib_path), recording, cameras, body_model, layout, keypoints, empty,
+            p1, final, costs, fps, regressor=keypoint_regressor(body_model, layout),
+            names=KEYPOINT_FORMATS[layout], temporal=temporal, weights=weights, silhouettes=masks is not None,
         )  # fmt: skip
         done("write")
     finally:
@@ -348,7 +442,7 @@ def fit_recording(
 
 
 def _write_outputs(out_dir, sources, recording, cameras, body, layout, keypoints, empty, p1, final, costs, fps,
-                   regressor, names, temporal, weights) -> dict:
+                   regressor, names, temporal, weights, silhouettes) -> dict:
     from ..motion.amass import _pose_world, pelvis_rest, save_amass
     from ..motion.sequence import Motion
     from ..sensors.triangulation import projection_matrices
@@ -417,6 +511,7 @@ def _write_outputs(out_dir, sources, recording, cameras, body, layout, keypoints
         "reprojection": {"stage1": table(errors["stage1"]), "final": table(errors["final"])},
         "jitter_mm_s2": {"stage1": jitter(joints1, fps), "final": jitter(joints, fps)},
         "temporal": temporal,
+        "silhouettes": silhouettes,
         "betas": [float(b) for b in final["betas"]],
         "costs": {k: float(c) for k, c in costs.items()},
         "weights": {k: (list(v) if isinstance(v, tuple) else v) for k, v in dataclasses.asdict(weights).items()},
@@ -432,7 +527,17 @@ def _fmt(x, spec=".1f"):
     return "-" if x is None or (isinstance(x, float) and not math.isfinite(x)) else format(x, spec)
 
 
+def _finite(x):
+    """The report with NaN/inf (e.g. jitter of fewer than 3 frames) as null: strict JSON."""
+    if isinstance(x, dict):
+        return {k: _finite(v) for k, v in x.items()}
+    if isinstance(x, list):
+        return [_finite(v) for v in x]
+    return None if isinstance(x, float) and not math.isfinite(x) else x
+
+
 def _save_reports(out_dir: Path, report: dict) -> None:
+    report.update(_finite(report))
     (out_dir / "report.json").write_text(json.dumps(report, indent=2, allow_nan=False) + "\n")
     r, f = report["reprojection"], report["frames"]
     lines = [
@@ -464,6 +569,9 @@ def _save_reports(out_dir: Path, report: dict) -> None:
         "Jitter of the 24 SMPL joints, mean ‖second difference‖·fps² (mm/s²): "
         f"stage 1 {_fmt(j['stage1'], '.0f')}, final {_fmt(j['final'], '.0f')}"
         + ("" if report["temporal"] else " (stage 2 skipped: --no-temporal)") + ".",
+        "",
+        "Stage 1 " + ("fitted keypoints, then keypoints and silhouettes (person masks)." if report["silhouettes"]
+                      else "fitted keypoints only (no person masks given)."),
         "",
         "Timings (s): " + ", ".join(f"{k} {v:.1f}" for k, v in report["timings_s"].items()) + ".",
         "",
