@@ -32,7 +32,7 @@ from jaxmocap.body.kinematics import forward
 from jaxmocap.energies.camera import _views
 from jaxmocap.methods import multiview as mv
 from jaxmocap.sensors import CameraConfig, DetectorErrorModel, ScenarioConfig, make_scenario
-from jaxmocap.sensors.keypoints import regress_keypoints
+from jaxmocap.sensors.keypoints import person_track, regress_keypoints
 from jaxmocap.sensors.silhouette import rasterize_views
 
 CLIP = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "cmu" / "02_01.amc"
@@ -45,14 +45,7 @@ def clip_data(body, frames):
         cameras=CameraConfig(num_views=4), silhouettes=True,
     )  # fmt: skip
     s = make_scenario([CLIP], cfg, seed=0, body=body).sequence(0)
-    det, who = s["det_keypoints"], s["det_person"]
-    V, T = who.shape[:2]
-    kp = np.zeros((T, V, det.shape[3], 3))
-    for v in range(V):
-        for t in range(T):
-            hit = np.flatnonzero(who[v, t] == 0)
-            if len(hit):
-                kp[t, v] = det[v, t, hit[0]]
+    kp = person_track(s["det_keypoints"], s["det_person"])
     masks = np.moveaxis(s["labels"] == 0, 0, 1)
     return mv.camera_data(body, s["cam_K"], s["cam_R"][:, 0], s["cam_t"][:, 0], kp, "body25", masks=masks)
 

@@ -35,7 +35,7 @@ import numpy as np
 from jaxmocap.body import default_body, forward
 from jaxmocap.methods import multiview as mv
 from jaxmocap.metrics import procrustes_align
-from jaxmocap.sensors.keypoints import KEYPOINT_FORMATS
+from jaxmocap.sensors.keypoints import KEYPOINT_FORMATS, person_track
 from jaxmocap.sensors import CameraConfig, DetectorErrorModel, ScenarioConfig, make_scenario
 
 CC = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "cmu_cc"
@@ -91,15 +91,7 @@ def build(clips, frames, seed, body):
     datas, truth = [], []
     for i, clip in enumerate(clips):
         s = make_scenario([clip], cfg, seed=seed + i, body=body).sequence(0)
-        det, who = s["det_keypoints"], s["det_person"]  # (V, T, D, K, 3), (V, T, D)
-        V, T = who.shape[:2]
-        kp = np.zeros((T, V, det.shape[3], 3))
-        swapped = np.zeros((T, V, det.shape[3]), bool)
-        for v in range(V):
-            for t in range(T):
-                hit = np.flatnonzero(who[v, t] == 0)
-                if len(hit):
-                    kp[t, v], swapped[t, v] = det[v, t, hit[0]], s["det_swapped"][v, t, hit[0]]
+        kp, swapped = person_track(s["det_keypoints"], s["det_person"], 0, s["det_swapped"])
         masks = segmentation_errors(np.moveaxis(s["labels"] == 0, 0, 1), np.random.default_rng(seed + 1000 + i))
         datas.append(mv.camera_data(body, s["cam_K"], s["cam_R"][:, 0], s["cam_t"][:, 0], kp, "body25", masks=masks))
         truth.append({"poses": s["poses"][0], "trans": s["trans"][0], "betas": s["betas"][0], "swapped": swapped,

@@ -14,7 +14,7 @@ from jaxmocap.energies import camera as ec
 from jaxmocap.methods import multiview as mv
 from jaxmocap.rotation import axis_angle_to_matrix
 from jaxmocap.sensors.camera import intrinsics, project, ring_cameras
-from jaxmocap.sensors.keypoints import keypoint_regressor, regress_keypoints
+from jaxmocap.sensors.keypoints import keypoint_regressor, person_track, regress_keypoints
 from jaxmocap.sensors.silhouette import rasterize_views
 
 
@@ -130,3 +130,21 @@ def test_camera_data_refuses_wrong_shapes(scene):
         mv.camera_data(body, scene["K"][:2], scene["R"][:2], scene["t"][:2], scene["kp"], "body25")
     with pytest.raises(ValueError, match="unknown keypoint layout"):
         mv.camera_data(body, scene["K"], scene["R"], scene["t"], scene["kp"], "body99")
+
+
+def test_person_track_takes_each_views_slot_of_that_person():
+    rng = np.random.default_rng(0)
+    V, T, D, K = 3, 4, 3, 5
+    kp = rng.normal(size=(V, T, D, K, 3))
+    swapped = rng.random((V, T, D, K)) > 0.5
+    who = np.full((V, T, D), -1)
+    ref, ref_sw = np.zeros((T, V, K, 3)), np.zeros((T, V, K), bool)
+    for v in range(V):
+        for t in range(T):
+            d = rng.integers(D + 1)  # D: not detected in this view and frame
+            if d < D:
+                who[v, t, d] = 0
+                ref[t, v], ref_sw[t, v] = kp[v, t, d], swapped[v, t, d]
+    got, got_sw = person_track(kp, who, 0, swapped)
+    np.testing.assert_array_equal(got, ref)
+    np.testing.assert_array_equal(got_sw, ref_sw)

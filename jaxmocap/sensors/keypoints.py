@@ -80,6 +80,7 @@ __all__ = [
     "Detections",
     "detect",
     "flip_pairs",
+    "person_track",
 ]
 
 COCO18_NAMES = (
@@ -331,3 +332,25 @@ def detect(
         for slot, i in enumerate(order):
             out[t, slot], person[t, slot], swapped_out[t, slot] = dets[t][i], ids[t][i], swaps[t][i]
     return Detections(keypoints=out, person=person, swapped=swapped_out)
+
+
+def person_track(keypoints: np.ndarray, person: np.ndarray, who: int = 0, extra: np.ndarray | None = None):
+    """One simulated person's detections by the simulator's identity labels.
+
+    keypoints: (V, T, D, K, 3) and person: (V, T, D) as in a scenario's `det_keypoints` /
+    `det_person`. Returns (T, V, K, 3) (zeros where the person was not detected) and,
+    if `extra` (V, T, D, ...) is given (e.g. `det_swapped`), its rows for that person too.
+    """
+    V, T = person.shape[:2]
+    hit = person == who  # (V, T, D)
+    slot = np.argmax(hit, -1)  # first matching slot (0 if none; masked below)
+    found = hit.any(-1)
+
+    def take(a):  # a[v, t, slot[v, t]], zero where the person was not detected
+        tail = (1,) * (a.ndim - 3)
+        rows = np.take_along_axis(a, slot.reshape(V, T, 1, *tail), 2)[:, :, 0]
+        return np.where(found.reshape(V, T, *tail), rows, 0)
+
+    out = np.swapaxes(take(keypoints), 0, 1)
+    return out if extra is None else (out, np.swapaxes(take(extra), 0, 1))
+
