@@ -88,8 +88,16 @@ def plausibility_report(
         slide_speed: a contact step faster than this (m/s) counts as sliding.
         chunk: frames posed at once.
     """
+    from ..motion.sequence import Motion
     from ..viz.mesh import posed_vertices
 
+    if not isinstance(body, Body):
+        raise ValueError(f"body must be a jaxmocap Body, got {type(body).__name__}: call plausibility_report(body, motion).")
+    if not isinstance(motion, Motion):
+        raise ValueError(
+            f"motion must be a jaxmocap.motion.Motion, got {type(motion).__name__}; wrap arrays as "
+            "Motion(poses=(T, 24, 3), trans=(T, 3), fps=...)."
+        )
     vertices, _ = posed_vertices(body, motion, chunk=chunk)
     vertices = vertices.astype(np.float64)
     if ground is None:
