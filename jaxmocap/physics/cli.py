@@ -14,6 +14,12 @@ def run_check(motion_path, body="default-low", fps=None, ground="0", out=None) -
     from .mjcf import Ground
     from .report import format_report, plausibility_report, plot_report
 
+    if out is not None:
+        # Before minutes of work, not after: an output folder that cannot be made.
+        try:
+            Path(out).mkdir(parents=True, exist_ok=True)
+        except OSError as e:
+            raise OSError(e.errno, f"cannot create the output folder --out {out}: {e.strerror}", str(out)) from e
     body = resolve_body(body)
     motion = load_motion(motion_path, fps=fps, body=body)
     if ground != "auto":

@@ -203,7 +203,7 @@ def plot_report(report: PlausibilityReport, path) -> Path:
     ax0.set_ylabel("height above floor (mm)")
     ax0.set_title(f"plausibility: {report.name or 'motion'}")
     ax0.legend(loc="upper right", fontsize=8)
-    for i, name in enumerate(FOOT_POINTS):
+    for i in range(len(FOOT_POINTS)):
         on = report.foot_contact[:, i]
         ax1.fill_between(t, i, i + 0.8 * on, step="mid", alpha=0.6)
     ax1.set_yticks(np.arange(4) + 0.4, [n.replace("_", " ") for n in FOOT_POINTS], fontsize=8)
