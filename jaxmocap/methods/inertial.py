@@ -169,9 +169,6 @@ def calibrate(
         raise ValueError(f"pose0 has shape {pose0.shape}; expected ({body.num_joints}, 3) axis-angle.")
     trans0 = jnp.zeros(3, dtype) if trans0 is None else jnp.asarray(trans0, dtype)
     betas = jnp.zeros((body.num_betas,), dtype) if betas is None else jnp.asarray(betas, dtype)
-    out = forward(body, pose0, betas, trans0)
-    bones_idx, verts_idx = np.asarray(bones), np.asarray(vertices)
-    R_b0 = out.joint_rotations[bones_idx]  # R_b^g(x₀)
     R_s0 = orientation[0]
     if not bool(jnp.all(jnp.isfinite(R_s0))):
         missing = [int(i) for i in np.flatnonzero(~np.isfinite(np.asarray(R_s0)).all(axis=(1, 2)))]
@@ -185,6 +182,9 @@ def calibrate(
             f"orientation: frame 0 has dropped samples (sensors {missing}); calibration needs "
             f"every sensor at the frame whose pose is pose0. {hint}."
         )
+    out = forward(body, pose0, betas, trans0)
+    bones_idx, verts_idx = np.asarray(bones), np.asarray(vertices)
+    R_b0 = out.joint_rotations[bones_idx]  # R_b^g(x₀)
     sensor_to_bone = jnp.swapaxes(R_b0, -1, -2) @ R_s0  # eq. 3.3
     rel = out.vertices[verts_idx] - out.joints[bones_idx]
     sensor_point = jnp.einsum("sba,sb->sa", R_b0, rel)  # R_b0ᵀ (v - J_b)
@@ -201,16 +201,22 @@ def first_complete_frame(orientation) -> int | None:
     return int(np.argmax(ok)) if ok.any() else None
 
 
-def from_scenario(scenario, index: int, body: Body, person: int = 0, truth_init: bool = True, **kw) -> InertialSetup:
+def from_scenario(scenario, index: int, body: Body, person: int = 0, truth_init: bool = True, start: int = 0, **kw) -> InertialSetup:
     """Calibrate sequence `index` of a `jaxmocap.sensors.Scenario` (measured IMU readings).
 
-    x₀ is the true pose at frame 0 (the thesis's "initial pose provided with the dataset").
+    x₀ is the true pose at frame `start` (the thesis's "initial pose provided with the
+    dataset"), and the setup holds the readings from `start` on; pass
+    `start=first_complete_frame(scenario.sequence(index)["imu_ori"][person])` when frame 0
+    may have dropped samples (the setup then starts there: crop the truth alike).
     """
     seq = scenario.sequence(index)
     p = person
+    n = len(seq["imu_ori"][p])
+    if not isinstance(start, (int, np.integer)) or not 0 <= start < n:
+        raise ValueError(f"start={start!r} must be a frame index in 0 .. {n - 1}.")
     return calibrate(
-        body, seq["imu_bones"], seq["imu_vertices"], seq["imu_ori"][p], seq["imu_acc"][p],
-        seq["poses"][p][0], scenario.config.fps, betas=seq["betas"][p], trans0=seq["trans"][p][0], **kw,
+        body, seq["imu_bones"], seq["imu_vertices"], seq["imu_ori"][p][start:], seq["imu_acc"][p][start:],
+        seq["poses"][p][start], scenario.config.fps, betas=seq["betas"][p], trans0=seq["trans"][p][start], **kw,
     )  # fmt: skip
 
 
@@ -289,6 +295,12 @@ def orientation_poser(
     Returns:
         (poses (T, 24, 3) axis-angle, per-frame `optx.RESULTS` codes (T,)).
     """
+    if not isinstance(setup, InertialSetup):
+        raise ValueError(f"setup must be an InertialSetup (from calibrate), got {type(setup).__name__}.")
+    if not isinstance(max_steps, (int, np.integer)) or max_steps < 1:
+        raise ValueError(f"max_steps must be an int >= 1, got {max_steps!r}.")
+    if init is not None and jnp.shape(init) != setup.pose0.shape:
+        raise ValueError(f"init has shape {jnp.shape(init)}; expected {setup.pose0.shape}, one pose.")
     problem = inertial_problem(setup, weights, acceleration=False)
     data = setup.data
     x0 = setup.pose0 if init is None else jnp.asarray(init, setup.pose0.dtype)
