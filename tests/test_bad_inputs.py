@@ -182,7 +182,7 @@ CASES = [
     ("synth-fps-zero", lambda c: sensors.synthesize_imu(c.body, c.placement, np.zeros((3, 24, 3)), fps=0.0), ValueError, r"fps"),
     ("synth-fps-nan", lambda c: sensors.synthesize_imu(c.body, c.placement, np.zeros((3, 24, 3)), fps=float("nan")), ValueError, r"fps"),
     ("synth-pose-shape", lambda c: sensors.synthesize_imu(c.body, c.placement, np.zeros((3, 72)), fps=30.0), ValueError, r"poses has shape"),
-    ("imu-trajectory-shapes", lambda c: sensors.imu_from_trajectory(jnp.zeros((3, 2, 3, 3)), jnp.zeros((3, 5, 3)), 30.0), ValueError, r"rotations .* positions"),
+    ("imu-trajectory-shapes", lambda c: sensors.imu.imu_from_trajectory(jnp.zeros((3, 2, 3, 3)), jnp.zeros((3, 5, 3)), 30.0), ValueError, r"rotations .* positions"),
     ("scenario-max-frames", lambda c: sensors.ScenarioConfig(max_frames=0), ValueError, r"max_frames"),
     ("scenario-fps", lambda c: sensors.ScenarioConfig(fps=-30.0), ValueError, r"ScenarioConfig\.fps"),
     ("scenario-people", lambda c: sensors.ScenarioConfig(people=0), ValueError, r"people"),
@@ -358,8 +358,8 @@ def test_no_observations_is_not_success(ctx):
     masked = Problem([Term("obs", lambda p, d: p["x"] - d, mask=lambda d: nan_mask(d))])
     sol = solve(masked, {"x": jnp.zeros((3, 2))}, jnp.full((3, 2), jnp.nan), max_steps=2)
     assert int(sol.result) == NO_OBSERVATIONS and not bool(sol.converged)
-    sol = solve(masked, {"x": jnp.zeros((3, 2))}, jnp.ones((3, 2)).at[1:].set(jnp.nan), max_steps=2)
-    assert int(sol.result) == 0
+    sol = solve(masked, {"x": jnp.zeros((3, 2))}, jnp.ones((3, 2)).at[1:].set(jnp.nan), max_steps=50)
+    assert int(sol.result) == 0  # one observed row is enough
 
 
 def test_first_complete_frame():

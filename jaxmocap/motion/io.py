@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .._checks import check_rate
 from .sequence import Motion
 from .skeleton import MotionFileError, check_file, read_npz
 
@@ -71,6 +72,8 @@ def load_motion(path, fps: float | None = None, body=None, asf=None, **retarget_
         unknown suffix, corrupt content), always naming the file.
     """
     path = check_file(path)
+    if fps is not None:
+        check_rate("fps", fps)  # before the work of reading and retargeting
     suffix = path.suffix.lower()
     if suffix == ".npz":
         from .amass import load_amass
