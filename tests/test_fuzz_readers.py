@@ -10,6 +10,7 @@ budget); `derandomize` keeps runs reproducible.
 from __future__ import annotations
 
 import io
+import os
 import pickle
 import signal
 import uuid
@@ -31,8 +32,10 @@ from jaxmocap.motion.bvh import load_bvh  # noqa: E402
 from jaxmocap.sensors.scenario import load_dip  # noqa: E402
 
 CMU = Path(__file__).resolve().parents[2] / "shared" / "data" / "cmu"
+# JAXMOCAP_FUZZ_EXAMPLES=2000 explores further with fresh random examples (a long run).
+_LONG = int(os.environ.get("JAXMOCAP_FUZZ_EXAMPLES", "0"))
 FUZZ = settings(
-    max_examples=30, deadline=None, derandomize=True, database=None,
+    max_examples=_LONG or 50, deadline=None, derandomize=not _LONG, database=None,
     suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow, HealthCheck.data_too_large],
 )  # fmt: skip
 

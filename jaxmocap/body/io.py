@@ -22,6 +22,7 @@ MANO (16 joints) and other layouts raise an error that names the file.
 from __future__ import annotations
 
 import dataclasses
+import io
 import os
 import pickle
 import zipfile
@@ -73,7 +74,9 @@ _SAFE_GLOBALS = {
 }  # fmt: skip
 
 
-class _ModelUnpickler(pickle.Unpickler):
+# The pure-Python unpickler: its memo is a dict, where the C one grows an array to the
+# largest memo index a file names (one damaged byte asked it for 18 GB).
+class _ModelUnpickler(pickle._Unpickler):
     def find_class(self, module, name):
         top = module.split(".")[0]
         if top == "chumpy":
@@ -99,8 +102,8 @@ def _read_dict(path: Path) -> dict[str, np.ndarray]:
     suffix = path.suffix.lower()
     try:
         if suffix == ".pkl":
-            with open(path, "rb") as f:
-                raw = _ModelUnpickler(f, encoding="latin1").load()
+            # From memory, so that a damaged length field cannot ask the file for gigabytes.
+            raw = _ModelUnpickler(io.BytesIO(path.read_bytes()), encoding="latin1").load()
             if not isinstance(raw, dict):
                 raise BodyFileError(f"{path}: the pickle holds a {type(raw).__name__}, not a model dict.")
         elif suffix == ".npz":
@@ -112,8 +115,19 @@ def _read_dict(path: Path) -> dict[str, np.ndarray]:
                     "or another format with an .npz name."
                 )
             # Our own handle: np.load leaks its file when a truncated zip makes it raise.
-            with open(path, "rb") as f, np.load(f, allow_pickle=True) as z:
-                raw = {k: z[k] for k in z.files}
+            with open(path, "rb") as f, np.load(f, allow_pickle=False) as z:
+                raw, pickled = {}, []
+                for k in z.files:
+                    try:
+                        raw[k] = z[k]
+                    except ValueError as e:  # an object array (SMPL-X's name tables)
+                        if "allow_pickle" not in str(e):
+                            raise
+                        pickled.append(k)
+            needed = [k for k in pickled if k in _REQUIRED]
+            if needed:  # a model array stored as a Python object: unpickle just that one
+                with open(path, "rb") as f, np.load(f, allow_pickle=True) as z:
+                    raw.update({k: z[k] for k in needed})
         else:
             raise BodyFileError(
                 f"{path}: unknown model file type {suffix!r}; expected an SMPL-family .pkl or .npz."

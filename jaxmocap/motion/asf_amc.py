@@ -315,10 +315,18 @@ def read_amc(path, skeleton: AsfSkeleton) -> tuple[dict[str, np.ndarray], float 
             raise MotionFileError(
                 f"{path}, line {lineno}: bone {name!r} is not in {skeleton.path}."
             )
+        if len(tok) - 1 != len(dof[name]):
+            # Either file may be at fault: name both.
+            raise MotionFileError(
+                f"{path}, line {lineno}: bone {name!r} has {len(tok) - 1} values, but the skeleton "
+                f"{skeleton.path} gives it {len(dof[name])} degrees of freedom."
+            )
         frames[-1][name] = _floats(path, lineno, tok[1:], len(dof[name]))
     if not frames:
         raise MotionFileError(f"{path}: no frames; is this an AMC file?")
     listed = list(frames[0])
+    if not listed:
+        raise MotionFileError(f"{path}, line {frame_line[0]}: frame 1 lists no bone values.")
     for k, frame in enumerate(frames):
         if list(frame) != listed and set(frame) != set(listed):
             missing = sorted(set(listed) - set(frame))
@@ -427,7 +435,8 @@ def _named(what, fn, *args, **kwargs):
         return fn(*args, **kwargs)
     except MotionFileError:
         raise
-    except (ValueError, KeyError, IndexError, TypeError, ZeroDivisionError, OverflowError, np.linalg.LinAlgError) as e:
+    except (ValueError, KeyError, IndexError, TypeError, ZeroDivisionError, OverflowError, StopIteration,
+            np.linalg.LinAlgError) as e:
         raise MotionFileError(f"{what}: inconsistent content ({type(e).__name__}: {e}).") from e
 
 

@@ -38,6 +38,7 @@ C views, K keypoints, D detection slots, M depth points; only those configured e
 from __future__ import annotations
 
 import dataclasses
+import io
 import json
 import os
 import pickle
@@ -595,8 +596,11 @@ def _global_rotations(poses):
     return R
 
 
-class _DipUnpickler(pickle.Unpickler):
-    """Unpickles numpy arrays and containers only: a pickle naming anything else would run code."""
+class _DipUnpickler(pickle._Unpickler):
+    """Unpickles numpy arrays and containers only: a pickle naming anything else would run code.
+
+    The pure-Python unpickler keeps its memo in a dict; the C one grows an array to the
+    largest memo index in the file, so one damaged byte could ask for gigabytes."""
 
     def find_class(self, module, name):
         if module.split(".")[0] == "numpy" or (module, name) in (
@@ -617,8 +621,7 @@ def load_dip(path) -> dict:
 
     path = check_file(path)
     try:
-        with open(path, "rb") as f:
-            data = _DipUnpickler(f, encoding="latin1").load()
+        data = _DipUnpickler(io.BytesIO(path.read_bytes()), encoding="latin1").load()
     except Exception as e:  # a non-pickle or a damaged one can raise almost anything
         raise MotionFileError(
             f"{path}: not a DIP-IMU pickle ({type(e).__name__}: {e}); expected a pickled dict "
