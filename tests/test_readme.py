@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
-FENCE = re.compile(r"(<!--\s*readme-test:\s*skip[^>]*-->\s*\n)?```python\n(.*?)```", re.S)
+FENCE = re.compile(r"(?:<!--\s*readme-test:\s*skip,?\s*([^>]*?)\s*-->\s*\n)?```python\n(.*?)```", re.S)
 
 
 def _blocks():
@@ -20,7 +20,7 @@ def _blocks():
     out = []
     for i, m in enumerate(FENCE.finditer(text)):
         line = text[: m.start(2)].count("\n") + 1
-        marks = [pytest.mark.skip(reason=m.group(1).strip())] if m.group(1) else []
+        marks = [pytest.mark.skip(reason=m.group(1) or "marked in the README")] if m.group(0).startswith("<!--") else []
         out.append(pytest.param(m.group(2), line, id=f"block{i}-line{line}", marks=marks))
     return out
 
