@@ -318,8 +318,8 @@ def read_amc(path, skeleton: AsfSkeleton) -> tuple[dict[str, np.ndarray], float 
         if len(tok) - 1 != len(dof[name]):
             # Either file may be at fault: name both.
             raise MotionFileError(
-                f"{path}, line {lineno}: bone {name!r} has {len(tok) - 1} values, but the skeleton "
-                f"{skeleton.path} gives it {len(dof[name])} degrees of freedom."
+                f"{path}, line {lineno}: expected {len(dof[name])} numbers for bone {name!r} (its "
+                f"degrees of freedom in the skeleton {skeleton.path}), got {len(tok) - 1}."
             )
         frames[-1][name] = _floats(path, lineno, tok[1:], len(dof[name]))
     if not frames:
