@@ -427,8 +427,9 @@ def measure_bandwidths(problem: Problem, params0: dict, data: Any = None, frame_
 
     Perturbs every per-frame unknown at one frame t₀ (default T // 2) in random
     directions (one Jacobian-vector product) and returns, per term, the largest |t - t₀|
-    over the residual rows t that change. Rows masked out at params0 do not count, so
-    measure where the data are present; a short sequence (T ≥ 2b + 1) is enough.
+    over the residual rows t that change. Rows masked out at params0 do not count, nor
+    do rows whose derivative happens to vanish there (x² at x = 0): measure at a generic
+    point where the data are present; a short sequence (T ≥ 2b + 1) is enough.
     """
     layout = problem.layout(params0)
     T = layout.T
