@@ -220,7 +220,7 @@ NOTES = [
     "- **Absolute errors are lower than the thesis's** for every method: the data are simulated with the "
     "same body model that fits them (no soft tissue, no marker-vs-IMU reference discrepancy, which the "
     "thesis names as the main part of IT's 13.2°), the clips are short (72 frames, 2.4 s: little heading "
-    "drift) and the calibration uses the exact first pose. The errors that remain come from the simulated "
+    "drift) and the calibration uses the exact pose of its frame (the first where every sensor reports). The errors that remain come from the simulated "
     "sensor errors (5° mounting, 2 cm placement, heading offsets and drift, noise, dropouts) and the "
     "ambiguity of 6 sensors.",
     "- **The relative gain of SIP over SOP** is of the thesis's size and sign (see above); SIP wins on every "
