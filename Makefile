@@ -18,11 +18,23 @@ setup: $(STAMP)
 demo: setup
 	$(PY) -m jaxmocap.cli demo --out out/demo
 
+# Names and progress as they run (-v), and the ten slowest tests at the end.
 test: setup
-	$(PY) -m pytest -q
+	$(PY) -m pytest -v --durations=10
+
+# ruff (pinned in the test extra); the rule set is in pyproject.toml.
+lint: setup
+	$(VENV)/bin/ruff check jaxmocap tests benchmarks experiments
 
 bench: setup
 	$(PY) benchmarks/body_forward.py
+
+# The GPU rows of the README's table (results/*_gpu.json). Needs a CUDA build of jaxlib,
+# e.g. `$(PY) -m pip install "jax[cuda12]==<the pinned jax>"`; refuses to run on CPU.
+GPU_BENCHES := body_forward skinning_variants sip_speed solver_border physics_check
+bench-gpu: setup
+	@$(PY) -c "import jax, sys; b = jax.default_backend(); sys.exit(0 if b == 'gpu' else f'make bench-gpu: JAX sees no GPU (backend {b!r}); install a CUDA jaxlib, e.g. pip install \"jax[cuda12]\"')"
+	for b in $(GPU_BENCHES); do $(PY) benchmarks/$$b.py --suffix gpu || exit 1; done
 
 clean:
 	rm -rf $(VENV) out .pytest_cache

@@ -33,7 +33,7 @@ def smpl_layout_model(num_vertices: int = 6890, seed: int = 0):
     rng = np.random.default_rng(seed)
     V = num_vertices
     weights = np.zeros((V, 24), np.float32)
-    for k in range(4):
+    for _ in range(4):
         weights[np.arange(V), rng.integers(0, 24, V)] += rng.random(V)
     weights /= weights.sum(1, keepdims=True)
     reg = np.zeros((24, V), np.float32)

@@ -177,7 +177,7 @@ def step_agreement(T: int = 40) -> dict:
         args = Args(problem, data, None, problem.layout(init))
 
         @jax.jit
-        def solve_both(y, args=args, factor=factor):
+        def solve_both(y, args=args, factor=factor, dtype=dtype):
             r, lin = jax.linearize(lambda p: residuals(p, args), y)
             struct = jax.eval_shape(lambda: y)
             op = lx.FunctionLinearOperator(_Damped(lx.FunctionLinearOperator(lin, struct), jnp.asarray(1.0, dtype)), struct)

@@ -16,7 +16,9 @@ Sets (real CMU motion when available + the procedural library; default low-res b
 Each set is one `<name>.npz` (jaxmocap scenario format, `jaxmocap.sensors.load_scenario`)
 plus `<name>.png`, a summary picture. Resumable: finished sets are skipped (unless
 --force); files are written to a temporary name and renamed, so an interrupted run never
-leaves a half-written set behind. CMU clips come from $JAXMOCAP_CMU or ../shared/data/cmu.
+leaves a half-written set behind; `summary.json` is merged after every set, and a set
+whose picture is missing gets it redrawn from its data. A set's seed is `--seed` plus its
+place in the list above, whatever `--only` selects. CMU clips come from $JAXMOCAP_CMU or ../shared/data/cmu.
 """
 
 from __future__ import annotations
@@ -137,6 +139,29 @@ def summary_png(name: str, s, path: Path) -> None:
     os.replace(tmp, path)
 
 
+def _read_summary(log: Path) -> dict:
+    return json.loads(log.read_text()) if log.exists() else {}
+
+
+def _update_summary(log: Path, name: str, stats: dict) -> None:
+    """Merge one set's statistics into summary.json (atomic: temp file + rename)."""
+    merged = {**_read_summary(log), name: stats}
+    tmp = log.with_name("summary.json.tmp")
+    tmp.write_text(json.dumps(dict(sorted(merged.items())), indent=2) + "\n")
+    os.replace(tmp, log)
+
+
+def _stats(s, path: Path, seconds: float | None, cmu_clips: int, seed: int | None = None) -> dict:
+    stats = {
+        "sequences": s.num_sequences, "frames": int(s["length"].sum()),
+        "seconds": None if seconds is None else round(seconds, 1),
+        "megabytes": round(path.stat().st_size / 1e6, 2), "cmu_clips": cmu_clips,
+    }  # fmt: skip
+    if seed is not None:
+        stats["seed"] = seed
+    return stats
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--out", default="out/datasets", help="cache folder (default out/datasets)")
@@ -149,7 +174,7 @@ def main(argv=None) -> int:
 
     from tqdm import tqdm
 
-    from jaxmocap.sensors import make_scenario, save_scenario
+    from jaxmocap.sensors import load_scenario, make_scenario, save_scenario
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -159,29 +184,37 @@ def main(argv=None) -> int:
     unknown = set(names) - set(specs)
     if unknown:
         parser.error(f"unknown set(s) {sorted(unknown)}; choose from {sorted(specs)}")
-    report = {}
-    for k, name in enumerate(tqdm(names, desc="datasets")):
+    log = out / "summary.json"
+    for name in tqdm(names, desc="datasets"):
         path, png = out / f"{name}.npz", out / f"{name}.png"
-        if path.exists() and png.exists() and not args.force:
-            tqdm.write(f"{name}: exists, skipped")
-            continue
         motions, count, config = specs[name]
+        if path.exists() and not args.force:
+            # Finished before: keep the data; redraw a picture a kill may have cut off, and
+            # record statistics an interrupted run never wrote.
+            s = None
+            if not png.exists():
+                s = load_scenario(path)
+                summary_png(name, s, png)
+                tqdm.write(f"{name}: exists, picture redrawn")
+            else:
+                tqdm.write(f"{name}: exists, skipped")
+            if name not in _read_summary(log):
+                s = load_scenario(path) if s is None else s
+                _update_summary(log, name, _stats(s, path, None, len(cmu)))
+            continue
+        # A set's seed depends on the set, not on --only: `--only imu13` and a full run
+        # build the same standard set (seed + the set's place in the full list).
+        seed = args.seed + list(specs).index(name)
         start = time.perf_counter()
-        s = make_scenario(motions, config, seed=args.seed + k, num_sequences=count, progress=True)
+        s = make_scenario(motions, config, seed=seed, num_sequences=count, progress=True)
+        # The old picture goes first, so a kill between the two files leaves data without a
+        # picture (redrawn on the next run), never a picture of other data.
+        png.unlink(missing_ok=True)
         save_scenario(s, path)
         summary_png(name, s, png)
-        seconds = time.perf_counter() - start
-        report[name] = {
-            "sequences": s.num_sequences, "frames": int(s["length"].sum()), "seconds": round(seconds, 1),
-            "megabytes": round(path.stat().st_size / 1e6, 2), "cmu_clips": len(cmu),
-        }  # fmt: skip
-        tqdm.write(f"{name}: {report[name]}")
-    if report:
-        log = out / "summary.json"
-        old = json.loads(log.read_text()) if log.exists() else {}
-        tmp = log.with_name("summary.json.tmp")
-        tmp.write_text(json.dumps({**old, **report}, indent=2) + "\n")
-        os.replace(tmp, log)
+        stats = _stats(s, path, time.perf_counter() - start, len(cmu), seed)
+        _update_summary(log, name, stats)  # after every set: an interruption loses nothing
+        tqdm.write(f"{name}: {stats}")
     return 0
 
 

@@ -174,7 +174,8 @@ def _run_export(args) -> int:
 def _configure_demo(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", default="out/demo", help="output folder (default: out/demo)")
     _add_body_option(p, default="default-full")
-    p.add_argument("--seconds", type=_positive(float), default=4.0, help="length of the clip (default: 4)")
+    p.add_argument("--seconds", type=_positive(float), default=None,
+                   help="length of the clip (default: all of it, 2.83 s of CMU 02_01)")
     p.add_argument("--every", type=_positive(int), default=5, metavar="N", help="PLY every N frames (default: 5)")
     p.add_argument("--no-fit", action="store_true", help="skip the IMU simulation and the SOP/SIP fits")
 
@@ -298,11 +299,32 @@ def build_parser(commands: Sequence[Command] = COMMANDS) -> argparse.ArgumentPar
     return parser
 
 
+def _check_backend() -> None:
+    """A JAX_PLATFORMS naming a backend this machine lacks fails at the first array deep in a
+    command; find out up front and say so in one line."""
+    import os
+
+    platforms = os.environ.get("JAX_PLATFORMS")
+    if not platforms:
+        return
+    import jax
+
+    try:
+        jax.devices()
+    except (RuntimeError, AssertionError) as e:  # jax 0.10 asserts for an unknown platform
+        reason = str(e).splitlines()[0] if str(e) else "no such backend on this machine"
+        raise ValueError(
+            f"JAX_PLATFORMS={platforms!r}, but JAX cannot start that backend here ({reason}); "
+            "unset JAX_PLATFORMS or set it to 'cpu'."
+        ) from None
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the `jaxmocap` console command; returns the exit status."""
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
+        _check_backend()
         return int(args._run(args) or 0)
     except (OSError, ValueError, KeyError) as e:
         if args.debug:

@@ -92,6 +92,19 @@ def procrustes_align(pred: Array, true: Array, scale: bool = False) -> Array:
     return s[..., None, None] * jnp.einsum("...ab,...jb->...ja", R, a) + mt
 
 
+def _same_shape(name_a, a, name_b, b, expected: str, trailing: int, idx) -> None:
+    """Prediction and truth must have one shape (e.g. as many frames), ending in 3 or 3×3."""
+    if a.shape != b.shape:
+        raise ValueError(
+            f"{name_a} has shape {a.shape} but {name_b} has {b.shape}; both must be {expected} "
+            "with the same frames (trim or resample one of them)."
+        )
+    if a.ndim < trailing + 1 or a.shape[-trailing + 1 :] != (3,) * (trailing - 1) or a.shape[-1] != 3:
+        raise ValueError(f"{name_a} has shape {a.shape}; expected {expected}.")
+    if len(idx) and a.shape[-trailing] <= int(np.max(idx)):
+        raise ValueError(f"{name_a} has shape {a.shape}: {a.shape[-trailing]} joints, but joint {int(np.max(idx))} is evaluated.")
+
+
 def position_errors(pred_joints, true_joints, joints="totalcapture_mpjpe", align: str = "procrustes") -> Array:
     """‖p_j(t) - p̃_j(t)‖ per frame and joint of the set, metres: (..., T, J) -> (..., T, N_J).
 
@@ -100,6 +113,7 @@ def position_errors(pred_joints, true_joints, joints="totalcapture_mpjpe", align
     """
     idx = joint_indices(joints)
     pred, true = jnp.asarray(pred_joints), jnp.asarray(true_joints)
+    _same_shape("pred_joints", pred, "true_joints", true, "(..., T, J, 3)", 2, idx)
     if align == "root":
         pred, true = pred - pred[..., :1, :], true - true[..., :1, :]
     pred, true = pred[..., idx, :], true[..., idx, :]
@@ -113,7 +127,9 @@ def position_errors(pred_joints, true_joints, joints="totalcapture_mpjpe", align
 def angle_errors(pred_rotations, true_rotations, joints="totalcapture_mpjae") -> Array:
     """‖log(R̃_j R_jᵀ)^∨‖ per frame and joint (eq. 2.74), degrees: (..., T, J, 3, 3) -> (..., T, N_J)."""
     idx = joint_indices(joints)
-    pred, true = jnp.asarray(pred_rotations)[..., idx, :, :], jnp.asarray(true_rotations)[..., idx, :, :]
+    pred, true = jnp.asarray(pred_rotations), jnp.asarray(true_rotations)
+    _same_shape("pred_rotations", pred, "true_rotations", true, "(..., T, J, 3, 3)", 3, idx)
+    pred, true = pred[..., idx, :, :], true[..., idx, :, :]
     return jnp.degrees(geodesic_angle(pred, true))
 
 
@@ -131,6 +147,8 @@ def mpjae(pred_rotations, true_rotations, joints="totalcapture_mpjae", mask=None
 def _mean(e, mask):
     if mask is None:
         return e.mean(axis=(-2, -1))
+    if jnp.shape(mask) != e.shape[:-1]:
+        raise ValueError(f"mask has shape {jnp.shape(mask)}; expected the frames' shape {e.shape[:-1]}.")
     m = jnp.asarray(mask, e.dtype)[..., None]
     return (e * m).sum(axis=(-2, -1)) / (m.sum(axis=(-2, -1)) * e.shape[-1])
 
@@ -144,6 +162,11 @@ def pose_errors(body, pred_poses, true_poses, betas=None, pred_trans=None, true_
     """
     from .body.kinematics import forward
 
+    if jnp.shape(pred_poses) != jnp.shape(true_poses):
+        raise ValueError(
+            f"pred_poses has shape {jnp.shape(pred_poses)} but true_poses has {jnp.shape(true_poses)}; "
+            "both must be (T, 24, 3) with the same T (trim or resample one of them)."
+        )
     pred = forward(body, pred_poses, betas, pred_trans)
     true = forward(body, true_poses, betas, true_trans)
     return {

@@ -22,6 +22,7 @@ MANO (16 joints) and other layouts raise an error that names the file.
 from __future__ import annotations
 
 import dataclasses
+import io
 import os
 import pickle
 import zipfile
@@ -62,15 +63,31 @@ class _ChumpyStub:
         raise BodyFileError("a chumpy object in the file carries no array value.")
 
 
-class _ModelUnpickler(pickle.Unpickler):
+# What a model pickle may name besides numpy / scipy.sparse / chumpy: anything else (os.system,
+# ...) would run code from the file, so it is refused.
+_SAFE_GLOBALS = {
+    ("copyreg", "_reconstructor"), ("copyreg", "__newobj__"), ("copy_reg", "_reconstructor"),
+    ("_codecs", "encode"),
+    *(("builtins", n) for n in ("object", "set", "frozenset", "dict", "list", "tuple", "slice",
+                                "complex", "bytearray", "int", "float", "str", "bytes", "bool")),
+    *(("__builtin__", n) for n in ("object", "set", "frozenset", "dict", "list", "tuple", "slice")),
+}  # fmt: skip
+
+
+# The pure-Python unpickler: its memo is a dict, where the C one grows an array to the
+# largest memo index a file names (one damaged byte asked it for 18 GB).
+class _ModelUnpickler(pickle._Unpickler):
     def find_class(self, module, name):
-        if module.split(".")[0] == "chumpy":
+        top = module.split(".")[0]
+        if top == "chumpy":
             return _ChumpyStub
         if module.startswith("scipy.sparse"):
             import scipy.sparse
 
             return getattr(scipy.sparse, name)
-        return super().find_class(module, name)
+        if top == "numpy" or (module, name) in _SAFE_GLOBALS:
+            return super().find_class(module, name)
+        raise pickle.UnpicklingError(f"refusing to load {module}.{name}: not part of a model file")
 
 
 def _to_dense(value) -> np.ndarray:
@@ -85,24 +102,44 @@ def _read_dict(path: Path) -> dict[str, np.ndarray]:
     suffix = path.suffix.lower()
     try:
         if suffix == ".pkl":
-            with open(path, "rb") as f:
-                raw = _ModelUnpickler(f, encoding="latin1").load()
+            # From memory, so that a damaged length field cannot ask the file for gigabytes.
+            raw = _ModelUnpickler(io.BytesIO(path.read_bytes()), encoding="latin1").load()
             if not isinstance(raw, dict):
                 raise BodyFileError(f"{path}: the pickle holds a {type(raw).__name__}, not a model dict.")
         elif suffix == ".npz":
+            # numpy unpickles a non-zip file when allow_pickle is on (needed for the
+            # object arrays of some SMPL-X files): refuse anything that is not a zip.
+            if not zipfile.is_zipfile(path):
+                raise BodyFileError(
+                    f"{path}: not an .npz file (no zip archive inside); it may be truncated, "
+                    "or another format with an .npz name."
+                )
             # Our own handle: np.load leaks its file when a truncated zip makes it raise.
-            with open(path, "rb") as f, np.load(f, allow_pickle=True) as z:
-                raw = {k: z[k] for k in z.files}
+            with open(path, "rb") as f, np.load(f, allow_pickle=False) as z:
+                raw, pickled = {}, []
+                for k in z.files:
+                    try:
+                        raw[k] = z[k]
+                    except ValueError as e:  # an object array (SMPL-X's name tables)
+                        if "allow_pickle" not in str(e):
+                            raise
+                        pickled.append(k)
+            needed = [k for k in pickled if k in _REQUIRED]
+            if needed:  # a model array stored as a Python object: unpickle just that one
+                with open(path, "rb") as f, np.load(f, allow_pickle=True) as z:
+                    raw.update({k: z[k] for k in needed})
         else:
             raise BodyFileError(
                 f"{path}: unknown model file type {suffix!r}; expected an SMPL-family .pkl or .npz."
             )
     except BodyFileError:
         raise
-    except (pickle.UnpicklingError, EOFError, zipfile.BadZipFile, OSError, ValueError, AttributeError, ImportError) as e:
+    except Exception as e:  # a corrupt pickle or zip can raise almost anything
         raise BodyFileError(f"{path}: cannot read the file ({type(e).__name__}: {e}); it may be corrupt or truncated.") from e
     out = {}
     for k, v in raw.items():
+        if not isinstance(k, str):
+            continue
         try:
             out[k] = _to_dense(v)
         except Exception:  # metadata we do not need (strings, dicts, ...)
@@ -190,7 +227,20 @@ def load_body(path, gender: str | None = None, num_betas: int | None = None, dty
         raise ValueError(f"gender must be 'neutral', 'male' or 'female', got {gender!r}.")
     if path.is_dir():
         path = _find_in_directory(path, gender or "neutral")
+    if num_betas is not None and (not isinstance(num_betas, (int, np.integer)) or num_betas < 1):
+        raise ValueError(f"num_betas must be an int >= 1 (or None for all), got {num_betas!r}.")
     d = _read_dict(path)
+    try:
+        return _body_from_dict(path, d, gender, num_betas, dtype)
+    except BodyFileError:
+        raise
+    except (ValueError, TypeError, IndexError, KeyError, AttributeError) as e:
+        # Arrays of the wrong rank or kind (a damaged file that still unpickles).
+        raise BodyFileError(f"{path}: inconsistent model arrays ({type(e).__name__}: {e}).") from e
+
+
+def _body_from_dict(path: Path, d: dict, gender, num_betas, dtype) -> Body:
+    """The body of `load_body` once the file's arrays are read."""
     d, kind = _reduce_to_smpl_tree(path, d)
     if "kind" in d and d["kind"].ndim == 0:  # written by save_body or our converter
         kind = str(d["kind"])

@@ -27,6 +27,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
+from .._checks import check_frames, check_rate, check_rotations, check_weight
 from ..body.kinematics import forward, shaped_joints
 from ..body.model import Body
 from ..energies.imu import (
@@ -38,7 +39,7 @@ from ..energies.imu import (
     orientation_term,
 )
 from ..priors.pose_prior import PosePrior, default_pose_prior
-from ..solve import Problem, Solution, solve, solve_batch
+from ..solve import NO_OBSERVATIONS, Problem, Solution, solve, solve_batch
 
 __all__ = [
     "SIPWeights",
@@ -70,6 +71,12 @@ class SIPWeights:
     anthro: float = 1.0
     mahal: float = 0.003
     limit: float = 0.1
+
+    def __post_init__(self):
+        # A negative weight does not switch a term off: it rewards the error (acc=-1 used to
+        # drop E_acc silently). Traced weights (under jit/vmap) are checked by their maker.
+        for f in dataclasses.fields(self):
+            check_weight(f"SIPWeights.{f.name}", getattr(self, f.name))
 
     def replace(self, **changes) -> SIPWeights:
         return dataclasses.replace(self, **changes)
@@ -136,7 +143,10 @@ def calibrate(
     """
     if acceleration_frame not in ("sensor", "global"):
         raise ValueError(f"acceleration_frame must be 'sensor' or 'global', got {acceleration_frame!r}.")
+    check_rate("fps", fps)  # E_acc divides by dt²: a negative or zero rate is silently wrong
     orientation = jnp.asarray(orientation)
+    if orientation.ndim != 4:
+        raise ValueError(f"orientation has shape {orientation.shape}; expected (T, S, 3, 3).")
     dtype = orientation.dtype if dtype is None else dtype
     orientation = orientation.astype(dtype)
     acceleration = jnp.asarray(acceleration, dtype)
@@ -148,15 +158,33 @@ def calibrate(
         )
     if len(bones) != S or len(vertices) != S:
         raise ValueError(f"{S} sensors in the readings but {len(bones)} bones and {len(vertices)} vertices.")
+    check_frames("orientation", T)
+    # Dropped samples are NaN; what is present must be a rotation (an all-zero matrix is not).
+    check_rotations("orientation", orientation, atol=1e-2, allow_nan=True)
+    bad = [int(b) for b in bones if not 0 <= int(b) < body.num_joints]
+    if bad:
+        raise ValueError(f"bones {bad} are not joints of this body (0 .. {body.num_joints - 1}).")
     pose0 = jnp.asarray(pose0, dtype)
+    if pose0.shape != (body.num_joints, 3):
+        raise ValueError(f"pose0 has shape {pose0.shape}; expected ({body.num_joints}, 3) axis-angle.")
     trans0 = jnp.zeros(3, dtype) if trans0 is None else jnp.asarray(trans0, dtype)
     betas = jnp.zeros((body.num_betas,), dtype) if betas is None else jnp.asarray(betas, dtype)
+    R_s0 = orientation[0]
+    if not bool(jnp.all(jnp.isfinite(R_s0))):
+        missing = [int(i) for i in np.flatnonzero(~np.isfinite(np.asarray(R_s0)).all(axis=(1, 2)))]
+        first = first_complete_frame(orientation)
+        hint = (
+            f"the first frame where every sensor reports is {first}: pass the readings from "
+            f"there on (orientation[{first}:], acceleration[{first}:]) with the pose of that frame"
+            if first is not None else "no frame has every sensor"
+        )
+        raise ValueError(
+            f"orientation: frame 0 has dropped samples (sensors {missing}); calibration needs "
+            f"every sensor at the frame whose pose is pose0. {hint}."
+        )
     out = forward(body, pose0, betas, trans0)
     bones_idx, verts_idx = np.asarray(bones), np.asarray(vertices)
     R_b0 = out.joint_rotations[bones_idx]  # R_b^g(x₀)
-    R_s0 = orientation[0]
-    if not bool(jnp.all(jnp.isfinite(R_s0))):
-        raise ValueError("frame 0 has dropped orientation samples; calibration needs every sensor at frame 0.")
     sensor_to_bone = jnp.swapaxes(R_b0, -1, -2) @ R_s0  # eq. 3.3
     rel = out.vertices[verts_idx] - out.joints[bones_idx]
     sensor_point = jnp.einsum("sba,sb->sa", R_b0, rel)  # R_b0ᵀ (v - J_b)
@@ -167,16 +195,28 @@ def calibrate(
     return InertialSetup(data, pose0, trans0, tuple(int(b) for b in bones), float(fps))
 
 
-def from_scenario(scenario, index: int, body: Body, person: int = 0, truth_init: bool = True, **kw) -> InertialSetup:
+def first_complete_frame(orientation) -> int | None:
+    """The first frame of (T, S, 3, 3) readings where every sensor reports (no NaN), or None."""
+    ok = np.isfinite(np.asarray(orientation)).all(axis=(-1, -2)).all(axis=-1)
+    return int(np.argmax(ok)) if ok.any() else None
+
+
+def from_scenario(scenario, index: int, body: Body, person: int = 0, truth_init: bool = True, start: int = 0, **kw) -> InertialSetup:
     """Calibrate sequence `index` of a `jaxmocap.sensors.Scenario` (measured IMU readings).
 
-    x₀ is the true pose at frame 0 (the thesis's "initial pose provided with the dataset").
+    x₀ is the true pose at frame `start` (the thesis's "initial pose provided with the
+    dataset"), and the setup holds the readings from `start` on; pass
+    `start=first_complete_frame(scenario.sequence(index)["imu_ori"][person])` when frame 0
+    may have dropped samples (the setup then starts there: crop the truth alike).
     """
     seq = scenario.sequence(index)
     p = person
+    n = len(seq["imu_ori"][p])
+    if not isinstance(start, (int, np.integer)) or not 0 <= start < n:
+        raise ValueError(f"start={start!r} must be a frame index in 0 .. {n - 1}.")
     return calibrate(
-        body, seq["imu_bones"], seq["imu_vertices"], seq["imu_ori"][p], seq["imu_acc"][p],
-        seq["poses"][p][0], scenario.config.fps, betas=seq["betas"][p], trans0=seq["trans"][p][0], **kw,
+        body, seq["imu_bones"], seq["imu_vertices"], seq["imu_ori"][p][start:], seq["imu_acc"][p][start:],
+        seq["poses"][p][start], scenario.config.fps, betas=seq["betas"][p], trans0=seq["trans"][p][start], **kw,
     )  # fmt: skip
 
 
@@ -189,6 +229,9 @@ def from_dip(path_or_dict, body: Body, bones, vertices, pose0=None, fps: float =
     """
     if isinstance(path_or_dict, dict):
         d = path_or_dict
+        missing = [k for k in ("imu_ori", "imu_acc") if k not in d]
+        if missing:
+            raise ValueError(f"path_or_dict misses key(s) {missing}; a DIP-IMU dict has imu_ori, imu_acc, gt.")
     else:
         from ..sensors.scenario import load_dip
 
@@ -252,6 +295,12 @@ def orientation_poser(
     Returns:
         (poses (T, 24, 3) axis-angle, per-frame `optx.RESULTS` codes (T,)).
     """
+    if not isinstance(setup, InertialSetup):
+        raise ValueError(f"setup must be an InertialSetup (from calibrate), got {type(setup).__name__}.")
+    if not isinstance(max_steps, (int, np.integer)) or max_steps < 1:
+        raise ValueError(f"max_steps must be an int >= 1, got {max_steps!r}.")
+    if init is not None and jnp.shape(init) != setup.pose0.shape:
+        raise ValueError(f"init has shape {jnp.shape(init)}; expected {setup.pose0.shape}, one pose.")
     problem = inertial_problem(setup, weights, acceleration=False)
     data = setup.data
     x0 = setup.pose0 if init is None else jnp.asarray(init, setup.pose0.dtype)
@@ -321,19 +370,43 @@ def sparse_inertial_poser(
     Returns:
         `SIPResult`.
     """
+    if not isinstance(setup, InertialSetup):
+        raise ValueError(f"setup must be an InertialSetup (from calibrate), got {type(setup).__name__}.")
+    T = setup.num_frames
+    if init is not None and jnp.shape(init) != (T, 24, 3):
+        raise ValueError(f"init has shape {jnp.shape(init)}; expected (T, 24, 3) = ({T}, 24, 3).")
+    if init_trans is not None and jnp.shape(init_trans) != (T, 3):
+        raise ValueError(f"init_trans has shape {jnp.shape(init_trans)}; expected (T, 3) = ({T}, 3).")
     if init is None:
         init, _ = sparse_orientation_poser(setup, weights, max_steps=sop_steps)
-    T = setup.num_frames
     trans = jnp.broadcast_to(setup.trans0, (T, 3)) if init_trans is None else jnp.asarray(init_trans)
     problem = inertial_problem(setup, weights, acceleration=True)
     # Only E_acc sees the translation; with w_acc = 0 it stays where it started.
     params = {"pose": jnp.asarray(init, setup.pose0.dtype), "trans": trans.astype(setup.pose0.dtype)}
     sol = solve(problem, params, setup.data, max_steps=max_steps, rtol=rtol, atol=atol)
+    sol = eqx.tree_at(lambda s: s.result, sol, _unless_observed(setup.data, sol.result))
     return SIPResult(sol.value["pose"], sol.value["trans"], jnp.asarray(init), sol)
+
+
+def _unless_observed(data: InertialData, result: Array, frame_mask: Array | None = None) -> Array:
+    """`result`, or NO_OBSERVATIONS where no sensor sample exists after the calibration frame.
+
+    Frame 0 is the known pose x₀; with nothing measured after it the fit is the prior's
+    alone, which must not read as a success. Works batched: (..., T, S, ...) readings.
+    """
+    ori = jnp.isfinite(data.orientation).all((-1, -2)).any(-1)  # (..., T)
+    acc = jnp.isfinite(data.acceleration).all(-1).any(-1)
+    seen = ori | acc
+    if frame_mask is not None:
+        seen = seen & frame_mask
+    T = seen.shape[-1]
+    observed = jnp.any(seen[..., 1:] if T > 1 else seen, axis=-1)
+    return jnp.where(observed, result, NO_OBSERVATIONS)
 
 
 def stack_setups(setups: Sequence[InertialSetup]) -> InertialSetup:
     """B calibrated sequences of equal length and sensor layout as one batched setup."""
+    _check_setups("stack_setups", setups)
     first = setups[0]
     for s in setups[1:]:
         if s.bones != first.bones or s.fps != first.fps or s.num_frames != first.num_frames:
@@ -344,6 +417,14 @@ def stack_setups(setups: Sequence[InertialSetup]) -> InertialSetup:
     return jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), *setups)
 
 
+def _check_setups(who: str, setups) -> None:
+    if isinstance(setups, InertialSetup) or len(setups) == 0:
+        raise ValueError(f"{who}: setups must be a non-empty list of InertialSetup (from calibrate), got {setups!r:.80}.")
+    bad = [type(s).__name__ for s in setups if not isinstance(s, InertialSetup)]
+    if bad:
+        raise ValueError(f"{who}: setups must hold InertialSetup objects (from calibrate), got {bad}.")
+
+
 def pad_setups(setups: Sequence[InertialSetup], length: int | None = None) -> tuple[InertialSetup, Array]:
     """Sequences of any lengths as one batch: (stacked setup, (B, T) frame mask).
 
@@ -351,6 +432,7 @@ def pad_setups(setups: Sequence[InertialSetup], length: int | None = None) -> tu
     frame; padded frames drop out of every term of `sparse_inertial_poser_batch` (pass
     the mask as `frame_mask`) and keep their initial pose.
     """
+    _check_setups("pad_setups", setups)
     T = max(s.num_frames for s in setups) if length is None else int(length)
     padded = []
     for s in setups:
@@ -383,9 +465,18 @@ def sparse_inertial_poser_batch(
     Returns the engine's batched `Solution` (value["pose"], value["trans"], per-sequence
     result codes and costs); `frame_mask` (B, T) marks real frames of padded sequences.
     """
+    if not isinstance(setups, InertialSetup) or setups.pose0.ndim != 3:
+        raise ValueError("setups must be one batched InertialSetup (from stack_setups or pad_setups).")
+    init = jnp.asarray(init)
+    if init.shape[:1] + init.shape[2:] != (setups.pose0.shape[0], 24, 3) or init.shape[1] != setups.num_frames:
+        raise ValueError(
+            f"init has shape {init.shape}; expected (B, T, 24, 3) = "
+            f"({setups.pose0.shape[0]}, {setups.num_frames}, 24, 3)."
+        )
     B, T = init.shape[:2]
     trans = jnp.broadcast_to(setups.trans0[:, None], (B, T, 3)) if init_trans is None else jnp.asarray(init_trans)
     problem = inertial_problem(setups, weights, acceleration=True)
     dtype = setups.pose0.dtype
     params = {"pose": jnp.asarray(init, dtype), "trans": trans.astype(dtype)}
-    return solve_batch(problem, params, setups.data, frame_mask, max_steps=max_steps, rtol=rtol, atol=atol)
+    sol = solve_batch(problem, params, setups.data, frame_mask, max_steps=max_steps, rtol=rtol, atol=atol)
+    return eqx.tree_at(lambda s: s.result, sol, _unless_observed(setups.data, sol.result, frame_mask))

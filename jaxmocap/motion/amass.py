@@ -36,7 +36,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from .sequence import Motion
-from .skeleton import MotionFileError, check_file
+from .skeleton import MotionFileError, check_file, read_npz
 
 __all__ = ["SMPL_NEUTRAL_PELVIS", "Z_UP_TO_Y_UP", "load_amass", "pelvis_rest", "save_amass"]
 
@@ -79,7 +79,7 @@ def _gender(value) -> str:
     return g if g in ("male", "female", "neutral") else "neutral"
 
 
-def load_amass(path, body=None) -> Motion:
+def load_amass(path, body=None, _arrays: dict | None = None) -> Motion:
     """Read an AMASS-style npz (z up) as a y-up `Motion` (see the module docstring).
 
     Args:
@@ -91,12 +91,17 @@ def load_amass(path, body=None) -> Motion:
         unreadable files, missing keys, wrong shapes and NaN/inf values.
     """
     path = check_file(path)
+    d = read_npz(path) if _arrays is None else _arrays  # `load_motion` has read it already
     try:
-        with np.load(path, allow_pickle=False) as f:
-            d = {k: f[k] for k in f.files}
-    except Exception as e:  # zipfile / pickle / format errors
-        raise MotionFileError(f"Cannot read {path} as an .npz file: {e}") from e
+        return _from_arrays(path, d, body)
+    except (TypeError, IndexError, ValueError) as e:
+        if isinstance(e, MotionFileError):
+            raise
+        raise MotionFileError(f"{path}: {type(e).__name__}: {e}") from e
 
+
+def _from_arrays(path: Path, d: dict, body) -> Motion:
+    """The body of `load_amass`: checks and the z-up -> y-up conversion of the arrays."""
     if "poses" in d:
         poses = np.asarray(d["poses"], np.float64)
     elif "root_orient" in d and "pose_body" in d:
@@ -126,11 +131,14 @@ def load_amass(path, body=None) -> Motion:
             f"{path}: trans has shape {trans.shape}; expected ({T}, 3) to match poses."
         )
     betas = np.asarray(d.get("betas", np.zeros(0)), np.float64).reshape(-1)
-    fps = float(np.asarray(d[rate_key]).reshape(-1)[0])
+    rate = np.asarray(d[rate_key]).reshape(-1)
+    if rate.size != 1:
+        raise MotionFileError(f"{path}: {rate_key} holds {rate.size} values; expected one frame rate.")
+    fps = float(rate[0])
     for key, value in (("poses", poses), ("trans", trans), ("betas", betas)):
         if not np.isfinite(value).all():
             raise MotionFileError(f"{path}: {key} contains NaN or inf.")
-    if T == 0 or not fps > 0:
+    if T == 0 or not (np.isfinite(fps) and fps > 0):
         raise MotionFileError(
             f"{path}: needs at least one frame and a positive frame rate (got {T}, {fps})."
         )
@@ -179,11 +187,14 @@ def save_amass(motion: Motion, path, body=None, layout: str = "auto") -> Path:
         if layout == "smpl"
         else np.concatenate([poses[:, :22].reshape(T, 66), np.zeros((T, 90))], 1)
     )
+    # AMASS tools expect 16 (SMPL-H) or 10 (SMPL) betas: a motion without shape (CMU
+    # clips carry none) is the mean shape, written as zeros rather than an empty array.
+    betas = motion.betas if motion.betas.size else np.zeros(16 if layout == "smplh" else 10)
     np.savez(
         path,
         poses=flat,
         trans=trans,
-        betas=motion.betas,
+        betas=betas,
         gender=np.array(motion.gender),
         mocap_framerate=np.array(motion.fps),
     )

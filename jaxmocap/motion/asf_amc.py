@@ -315,10 +315,18 @@ def read_amc(path, skeleton: AsfSkeleton) -> tuple[dict[str, np.ndarray], float 
             raise MotionFileError(
                 f"{path}, line {lineno}: bone {name!r} is not in {skeleton.path}."
             )
+        if len(tok) - 1 != len(dof[name]):
+            # Either file may be at fault: name both.
+            raise MotionFileError(
+                f"{path}, line {lineno}: expected {len(dof[name])} numbers for bone {name!r} (its "
+                f"degrees of freedom in the skeleton {skeleton.path}), got {len(tok) - 1}."
+            )
         frames[-1][name] = _floats(path, lineno, tok[1:], len(dof[name]))
     if not frames:
         raise MotionFileError(f"{path}: no frames; is this an AMC file?")
     listed = list(frames[0])
+    if not listed:
+        raise MotionFileError(f"{path}, line {frame_line[0]}: frame 1 lists no bone values.")
     for k, frame in enumerate(frames):
         if list(frame) != listed and set(frame) != set(listed):
             missing = sorted(set(listed) - set(frame))
@@ -413,10 +421,23 @@ def load_asf_amc(amc_path, asf_path=None, fps: float | None = None) -> SkeletonM
     """
     amc_path = check_file(amc_path)
     asf_path = check_file(find_asf(amc_path) if asf_path is None else asf_path)
-    skeleton = read_asf(asf_path)
-    values, file_fps = read_amc(amc_path, skeleton)
+    skeleton = _named(asf_path, read_asf, asf_path)
+    values, file_fps = _named(amc_path, read_amc, amc_path, skeleton)
     rate = fps if fps is not None else (file_fps if file_fps else 120.0)
-    return skeleton_motion(skeleton, values, rate, name=str(amc_path))
+    if not (np.isfinite(rate) and rate > 0):
+        raise MotionFileError(f"{amc_path}: frame rate must be a finite number > 0, got {rate}.")
+    return _named(f"{amc_path} (with {asf_path})", skeleton_motion, skeleton, values, rate, name=str(amc_path))
+
+
+def _named(what, fn, *args, **kwargs):
+    """fn(...), with any error of a damaged file re-raised as a MotionFileError naming it."""
+    try:
+        return fn(*args, **kwargs)
+    except MotionFileError:
+        raise
+    except (ValueError, KeyError, IndexError, TypeError, ZeroDivisionError, OverflowError, StopIteration,
+            np.linalg.LinAlgError) as e:
+        raise MotionFileError(f"{what}: inconsistent content ({type(e).__name__}: {e}).") from e
 
 
 def find_asf(amc_path) -> Path:

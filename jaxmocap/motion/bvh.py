@@ -283,12 +283,20 @@ def load_bvh(path, scale: float | str = "auto") -> SkeletonMotion:
     Returns:
         SkeletonMotion whose joints are the BVH joints and End Sites (``<parent>_end``).
     """
+    if isinstance(scale, str) and scale != "auto":
+        raise ValueError(f"scale must be a number (metres per unit) or 'auto', got {scale!r}.")
+    if not isinstance(scale, str) and not (np.isfinite(scale) and scale > 0):
+        raise ValueError(f"scale must be a finite number > 0 (metres per unit), got {scale!r}.")
     skel, values, frame_time = read_bvh(path)
-    if isinstance(scale, str):
-        if scale != "auto":
-            raise ValueError(f"scale must be a number (metres per unit) or 'auto', got {scale!r}.")
-        scale = choose_scale(skel)
-    fps = 1.0 / frame_time
-    if abs(fps - round(fps)) < 0.01:
-        fps = float(round(fps))
-    return skeleton_motion(skel, values, fps, float(scale), name=str(path))
+    try:
+        scale = choose_scale(skel) if isinstance(scale, str) else scale
+        fps = 1.0 / frame_time
+        if not np.isfinite(fps):
+            raise MotionFileError(f"{path}: Frame Time {frame_time} gives no finite frame rate.")
+        if abs(fps - round(fps)) < 0.01:
+            fps = float(round(fps))
+        return skeleton_motion(skel, values, fps, float(scale), name=str(path))
+    except MotionFileError:
+        raise
+    except (ValueError, KeyError, IndexError, TypeError, ZeroDivisionError, OverflowError, np.linalg.LinAlgError) as e:
+        raise MotionFileError(f"{path}: inconsistent content ({type(e).__name__}: {e}).") from e

@@ -14,8 +14,9 @@ from pathlib import Path
 
 import numpy as np
 
+from .._checks import check_rate
 from .sequence import Motion
-from .skeleton import MotionFileError, check_file
+from .skeleton import MotionFileError, check_file, read_npz
 
 __all__ = ["FORMAT_VERSION", "load_motion", "save_motion"]
 
@@ -46,12 +47,12 @@ def _load_own(path: Path, d: dict) -> Motion:
         return Motion(
             poses=d["poses"],
             trans=d["trans"],
-            fps=float(d["fps"]),
+            fps=float(np.asarray(d["fps"]).reshape(-1)[0]),
             betas=d.get("betas", np.zeros(0)),
             gender=str(d.get("gender", "neutral")),
             name=str(d.get("name", path)),
         )
-    except ValueError as e:
+    except (ValueError, TypeError, IndexError) as e:
         raise MotionFileError(f"{path}: {e}") from e
 
 
@@ -71,17 +72,14 @@ def load_motion(path, fps: float | None = None, body=None, asf=None, **retarget_
         unknown suffix, corrupt content), always naming the file.
     """
     path = check_file(path)
+    if fps is not None:
+        check_rate("fps", fps)  # before the work of reading and retargeting
     suffix = path.suffix.lower()
     if suffix == ".npz":
         from .amass import load_amass
 
-        try:
-            with np.load(path, allow_pickle=False) as f:
-                own = "jaxmocap_motion" in f.files
-                d = {k: f[k] for k in f.files} if own else None
-        except Exception as e:
-            raise MotionFileError(f"Cannot read {path} as an .npz file: {e}") from e
-        motion = _load_own(path, d) if own else load_amass(path, body=body)
+        d = read_npz(path)
+        motion = _load_own(path, d) if "jaxmocap_motion" in d else load_amass(path, body=body, _arrays=d)
     elif suffix == ".amc":
         from .asf_amc import load_asf_amc
         from .retarget import retarget

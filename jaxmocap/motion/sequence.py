@@ -43,14 +43,27 @@ class Motion:
             raise ValueError(
                 f"Motion.trans has shape {trans.shape}; expected ({poses.shape[0]}, 3) to match poses."
             )
+        if poses.shape[0] == 0:
+            raise ValueError("Motion.poses has 0 frames; a motion needs at least one (empty slice?).")
         if not (np.isfinite(poses).all() and np.isfinite(trans).all()):
             raise ValueError("Motion poses/trans contain NaN or inf.")
-        if not self.fps > 0:
-            raise ValueError(f"Motion.fps must be positive, got {self.fps}.")
+        try:
+            fps_ok = np.ndim(self.fps) == 0 and np.isfinite(float(self.fps)) and float(self.fps) > 0
+        except (TypeError, ValueError):
+            fps_ok = False
+        if not fps_ok:
+            raise ValueError(f"Motion.fps must be a finite number > 0, got {self.fps!r}.")
         object.__setattr__(self, "poses", poses)
         object.__setattr__(self, "trans", trans)
         object.__setattr__(self, "betas", np.asarray(self.betas, np.float64).reshape(-1))
         object.__setattr__(self, "fps", float(self.fps))
+
+    def __repr__(self) -> str:
+        # Short: the arrays would print thousands of numbers.
+        return (
+            f"Motion({self.name or 'unnamed'!r}: {self.num_frames} frames at {self.fps:g} fps "
+            f"({self.duration:.2f} s), {self.betas.size} betas, {self.gender})"
+        )
 
     @property
     def num_frames(self) -> int:
@@ -66,6 +79,10 @@ class Motion:
         poses = self.poses[frames]
         if poses.ndim == 2:
             raise ValueError("Index a Motion with a slice or an index array, not a single frame.")
+        if poses.shape[0] == 0:
+            raise ValueError(
+                f"motion[{frames!r}] selects no frames of the {self.num_frames}; a Motion needs >= 1."
+            )
         return dataclasses.replace(self, poses=poses, trans=self.trans[frames])
 
     def replace(self, **changes) -> Motion:
@@ -82,8 +99,8 @@ class Motion:
         from scipy.spatial.transform import Rotation, Slerp
 
         fps = float(fps)
-        if not fps > 0:
-            raise ValueError(f"fps must be positive, got {fps}.")
+        if not (np.isfinite(fps) and fps > 0):
+            raise ValueError(f"fps must be a finite number > 0, got {fps}.")
         if fps == self.fps:
             return self
         T = self.num_frames

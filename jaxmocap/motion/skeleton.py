@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["MotionFileError", "SkeletonMotion", "check_file"]
+__all__ = ["MotionFileError", "SkeletonMotion", "check_file", "read_npz"]
 
 
 class MotionFileError(ValueError):
@@ -37,6 +37,27 @@ def check_file(path) -> Path:
     if not path.is_file():
         raise FileNotFoundError(f"Motion file not found: {path}")
     return path
+
+
+def read_npz(path: Path) -> dict:
+    """Every array of an .npz file (no pickles); MotionFileError naming the file otherwise.
+
+    A file that is not a zip archive is refused before numpy sees it: numpy would
+    otherwise suggest `allow_pickle=True`, i.e. executing the file's contents.
+    """
+    import zipfile
+
+    if not zipfile.is_zipfile(path):
+        raise MotionFileError(
+            f"{path}: not an .npz file (no zip archive inside); it may be truncated, or "
+            "another format with an .npz name."
+        )
+    try:
+        # Our own handle: np.load leaks its file when a truncated zip makes it raise.
+        with open(path, "rb") as fh, np.load(fh, allow_pickle=False) as f:
+            return {k: f[k] for k in f.files}
+    except Exception as e:  # zipfile / zlib / format / object-array errors
+        raise MotionFileError(f"Cannot read {path} as an .npz file: {type(e).__name__}: {e}") from e
 
 
 @dataclasses.dataclass(frozen=True)

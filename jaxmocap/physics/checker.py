@@ -23,6 +23,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
+from .._checks import check_finite
 from ..body.kinematics import forward_kinematics
 from ..body.model import Body
 from ..rotation import axis_angle_to_matrix, matrix_to_quaternion
@@ -91,6 +92,24 @@ class Scene(eqx.Module):
         return mujoco.MjModel.from_xml_string(self.xml)
 
 
+def _import_mjx():
+    """`mujoco.mjx`, without its "Failed to import warp" prints: warp is an optional GPU
+    backend we do not use, so its absence is not worth a line on every run."""
+    import contextlib
+    import io
+    import sys
+
+    if "mujoco.mjx" in sys.modules:
+        return sys.modules["mujoco.mjx"]
+    captured = io.StringIO()
+    with contextlib.redirect_stdout(captured):
+        from mujoco import mjx
+    rest = [ln for ln in captured.getvalue().splitlines() if not ln.startswith(("Failed to import warp", "Failed to import mujoco_warp"))]
+    if rest:
+        print("\n".join(rest))
+    return mjx
+
+
 def make_scene(
     body: Body,
     betas=None,
@@ -110,8 +129,8 @@ def make_scene(
         geometry: a ready `BodyGeometry` (then `betas` and `soles` are ignored).
     """
     import mujoco
-    from mujoco import mjx
 
+    mjx = _import_mjx()
     geometry = fit_body_geometry(body, betas, soles=soles) if geometry is None else geometry
     ground = Ground() if ground is None else ground
     xml = scene_mjcf(geometry, ground, objects)
@@ -175,7 +194,7 @@ def contact_distances_posed(
 ) -> ContactDistances:
     """`contact_distances` of one frame from its global bone rotations (J, 3, 3) and
     joints (J, 3) (translation included, as `pose_bones` returns them)."""
-    from mujoco import mjx
+    mjx = _import_mjx()
 
     g = scene.geometry
     K, O = g.num_geoms, scene.num_objects
@@ -251,7 +270,18 @@ def check(
     if poses.ndim < 2 or poses.shape[-2:] != (J, 3):
         raise ValueError(f"poses has shape {poses.shape}; expected (*batch, {J}, 3).")
     batch = poses.shape[:-2]
-    trans = jnp.broadcast_to(jnp.asarray(trans, dtype), (*batch, 3))
+    trans = jnp.asarray(trans, dtype)
+    try:
+        trans = jnp.broadcast_to(trans, (*batch, 3))
+    except (ValueError, TypeError):
+        raise ValueError(f"trans has shape {trans.shape}; expected (*batch, 3) = {(*batch, 3)} to match poses.") from None
+    if int(np.prod(batch)) == 0:
+        raise ValueError(f"poses has shape {poses.shape}: no frames to check.")
+    if not isinstance(chunk, (int, np.integer)) or chunk < 1:
+        raise ValueError(f"chunk must be an int >= 1, got {chunk!r}.")
+    # A NaN pose gives NaN distances that every statistic would silently propagate.
+    check_finite("poses", poses)
+    check_finite("trans", trans)
     O = scene.num_objects
     rot = (
         jnp.broadcast_to(jnp.eye(3, dtype=dtype), (*batch, O, 3, 3))

@@ -14,13 +14,19 @@ def run_check(motion_path, body="default-low", fps=None, ground="0", out=None) -
     from .mjcf import Ground
     from .report import format_report, plausibility_report, plot_report
 
-    body = resolve_body(body)
-    motion = load_motion(motion_path, fps=fps, body=body)
+    if out is not None:
+        # Before minutes of work, not after: an output folder that cannot be made.
+        try:
+            Path(out).mkdir(parents=True, exist_ok=True)
+        except OSError as e:
+            raise OSError(e.errno, f"cannot create the output folder --out {out}: {e.strerror}", str(out)) from e
     if ground != "auto":
         try:
             ground = Ground(float(ground))
         except ValueError:
             raise ValueError(f"--ground must be a height in metres or 'auto', got {ground!r}.") from None
+    body = resolve_body(body)
+    motion = load_motion(motion_path, fps=fps, body=body)
     report = plausibility_report(body, motion, ground=ground)
     print(format_report(report))
     if out is not None:

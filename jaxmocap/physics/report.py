@@ -88,8 +88,16 @@ def plausibility_report(
         slide_speed: a contact step faster than this (m/s) counts as sliding.
         chunk: frames posed at once.
     """
+    from ..motion.sequence import Motion
     from ..viz.mesh import posed_vertices
 
+    if not isinstance(body, Body):
+        raise ValueError(f"body must be a jaxmocap Body, got {type(body).__name__}: call plausibility_report(body, motion).")
+    if not isinstance(motion, Motion):
+        raise ValueError(
+            f"motion must be a jaxmocap.motion.Motion, got {type(motion).__name__}; wrap arrays as "
+            "Motion(poses=(T, 24, 3), trans=(T, 3), fps=...)."
+        )
     vertices, _ = posed_vertices(body, motion, chunk=chunk)
     vertices = vertices.astype(np.float64)
     if ground is None:
@@ -195,7 +203,7 @@ def plot_report(report: PlausibilityReport, path) -> Path:
     ax0.set_ylabel("height above floor (mm)")
     ax0.set_title(f"plausibility: {report.name or 'motion'}")
     ax0.legend(loc="upper right", fontsize=8)
-    for i, name in enumerate(FOOT_POINTS):
+    for i in range(len(FOOT_POINTS)):
         on = report.foot_contact[:, i]
         ax1.fill_between(t, i, i + 0.8 * on, step="mid", alpha=0.6)
     ax1.set_yticks(np.arange(4) + 0.4, [n.replace("_", " ") for n in FOOT_POINTS], fontsize=8)

@@ -48,6 +48,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
+from .._checks import check_frames, check_rate
 from ..body.kinematics import BodyOutput, forward
 from ..body.model import SMPL_JOINT_NAMES, Body
 from ..rotation import axis_angle_to_matrix, matrix_to_axis_angle
@@ -288,6 +289,13 @@ def imu_from_trajectory(rotations: Array, positions: Array, fps: float) -> IMURe
     Returns:
         IMUReadings (eq. 2.62 / 6.1): works for body sensors, a camera or an object.
     """
+    check_rate("fps", fps)  # a negative rate flips the gyroscope, zero silences it
+    if rotations.ndim < 4 or rotations.shape[-2:] != (3, 3) or positions.shape[:-1] != rotations.shape[:-2]:
+        raise ValueError(
+            f"rotations {rotations.shape} and positions {positions.shape} must be (..., T, S, 3, 3) "
+            "and (..., T, S, 3) with the same T and S."
+        )
+    check_frames("the sensor trajectory", rotations.shape[-4])
     free = finite_difference_acceleration(positions, fps)
     up = jnp.zeros(3, positions.dtype).at[1].set(GRAVITY)
     specific = jnp.einsum("...ba,...b->...a", rotations, free + up)
@@ -326,6 +334,11 @@ def synthesize_imu(
     Returns:
         IMUReadings with (T, S, ...) arrays.
     """
+    check_rate("fps", fps)
+    shape = jnp.shape(poses)
+    if len(shape) < 3 or shape[-2:] != (body.num_joints, 3):
+        raise ValueError(f"poses has shape {shape}; expected (T, {body.num_joints}, 3) axis-angle.")
+    check_frames("poses", shape[-3])
     return imu_from_body_output(
         forward(body, poses, betas, trans), placement, fps, sensor_to_bone, offset_bone
     )

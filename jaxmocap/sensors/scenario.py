@@ -38,6 +38,7 @@ C views, K keypoints, D detection slots, M depth points; only those configured e
 from __future__ import annotations
 
 import dataclasses
+import io
 import json
 import os
 import pickle
@@ -48,6 +49,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._checks import check_rate
 from ..body.kinematics import BodyOutput, forward
 from ..motion.sequence import Motion
 from ..rotation import axis_angle_to_matrix
@@ -93,6 +95,16 @@ class CameraConfig:
     moving: bool = False
     camera_imu: bool = False
 
+    def __post_init__(self):
+        for name in ("num_views", "width", "height"):
+            v = getattr(self, name)
+            if not isinstance(v, (int, np.integer)) or v < 1:
+                raise ValueError(f"CameraConfig.{name} must be an int >= 1, got {v!r}.")
+        if not 0 < self.fov_degrees < 180:
+            raise ValueError(f"CameraConfig.fov_degrees must lie in (0, 180), got {self.fov_degrees}.")
+        if not (np.isfinite(self.distance) and self.distance > 0):
+            raise ValueError(f"CameraConfig.distance must be > 0 metres, got {self.distance}.")
+
 
 @dataclasses.dataclass(frozen=True)
 class ScenarioConfig:
@@ -114,6 +126,17 @@ class ScenarioConfig:
     depth_noise: DepthNoiseModel = DepthNoiseModel()
     object: str | None = None
     contact_part: str = "right_hand"
+
+    def __post_init__(self):
+        check_rate("ScenarioConfig.fps", self.fps)
+        for name, low in (("max_frames", 1), ("people", 1), ("num_betas", 0), ("depth_points", 0)):
+            v = getattr(self, name)
+            if not isinstance(v, (int, np.integer)) or v < low:
+                raise ValueError(f"ScenarioConfig.{name} must be an int >= {low}, got {v!r}.")
+        for name in ("betas_std", "spacing"):
+            v = getattr(self, name)
+            if not (np.isfinite(v) and v >= 0):
+                raise ValueError(f"ScenarioConfig.{name} must be finite and >= 0, got {v!r}.")
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
@@ -508,12 +531,17 @@ def save_scenario(scenario: Scenario, path) -> Path:
 
 
 def load_scenario(path) -> Scenario:
-    """Read a file written by `save_scenario`."""
-    with np.load(path, allow_pickle=False) as d:
-        if "meta_json" not in d:
-            raise ValueError(f"{path} is not a jaxmocap scenario file (no meta_json).")
-        meta = json.loads(str(d["meta_json"]))
-        arrays = {k: d[k] for k in d.files if k != "meta_json"}
+    """Read a file written by `save_scenario`; MotionFileError naming the file if unreadable."""
+    from ..motion.skeleton import MotionFileError, check_file, read_npz
+
+    d = read_npz(check_file(path))
+    if "meta_json" not in d:
+        raise ValueError(f"{path} is not a jaxmocap scenario file (no meta_json).")
+    try:
+        meta = json.loads(str(d.pop("meta_json")))
+    except ValueError as e:
+        raise MotionFileError(f"{path}: its meta_json is not JSON ({e}).") from e
+    arrays = d
     if meta.get("format") != "jaxmocap_scenario":
         raise ValueError(f"{path}: unknown format {meta.get('format')!r}.")
     return Scenario(arrays, meta)
@@ -568,11 +596,40 @@ def _global_rotations(poses):
     return R
 
 
+class _DipUnpickler(pickle._Unpickler):
+    """Unpickles numpy arrays and containers only: a pickle naming anything else would run code.
+
+    The pure-Python unpickler keeps its memo in a dict; the C one grows an array to the
+    largest memo index in the file, so one damaged byte could ask for gigabytes."""
+
+    def find_class(self, module, name):
+        if module.split(".")[0] == "numpy" or (module, name) in (
+            ("copyreg", "_reconstructor"), ("_codecs", "encode"), ("builtins", "object"),
+        ):
+            return super().find_class(module, name)
+        raise pickle.UnpicklingError(f"refusing to load {module}.{name}")
+
+
 def load_dip(path) -> dict:
-    """Read a DIP-IMU-layout pickle (ours or the original; latin1 for Python-2 pickles)."""
-    with open(path, "rb") as f:
-        data = pickle.load(f, encoding="latin1")
+    """Read a DIP-IMU-layout pickle (ours or the original; latin1 for Python-2 pickles).
+
+    Raises:
+        FileNotFoundError, or MotionFileError (a ValueError) naming the file when it is not
+        a DIP pickle. Only numpy arrays and plain containers are unpickled.
+    """
+    from ..motion.skeleton import MotionFileError, check_file
+
+    path = check_file(path)
+    try:
+        data = _DipUnpickler(io.BytesIO(path.read_bytes()), encoding="latin1").load()
+    except Exception as e:  # a non-pickle or a damaged one can raise almost anything
+        raise MotionFileError(
+            f"{path}: not a DIP-IMU pickle ({type(e).__name__}: {e}); expected a pickled dict "
+            "with imu_ori, imu_acc and gt."
+        ) from e
+    if not isinstance(data, dict):
+        raise MotionFileError(f"{path}: the pickle holds a {type(data).__name__}, not a DIP-IMU dict.")
     for key, shape in (("imu_ori", (17, 3, 3)), ("imu_acc", (17, 3)), ("gt", (72,))):
         if key not in data or np.shape(data[key])[1:] != shape:
-            raise ValueError(f"{path}: '{key}' missing or not (N, {', '.join(map(str, shape))}).")
+            raise MotionFileError(f"{path}: '{key}' missing or not (N, {', '.join(map(str, shape))}).")
     return data

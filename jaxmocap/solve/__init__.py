@@ -20,6 +20,9 @@ from .residuals import Term as Term
 from .residuals import nan_mask as nan_mask
 from .residuals import second_difference as second_difference
 from .solver import METHODS as METHODS
+from .solver import NO_OBSERVATIONS as NO_OBSERVATIONS
+from .solver import check_bandwidths as check_bandwidths
+from .solver import measure_bandwidths as measure_bandwidths
 from .solver import Args as Args
 from .solver import Solution as Solution
 from .solver import VonMarcardLM as VonMarcardLM

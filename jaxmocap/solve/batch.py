@@ -17,7 +17,8 @@ import jax
 import jax.numpy as jnp
 from jax import Array
 
-from .solver import METHODS, Args, Solution, _check, _solve_core
+from .._checks import check_weight
+from .solver import METHODS, Args, Solution, _check, _check_max_steps, _solve_core
 
 __all__ = ["pad_sequences", "solve_batch", "with_weights"]
 
@@ -85,6 +86,9 @@ def solve_batch(
     """
     if method not in METHODS:
         raise ValueError(f"method must be one of {METHODS}, got {method!r}.")
+    _check_max_steps(max_steps)
+    for k, v in (weights or {}).items():
+        check_weight(f"weights[{k!r}]", v)
     leaves = jax.tree_util.tree_leaves(params0)
     if not leaves:
         raise ValueError("params0 is empty; give a dict of batched (B, ...) initial parameters.")

@@ -39,6 +39,7 @@ import jax.numpy as jnp
 import jax.tree_util as jtu
 from jax import Array
 
+from .._checks import check_weight
 from .unknowns import Layout, Unknown, to_manifold
 
 __all__ = [
@@ -187,6 +188,12 @@ class Term(eqx.Module):
     jacobian: Callable[[Any, Any], dict[str, Array]] | None = eqx.field(static=True, default=None)
 
     def __check_init__(self):
+        if not isinstance(self.name, str) or not self.name:
+            raise ValueError(f"Term name must be a non-empty str, got {self.name!r}.")
+        if not callable(self.fn):
+            raise ValueError(f"Term {self.name!r}: fn must be callable, got {type(self.fn).__name__}.")
+        # A negative weight rewards the error and the solve diverges without a word.
+        check_weight(f"Term {self.name!r} weight", self.weight)
         if not isinstance(self.bandwidth, int) or self.bandwidth < 0:
             raise ValueError(f"Term {self.name!r}: bandwidth must be an int >= 0, got {self.bandwidth!r}.")
         if self.reads is not None and not all(

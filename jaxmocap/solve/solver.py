@@ -38,9 +38,11 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import jax.tree_util as jtu
+import numpy as np
 import optimistix as optx
 from jax import Array
 
+from .._checks import concrete
 from .residuals import Problem, _sanitise
 from .structured import (
     Structure,
@@ -53,9 +55,16 @@ from .structured import (
 )
 from .unknowns import Layout, from_manifold, retract, to_manifold
 
-__all__ = ["Solution", "VonMarcardLM", "solve", "result_message", "METHODS", "linear_solver"]
+__all__ = [
+    "Solution", "VonMarcardLM", "solve", "result_message", "METHODS", "linear_solver",
+    "NO_OBSERVATIONS", "measure_bandwidths", "check_bandwidths",
+]  # fmt: skip
 
 METHODS = ("lm", "optx_lm", "optx_gn", "jaxopt")
+
+#: `Solution.result` when every masked (observation) term masked out all of its rows: the
+#: "solution" is the priors' alone. Beyond optimistix's codes, so `converged` is False.
+NO_OBSERVATIONS = 100
 
 
 class Solution(eqx.Module):
@@ -82,7 +91,22 @@ class Solution(eqx.Module):
 
 def result_message(result) -> str:
     """Human-readable meaning of a `Solution.result` index."""
+    if int(result) == NO_OBSERVATIONS:
+        return "no observations: every observation term was masked out (dropped or missing data)"
     return optx.RESULTS._index_to_message[int(result)] or "successful"
+
+
+def _observed(args: Args) -> Array | None:
+    """Whether any masked term keeps a row (None if no term has a mask)."""
+    seen = []
+    for t in args.problem.terms:
+        if t.mask is None:
+            continue
+        m = jnp.asarray(t.mask(args.data), bool)
+        if args.frame_mask is not None and m.ndim >= 1 and m.shape[0] == args.layout.T:
+            m = m & args.frame_mask.reshape((-1,) + (1,) * (m.ndim - 1))
+        seen.append(jnp.any(m))
+    return None if not seen else jnp.any(jnp.stack(seen))
 
 
 class Args(eqx.Module):
@@ -305,6 +329,13 @@ class VonMarcardLM(optx.AbstractLeastSquaresSolver):
 # --- the front door ------------------------------------------------------------------------
 
 
+def _check_max_steps(max_steps) -> None:
+    # 0 or a negative cap would still take one step (optimistix checks after stepping).
+    steps = concrete(max_steps)
+    if steps is not None and (steps.ndim != 0 or not np.issubdtype(steps.dtype, np.integer) or steps < 1):
+        raise ValueError(f"max_steps must be an int >= 1, got {max_steps!r}.")
+
+
 def _check(problem, params0, data, frame_mask, dtype):
     if not isinstance(problem, Problem):
         raise ValueError(f"problem must be a jaxmocap.solve.Problem, got {type(problem).__name__}.")
@@ -319,7 +350,7 @@ def _check(problem, params0, data, frame_mask, dtype):
             "jax.config.update('jax_enable_x64', True) first."
         )
     if layout.T == 0:
-        raise ValueError("the sequence has no frames (T = 0); give at least one frame.")
+        raise ValueError("params0: the sequence has no frames (T = 0); give at least one frame.")
     params0 = {k: jnp.asarray(params0[k], dtype) for k in layout.keys}
     if frame_mask is not None:
         frame_mask = jnp.asarray(frame_mask, bool)
@@ -343,6 +374,7 @@ def solve(
     dtype: Any = None,
     damping: str = "levenberg",
     adjoint: optx.AbstractAdjoint | None = None,
+    check_bandwidth: bool = False,
 ) -> Solution:
     """Minimise `problem` from `params0` given `data`; returns a `Solution` of arrays.
 
@@ -363,14 +395,22 @@ def solve(
         damping: for "lm": "levenberg", JᵀJ + λI (eq. 2.52), or "marquardt" (eq. 2.54).
         adjoint: how gradients flow through the solve (default: implicit
             differentiation with the structured Hessian factorisation).
+        check_bandwidth: first measure each term's true frame coupling at params0
+            (`check_bandwidths`; one Jacobian-vector product per term, best on a short
+            sequence) and raise if a term reads further than its declared `bandwidth`,
+            which would otherwise give a wrong answer reported as successful.
     Returns:
-        `Solution(value, result, num_steps, cost, costs)`.
+        `Solution(value, result, num_steps, cost, costs)`; `result` is `NO_OBSERVATIONS`
+        when every masked term masked out all of its rows.
     """
     if method not in METHODS:
         raise ValueError(f"method must be one of {METHODS}, got {method!r}.")
     if damping not in ("levenberg", "marquardt"):
         raise ValueError(f"damping must be 'levenberg' or 'marquardt', got {damping!r}.")
     layout, params0, frame_mask, dtype = _check(problem, params0, data, frame_mask, dtype)
+    _check_max_steps(max_steps)
+    if check_bandwidth:
+        check_bandwidths(problem, params0, data, frame_mask)
     if factor_dtype is None:
         factor_dtype = jnp.float64 if jax.config.jax_enable_x64 else dtype
     args = Args(problem, data, frame_mask, layout)
@@ -380,6 +420,51 @@ def solve(
         args, params0, jnp.asarray(rtol, dtype), jnp.asarray(atol, dtype), max_steps,
         method=method, solver=solver, factor_dtype=jnp.dtype(factor_dtype), damping=damping, adjoint=adjoint,
     )  # fmt: skip
+
+
+def measure_bandwidths(problem: Problem, params0: dict, data: Any = None, frame_mask=None, frame=None) -> dict[str, int]:
+    """The frame coupling each term really has at `params0`: {term name: b}.
+
+    Perturbs every per-frame unknown at one frame t₀ (default T // 2) in random
+    directions (one Jacobian-vector product) and returns, per term, the largest |t - t₀|
+    over the residual rows t that change. Rows masked out at params0 do not count, nor
+    do rows whose derivative happens to vanish there (x² at x = 0): measure at a generic
+    point where the data are present; a short sequence (T ≥ 2b + 1) is enough.
+    """
+    layout = problem.layout(params0)
+    T = layout.T
+    t0 = T // 2 if frame is None else int(frame)
+    if not 0 <= t0 < T:
+        raise ValueError(f"frame={frame} is outside the {T} frames.")
+    spec = problem.spec
+    keys = [k for k in params0 if k not in spec or spec[k].kind == "frame"]
+    rng = np.random.default_rng(0)
+    primals = {k: jnp.asarray(v) for k, v in params0.items()}
+    tangents = {}
+    for k, v in primals.items():
+        t = np.zeros(v.shape, np.float64)
+        if k in keys:
+            t[t0] = rng.normal(size=v.shape[1:])
+        tangents[k] = jnp.asarray(t, v.dtype)
+    _, dr = jax.jvp(lambda p: problem.residuals(p, data, frame_mask), (primals,), (tangents,))
+    out = {}
+    for name, d in dr.items():
+        rows = np.flatnonzero(np.any(np.abs(np.asarray(d)) > 0, axis=1))
+        out[name] = int(np.max(np.abs(rows - t0))) if rows.size else 0
+    return out
+
+
+def check_bandwidths(problem: Problem, params0: dict, data: Any = None, frame_mask=None, frame=None) -> dict[str, int]:
+    """`measure_bandwidths`, raising a ValueError naming every term that reads further
+    than its declared `bandwidth` (the solver would drop that coupling); returns the
+    measured bandwidths otherwise."""
+    measured = measure_bandwidths(problem, params0, data, frame_mask, frame)
+    declared = problem.bandwidths
+    wrong = {k: (declared[k], b) for k, b in measured.items() if b > declared[k]}
+    if wrong:
+        text = ", ".join(f"Term {k!r} declares bandwidth={d} but reads {b} frame(s) away" for k, (d, b) in wrong.items())
+        raise ValueError(f"{text}: set bandwidth to at least the measured value.")
+    return measured
 
 
 def _solve_core(args: Args, params0, rtol, atol, max_steps, *, method, solver, factor_dtype, damping, adjoint):
@@ -410,6 +495,9 @@ def _solve_core(args: Args, params0, rtol, atol, max_steps, *, method, solver, f
     cost = sum(jtu.tree_leaves(costs))
     # A non-finite end point is a divergence whatever the backend said.
     result = jnp.where(jnp.isfinite(cost), result, optx.RESULTS.nonlinear_divergence._value)
+    observed = _observed(args)
+    if observed is not None:
+        result = jnp.where(observed, result, NO_OBSERVATIONS)
     return Solution(value, jnp.asarray(result, jnp.int32), jnp.asarray(steps, jnp.int32), cost, costs)
 
 

@@ -28,7 +28,7 @@ def resolve_body(spec: str | os.PathLike | Body | None = "default-low") -> Body:
     """
     if isinstance(spec, Body):
         return spec
-    from ..body.io import default_body, load_body
+    from ..body.io import BodyFileError, default_body, load_body
 
     spec = "default-low" if spec is None else spec
     if spec in ("default-low", "default-full"):
@@ -37,6 +37,12 @@ def resolve_body(spec: str | os.PathLike | Body | None = "default-low") -> Body:
         from .mannequin import mannequin_body
 
         return mannequin_body(detail=2)
+    path = Path(spec)
+    if not path.exists() and path.suffix.lower() not in (".pkl", ".npz"):
+        raise BodyFileError(
+            f"{spec}: not a body name or a model file; use default-low, default-full, mannequin, "
+            "or the path of an SMPL / SMPL-H / SMPL-X .pkl or .npz file."
+        )
     return load_body(spec)
 
 
@@ -120,7 +126,7 @@ class DemoResult:
     fit_seconds: dict = dataclasses.field(default_factory=dict)
 
 
-def _demo_motion(body: Body, fps: float, seconds: float):
+def _demo_motion(body: Body, fps: float, seconds: float | None):
     from ..motion.io import load_motion
 
     cmu = find_cmu_dir()
@@ -135,8 +141,10 @@ def _demo_motion(body: Body, fps: float, seconds: float):
                 "No CMU clips found (set JAXMOCAP_CMU to the folder holding 02_01.amc) and the "
                 f"procedural walk is unavailable ({e})."
             ) from e
-        motion = walk(int(round(seconds * fps)) + 1, fps, body=body)
+        motion = walk(int(round((4.0 if seconds is None else seconds) * fps)) + 1, fps, body=body)
         source = "procedural walk (jaxmocap.motion.library.walk)"
+    if seconds is None:  # the whole clip
+        return motion, source
     frames = min(motion.num_frames, int(round(seconds * fps)) + 1)
     return motion[:frames], source
 
@@ -145,7 +153,7 @@ def run_demo(
     out_dir="out/demo",
     body: str | Body = "default-full",
     fps: float = 30.0,
-    seconds: float = 4.0,
+    seconds: float | None = None,
     every: int = 5,
     progress: bool = False,
     fit: bool = True,
@@ -153,6 +161,7 @@ def run_demo(
 ) -> DemoResult:
     """Load a walk (CMU 02_01 if present, else the procedural one), pose a body, export,
     then (with `fit`) simulate six IMUs with realistic errors and fit SOP and SIP.
+    `seconds`: the length used (default: the whole clip; 2.83 s of CMU 02_01).
 
     Writes into `out_dir`: `meshes/frame_XXXX.ply` every `every` frames, one
     `meshes/sequence.glb` (a node per kept frame), `filmstrip.png` and `body.png`; with

@@ -1,0 +1,94 @@
+"""Argument checks for the public entry points, run once on the host or at trace time.
+
+Each check names the argument and says what was expected. Values that are traced (inside
+`jit`, `vmap`, `grad`) cannot be inspected; the checks skip them, so they never add work
+to a compiled kernel: validation happens where the user hands over concrete arrays.
+"""
+
+from __future__ import annotations
+
+import math
+
+import jax
+import numpy as np
+
+__all__ = ["concrete", "check_rate", "check_weight", "check_frames", "check_rotations", "check_finite"]
+
+
+def concrete(x) -> np.ndarray | None:
+    """`x` as a NumPy array, or None when it is a tracer (no value to check)."""
+    if isinstance(x, jax.core.Tracer):
+        return None
+    try:
+        return np.asarray(x)
+    except (jax.errors.TracerArrayConversionError, jax.errors.ConcretizationTypeError):
+        return None
+
+
+def check_rate(name: str, value, what: str = "frames per second") -> None:
+    """A rate such as fps: a finite number > 0 (a sign flip or zero would be silently wrong)."""
+    v = concrete(value)
+    if v is None:
+        return
+    if v.ndim != 0 or not np.issubdtype(v.dtype, np.number):
+        raise ValueError(f"{name} must be one positive number ({what}), got {value!r}.")
+    if not (math.isfinite(float(v)) and float(v) > 0):
+        raise ValueError(f"{name} must be a finite number > 0 ({what}), got {float(v)}.")
+
+
+def check_weight(name: str, value) -> None:
+    """A term weight: finite and >= 0 (0 switches a term off; < 0 would reward the error)."""
+    v = concrete(value)
+    if v is None:
+        return
+    if not np.issubdtype(v.dtype, np.number) or v.dtype == np.bool_:
+        raise ValueError(f"{name} must be a finite number >= 0, got {value!r}.")
+    if not (np.all(np.isfinite(v)) and np.all(v >= 0)):
+        raise ValueError(f"{name} must be finite and >= 0 (0 switches the term off), got {v.tolist()}.")
+
+
+def check_frames(name: str, T: int, at_least: int = 1) -> None:
+    """A frame count T >= `at_least`."""
+    if T < at_least:
+        raise ValueError(
+            f"{name} has {T} frames; at least {at_least} needed (an empty slice or a T = 0 array?)."
+        )
+
+
+def check_finite(name: str, x) -> None:
+    """Every entry finite (skipped for traced values)."""
+    v = concrete(x)
+    if v is None or not np.issubdtype(v.dtype, np.inexact):
+        return
+    if not np.isfinite(v).all():
+        bad = np.argwhere(~np.isfinite(v))[0]
+        raise ValueError(f"{name} contains NaN or inf (first at index {tuple(int(i) for i in bad)}).")
+
+
+def check_rotations(name: str, R, atol: float = 1e-3, allow_nan: bool = False) -> None:
+    """(..., 3, 3) rotation matrices: RᵀR = I and det R = +1 within `atol`.
+
+    With `allow_nan`, matrices holding a NaN (dropped samples) are skipped.
+    """
+    v = concrete(R)
+    if v is None:
+        return
+    if v.ndim < 2 or v.shape[-2:] != (3, 3):
+        raise ValueError(f"{name} has shape {v.shape}; expected (..., 3, 3) rotation matrices.")
+    v = v.reshape(-1, 3, 3).astype(np.float64)
+    present = np.isfinite(v).all(axis=(1, 2))
+    if not allow_nan and not present.all():
+        raise ValueError(f"{name} contains NaN or inf (matrix {int(np.argmin(present))}).")
+    index = np.flatnonzero(present)
+    v = v[present]
+    if v.size == 0:
+        return
+    ortho = np.abs(np.swapaxes(v, 1, 2) @ v - np.eye(3)).max(axis=(1, 2))
+    det = np.linalg.det(v)
+    bad = (ortho > atol) | (np.abs(det - 1.0) > atol)
+    if bad.any():
+        i = int(np.argmax(bad))
+        raise ValueError(
+            f"{name} holds matrices that are not rotations (RᵀR = I, det = +1): matrix "
+            f"{int(index[i])} (flattened) has |RᵀR - I| = {ortho[i]:.3g}, det = {det[i]:.3g}."
+        )

@@ -1,0 +1,396 @@
+"""Every bad input gets a clear error (issue 13): one table of misuse, one row per case.
+
+Each row calls a public entry point with one thing wrong and asserts the exception type
+and that the message names the argument or the file. Almost every row fails validation
+before anything is compiled; the few that need a calibrated setup or an MJX scene share
+one session-wide context.
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+import pickle
+import subprocess
+import sys
+import zipfile
+from pathlib import Path
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import jaxmocap
+from jaxmocap import metrics, sensors
+from jaxmocap.body.io import BodyFileError
+from jaxmocap.methods import inertial as I
+from jaxmocap.motion import Motion, MotionFileError, load_motion
+from jaxmocap.solve import (
+    Problem, Term, check_bandwidths, pad_sequences, sequence, solve, solve_batch, with_weights,
+)  # fmt: skip
+
+REPO = Path(__file__).resolve().parents[1]
+CMU = REPO.parent / "shared" / "data" / "cmu"
+
+
+class Context:
+    """Valid ingredients, built lazily and once: each case spoils exactly one of them."""
+
+    def __init__(self, folder: Path):
+        self.dir = folder
+
+    @functools.cached_property
+    def body(self):
+        return jaxmocap.default_body("low")
+
+    @functools.cached_property
+    def motion(self) -> Motion:
+        rng = np.random.default_rng(0)
+        return Motion(poses=0.1 * rng.normal(size=(12, 24, 3)), trans=np.zeros((12, 3)), fps=30.0, name="toy")
+
+    @functools.cached_property
+    def placement(self):
+        return sensors.imu_placement(self.body, "sip6")
+
+    def readings(self, T=4, S=6):
+        """Identity orientations and gravity-only accelerations, (T, S, 3, 3) / (T, S, 3)."""
+        return np.broadcast_to(np.eye(3), (T, S, 3, 3)).copy(), np.tile([0.0, 9.81, 0.0], (T, S, 1))
+
+    def calibrate(self, **changes):
+        ori, acc = self.readings()
+        kw = dict(
+            body=self.body, bones=self.placement.bones, vertices=self.placement.vertices,
+            orientation=ori, acceleration=acc, pose0=np.zeros((24, 3)), fps=30.0,
+        )  # fmt: skip
+        kw.update(changes)
+        return I.calibrate(**kw)
+
+    @functools.cached_property
+    def setup(self):
+        return self.calibrate()
+
+    @functools.cached_property
+    def scene(self):
+        from jaxmocap import physics
+
+        return physics.make_scene(self.body)
+
+    def file(self, name: str, content: bytes | str) -> Path:
+        path = self.dir / name
+        path.write_bytes(content.encode() if isinstance(content, str) else content)
+        return path
+
+    def npz(self, name: str, **arrays) -> Path:
+        path = self.dir / name
+        np.savez(path, **arrays)
+        return path
+
+    def amass(self, name: str, **changes) -> Path:
+        d = dict(poses=np.zeros((5, 72)), trans=np.zeros((5, 3)), betas=np.zeros(16),
+                 gender=np.array("male"), mocap_framerate=np.array(60.0))  # fmt: skip
+        d.update(changes)
+        return self.npz(name, **{k: v for k, v in d.items() if v is not None})
+
+    def pickle(self, name: str, obj) -> Path:
+        path = self.dir / name
+        with open(path, "wb") as f:
+            pickle.dump(obj, f)
+        return path
+
+
+class _Evil:
+    """Pickles as a call of os.system: a loader that unpickles it would run a command."""
+
+    def __reduce__(self):
+        return (os.system, ("echo pwned",))
+
+
+@pytest.fixture(scope="session")
+def ctx(tmp_path_factory):
+    return Context(tmp_path_factory.mktemp("bad_inputs"))
+
+
+def _shift_term(p, d):
+    # Reads frame t+1 at row t, i.e. bandwidth 1, while the term below declares 0.
+    x = p["x"]
+    return jnp.concatenate([x[1:] - x[:-1], jnp.zeros_like(x[:1])], 0)
+
+
+SIMPLE = Problem([Term("fit", lambda p, d: p["x"] - 1.0)])
+WRONG_BAND = Problem([Term("fit", lambda p, d: p["x"] - 1.0), Term("shift", _shift_term)])
+
+# (id, action(ctx), exception type, regex the message must match)
+CASES = [
+    # --- motion files --------------------------------------------------------------------
+    ("motion-missing", lambda c: load_motion(c.dir / "nope.amc"), FileNotFoundError, r"nope\.amc"),
+    ("motion-unknown-suffix", lambda c: load_motion(c.file("clip.txt", "x")), MotionFileError, r"clip\.txt.*\.npz"),
+    ("motion-text-npz", lambda c: load_motion(c.file("text.npz", "hello")), MotionFileError, r"text\.npz: not an \.npz"),
+    ("motion-truncated-npz", lambda c: load_motion(c.file("trunc.npz", b"PK\x03\x04" + b"\0" * 20)), MotionFileError, r"trunc\.npz"),
+    ("amass-no-poses", lambda c: load_motion(c.amass("np.npz", poses=None)), MotionFileError, r"np\.npz.*'poses'"),
+    ("amass-poses-shape", lambda c: load_motion(c.amass("ps.npz", poses=np.zeros((5, 10)))), MotionFileError, r"ps\.npz: poses has shape"),
+    ("amass-trans-frames", lambda c: load_motion(c.amass("tf.npz", trans=np.zeros((4, 3)))), MotionFileError, r"tf\.npz: trans has shape"),
+    ("amass-nan-poses", lambda c: load_motion(c.amass("nan.npz", poses=np.full((5, 72), np.nan))), MotionFileError, r"nan\.npz: poses contains NaN"),
+    ("amass-zero-frames", lambda c: load_motion(c.amass("z.npz", poses=np.zeros((0, 72)), trans=np.zeros((0, 3)))), MotionFileError, r"z\.npz.*at least one frame"),
+    ("amass-negative-fps", lambda c: load_motion(c.amass("neg.npz", mocap_framerate=np.array(-60.0))), MotionFileError, r"neg\.npz.*frame rate"),
+    ("amass-two-rates", lambda c: load_motion(c.amass("two.npz", mocap_framerate=np.array([60.0, 30.0]))), MotionFileError, r"two\.npz: mocap_framerate holds 2"),
+    ("amass-object-array", lambda c: load_motion(c.amass("obj.npz", gender=np.array([{"a": 1}], dtype=object))), MotionFileError, r"obj\.npz"),
+    ("own-missing-key", lambda c: load_motion(c.npz("own.npz", jaxmocap_motion=np.array(1), poses=np.zeros((2, 24, 3)))), MotionFileError, r"own\.npz.*misses"),
+    ("own-zero-frames", lambda c: load_motion(c.npz("own0.npz", jaxmocap_motion=np.array(1), poses=np.zeros((0, 24, 3)), trans=np.zeros((0, 3)), fps=np.array(30.0))), MotionFileError, r"own0\.npz.*0 frames"),
+    ("amc-without-asf", lambda c: load_motion(c.file("77_01.amc", ":FULLY-SPECIFIED\n1\nroot 0 0 0 0 0 0\n")), FileNotFoundError, r"77_01\.amc"),
+    ("amc-garbage", lambda c: load_motion(c.file("bad.amc", "1\nroot a b c\n"), asf=CMU / "02.asf"), MotionFileError, r"bad\.amc"),
+    ("asf-garbage", lambda c: load_motion(CMU / "02_01.amc", asf=c.file("bad.asf", "nothing here")), MotionFileError, r"bad\.asf"),
+    ("bvh-not-bvh", lambda c: load_motion(c.file("bad.bvh", "MOTION\nFrames: 1\n")), MotionFileError, r"bad\.bvh.*HIERARCHY"),
+    ("bvh-truncated", lambda c: load_motion(c.file("cut.bvh", "HIERARCHY\nROOT hips\n{\nOFFSET 0 0")), MotionFileError, r"cut\.bvh"),
+    ("load-fps-zero", lambda c: load_motion(c.amass("ok0.npz"), fps=0), ValueError, r"fps"),
+    ("load-fps-negative", lambda c: load_motion(c.amass("ok1.npz"), fps=-30), ValueError, r"fps"),
+    ("motion-empty-slice", lambda c: c.motion[0:0], ValueError, r"motion\[.*no frames"),
+    ("motion-one-frame-index", lambda c: c.motion[3], ValueError, r"slice"),
+    ("motion-poses-shape", lambda c: Motion(np.zeros((5, 23, 3)), np.zeros((5, 3)), 30.0), ValueError, r"Motion\.poses"),
+    ("motion-trans-shape", lambda c: Motion(np.zeros((5, 24, 3)), np.zeros((4, 3)), 30.0), ValueError, r"Motion\.trans"),
+    ("motion-zero-frames", lambda c: Motion(np.zeros((0, 24, 3)), np.zeros((0, 3)), 30.0), ValueError, r"Motion\.poses has 0 frames"),
+    ("motion-fps-zero", lambda c: Motion(np.zeros((2, 24, 3)), np.zeros((2, 3)), 0.0), ValueError, r"Motion\.fps"),
+    ("motion-fps-nan", lambda c: Motion(np.zeros((2, 24, 3)), np.zeros((2, 3)), float("nan")), ValueError, r"Motion\.fps"),
+    ("motion-nan-pose", lambda c: Motion(np.full((2, 24, 3), np.nan), np.zeros((2, 3)), 30.0), ValueError, r"poses/trans"),
+    ("motion-resample-negative", lambda c: c.motion.resample(-30), ValueError, r"fps"),
+    ("save-amass-layout", lambda c: jaxmocap.motion.save_amass(c.motion, c.dir / "o.npz", layout="smplx"), ValueError, r"layout"),
+    ("scenario-file-text", lambda c: sensors.load_scenario(c.file("scen.npz", "text")), MotionFileError, r"scen\.npz"),
+    ("dip-not-pickle", lambda c: sensors.load_dip(c.file("dip.pkl", "hello")), MotionFileError, r"dip\.pkl: not a DIP-IMU pickle"),
+    ("dip-a-list", lambda c: sensors.load_dip(c.pickle("list.pkl", [1, 2])), MotionFileError, r"list\.pkl.*list"),
+    ("dip-missing-keys", lambda c: sensors.load_dip(c.pickle("keys.pkl", {"gt": np.zeros((3, 72))})), MotionFileError, r"keys\.pkl: 'imu_ori'"),
+    ("dip-code-in-pickle", lambda c: sensors.load_dip(c.pickle("evil.pkl", _Evil())), MotionFileError, r"evil\.pkl.*refusing"),
+    # --- body models ---------------------------------------------------------------------
+    ("body-missing", lambda c: jaxmocap.load_body(c.dir / "SMPL_NEUTRAL.pkl"), BodyFileError, r"SMPL_NEUTRAL\.pkl: no such file"),
+    ("body-suffix", lambda c: jaxmocap.load_body(c.file("model.obj", "v 0 0 0")), BodyFileError, r"model\.obj.*unknown model file type"),
+    ("body-text-npz", lambda c: jaxmocap.load_body(c.file("model.npz", "hello")), BodyFileError, r"model\.npz: not an \.npz"),
+    ("body-corrupt-pkl", lambda c: jaxmocap.load_body(c.file("model.pkl", b"\x80\x02garbage")), BodyFileError, r"model\.pkl.*cannot read"),
+    ("body-pkl-list", lambda c: jaxmocap.load_body(c.pickle("list_model.pkl", [1, 2])), BodyFileError, r"list_model\.pkl.*list"),
+    ("body-pkl-code", lambda c: jaxmocap.load_body(c.pickle("evil_model.pkl", {"v_template": _Evil()})), BodyFileError, r"evil_model\.pkl.*refusing"),
+    ("body-npz-keys", lambda c: jaxmocap.load_body(c.npz("half.npz", v_template=np.zeros((3, 3)))), BodyFileError, r"half\.npz.*missing"),
+    ("body-npz-ranks", lambda c: jaxmocap.load_body(c.npz("ranks.npz", v_template=np.zeros(3), f=np.zeros(3), shapedirs=np.zeros(3), J_regressor=np.zeros(3), weights=np.zeros((3, 24)), kintree_table=np.zeros(3))), BodyFileError, r"ranks\.npz"),
+    ("body-gender", lambda c: jaxmocap.load_body(c.dir / "x.pkl", gender="other"), ValueError, r"gender"),
+    ("body-num-betas-zero", lambda c: jaxmocap.load_body(c.dir / "x.pkl", num_betas=0), ValueError, r"num_betas"),
+    ("default-body-resolution", lambda c: jaxmocap.default_body("medium"), ValueError, r"resolution"),
+    ("resolve-body-name", lambda c: jaxmocap.viz.demo.resolve_body("default-medium"), BodyFileError, r"default-medium.*default-low, default-full, mannequin"),
+    ("forward-pose-shape", lambda c: jaxmocap.forward(c.body, np.zeros((23, 3))), ValueError, r"pose"),
+    ("forward-betas-long", lambda c: jaxmocap.forward(c.body, np.zeros((24, 3)), np.zeros(400)), ValueError, r"betas"),
+    ("forward-trans-shape", lambda c: jaxmocap.forward(c.body, np.zeros((24, 3)), None, np.zeros(2)), ValueError, r"trans"),
+    ("forward-batch", lambda c: jaxmocap.forward(c.body, np.zeros((4, 24, 3)), None, np.zeros((3, 3))), ValueError, r"batch shapes"),
+    # --- sensors -------------------------------------------------------------------------
+    ("imu-set", lambda c: sensors.imu_placement(c.body, "sip7"), ValueError, r"sip7"),
+    ("synth-zero-frames", lambda c: sensors.synthesize_imu(c.body, c.placement, np.zeros((0, 24, 3)), None, np.zeros((0, 3)), 30.0), ValueError, r"poses has 0 frames"),
+    ("synth-fps-negative", lambda c: sensors.synthesize_imu(c.body, c.placement, np.zeros((3, 24, 3)), fps=-30.0), ValueError, r"fps.*-30"),
+    ("synth-fps-zero", lambda c: sensors.synthesize_imu(c.body, c.placement, np.zeros((3, 24, 3)), fps=0.0), ValueError, r"fps"),
+    ("synth-fps-nan", lambda c: sensors.synthesize_imu(c.body, c.placement, np.zeros((3, 24, 3)), fps=float("nan")), ValueError, r"fps"),
+    ("synth-pose-shape", lambda c: sensors.synthesize_imu(c.body, c.placement, np.zeros((3, 72)), fps=30.0), ValueError, r"poses has shape"),
+    ("imu-trajectory-shapes", lambda c: sensors.imu.imu_from_trajectory(jnp.zeros((3, 2, 3, 3)), jnp.zeros((3, 5, 3)), 30.0), ValueError, r"rotations .* positions"),
+    ("scenario-max-frames", lambda c: sensors.ScenarioConfig(max_frames=0), ValueError, r"max_frames"),
+    ("scenario-fps", lambda c: sensors.ScenarioConfig(fps=-30.0), ValueError, r"ScenarioConfig\.fps"),
+    ("scenario-people", lambda c: sensors.ScenarioConfig(people=0), ValueError, r"people"),
+    ("scenario-betas-std", lambda c: sensors.ScenarioConfig(betas_std=-1.0), ValueError, r"betas_std"),
+    ("camera-width", lambda c: sensors.scenario.CameraConfig(width=0), ValueError, r"width"),
+    ("camera-fov", lambda c: sensors.scenario.CameraConfig(fov_degrees=200.0), ValueError, r"fov_degrees"),
+    ("scenario-no-motions", lambda c: sensors.make_scenario([], body=c.body), ValueError, r"at least one motion"),
+    ("scenario-keypoints-no-camera", lambda c: sensors.make_scenario([c.motion], sensors.ScenarioConfig(keypoints="coco18"), body=c.body), ValueError, r"cameras"),
+    ("imu-errors-dropout", lambda c: sensors.IMUErrorModel(dropout_rate=2.0), ValueError, r"dropout_rate"),
+    ("imu-errors-negative", lambda c: sensors.IMUErrorModel(gyro_noise=-1.0), ValueError, r"gyro_noise"),
+    ("keypoint-layout", lambda c: sensors.keypoint_regressor(c.body, "coco99"), ValueError, r"coco99"),
+    ("look-at-parallel", lambda c: sensors.look_at((0, 0, 0), (0, 1, 0)), ValueError, r"up"),
+    # --- methods -------------------------------------------------------------------------
+    ("sip-weight-negative", lambda c: I.SIPWeights(acc=-1.0), ValueError, r"SIPWeights\.acc"),
+    ("sip-weight-nan", lambda c: I.SIPWeights(ori=float("nan")), ValueError, r"SIPWeights\.ori"),
+    ("calibrate-fps-negative", lambda c: c.calibrate(fps=-30.0), ValueError, r"fps.*-30"),
+    ("calibrate-fps-zero", lambda c: c.calibrate(fps=0), ValueError, r"fps"),
+    ("calibrate-zero-matrices", lambda c: c.calibrate(orientation=np.zeros((4, 6, 3, 3))), ValueError, r"orientation.*not rotations"),
+    ("calibrate-reflection", lambda c: c.calibrate(orientation=np.broadcast_to(np.diag([1.0, 1.0, -1.0]), (4, 6, 3, 3))), ValueError, r"orientation.*not rotations"),
+    ("calibrate-frame0-dropped", lambda c: c.calibrate(orientation=c.readings()[0] * np.where(np.arange(4) == 0, np.nan, 1.0)[:, None, None, None]), ValueError, r"frame 0 has dropped.*first frame where every sensor reports is 1"),
+    ("calibrate-sensor-count", lambda c: c.calibrate(bones=(0, 1)), ValueError, r"6 sensors.*2 bones"),
+    ("calibrate-bone-index", lambda c: c.calibrate(bones=(0, 1, 2, 3, 4, 99)), ValueError, r"bones \[99\]"),
+    ("calibrate-pose0-shape", lambda c: c.calibrate(pose0=np.zeros(72)), ValueError, r"pose0"),
+    ("calibrate-orientation-rank", lambda c: c.calibrate(orientation=np.zeros((6, 3, 3))), ValueError, r"orientation has shape"),
+    ("calibrate-acceleration-shape", lambda c: c.calibrate(acceleration=np.zeros((4, 6))), ValueError, r"acceleration"),
+    ("calibrate-acceleration-frame", lambda c: c.calibrate(acceleration_frame="world"), ValueError, r"acceleration_frame"),
+    ("calibrate-zero-frames", lambda c: c.calibrate(orientation=np.zeros((0, 6, 3, 3)), acceleration=np.zeros((0, 6, 3))), ValueError, r"orientation has 0 frames"),
+    ("pad-setups-empty", lambda c: I.pad_setups([]), ValueError, r"pad_setups: setups"),
+    ("pad-setups-wrong-type", lambda c: I.pad_setups([c.motion]), ValueError, r"pad_setups.*Motion"),
+    ("stack-setups-empty", lambda c: I.stack_setups([]), ValueError, r"stack_setups: setups"),
+    ("pad-setups-short", lambda c: I.pad_setups([c.setup], length=2), ValueError, r"length=2"),
+    ("from-dip-not-pickle", lambda c: I.from_dip(c.file("d.pkl", "hello"), c.body, c.placement.bones, c.placement.vertices), MotionFileError, r"d\.pkl"),
+    ("from-dip-dict-keys", lambda c: I.from_dip({"gt": np.zeros((2, 72))}, c.body, c.placement.bones, c.placement.vertices), ValueError, r"imu_ori"),
+    ("sip-not-setup", lambda c: I.sparse_inertial_poser(c.motion), ValueError, r"setup must be an InertialSetup"),
+    ("sip-init-shape", lambda c: I.sparse_inertial_poser(c.setup, init=np.zeros((3, 24, 3))), ValueError, r"init has shape"),
+    ("sip-init-trans-shape", lambda c: I.sparse_inertial_poser(c.setup, init=np.zeros((4, 24, 3)), init_trans=np.zeros(3)), ValueError, r"init_trans"),
+    ("sip-max-steps-zero", lambda c: I.sparse_inertial_poser(c.setup, init=np.zeros((4, 24, 3)), max_steps=0), ValueError, r"max_steps"),
+    ("sop-max-steps-negative", lambda c: I.sparse_orientation_poser(c.setup, max_steps=-1), ValueError, r"max_steps"),
+    ("sip-batch-init-shape", lambda c: I.sparse_inertial_poser_batch(I.stack_setups([c.setup]), np.zeros((1, 3, 24, 3))), ValueError, r"init has shape"),
+    # --- solver --------------------------------------------------------------------------
+    ("solve-max-steps-zero", lambda c: solve(SIMPLE, {"x": jnp.zeros((3, 2))}, max_steps=0), ValueError, r"max_steps.*0"),
+    ("solve-max-steps-negative", lambda c: solve(SIMPLE, {"x": jnp.zeros((3, 2))}, max_steps=-5), ValueError, r"max_steps"),
+    ("solve-max-steps-float", lambda c: solve(SIMPLE, {"x": jnp.zeros((3, 2))}, max_steps=2.5), ValueError, r"max_steps"),
+    ("solve-zero-frames", lambda c: solve(SIMPLE, {"x": jnp.zeros((0, 2))}), ValueError, r"params0.*T = 0"),
+    ("solve-empty-params", lambda c: solve(SIMPLE, {}), ValueError, r"parameters must be a non-empty dict"),
+    ("solve-method", lambda c: solve(SIMPLE, {"x": jnp.zeros((3, 2))}, method="bfgs"), ValueError, r"method"),
+    ("solve-damping", lambda c: solve(SIMPLE, {"x": jnp.zeros((3, 2))}, damping="fletcher"), ValueError, r"damping"),
+    ("solve-not-problem", lambda c: solve([SIMPLE.terms[0]], {"x": jnp.zeros((3, 2))}), ValueError, r"problem must be"),
+    ("solve-frame-mask", lambda c: solve(SIMPLE, {"x": jnp.zeros((3, 2))}, frame_mask=jnp.ones(4, bool)), ValueError, r"frame_mask"),
+    ("solve-frame-lengths", lambda c: solve(SIMPLE, {"x": jnp.zeros((3, 2)), "y": jnp.zeros((4, 2))}), ValueError, r"same leading frame axis"),
+    ("term-weight-negative", lambda c: Term("prior", lambda p, d: p["x"], weight=-1.0), ValueError, r"Term 'prior' weight"),
+    ("term-weight-nan", lambda c: Term("prior", lambda p, d: p["x"], weight=float("nan")), ValueError, r"Term 'prior' weight"),
+    ("term-weight-array", lambda c: Term("prior", lambda p, d: p["x"], weight=jnp.array([1.0, -2.0])), ValueError, r"Term 'prior' weight"),
+    ("term-bandwidth", lambda c: Term("smooth", lambda p, d: p["x"], bandwidth=-1), ValueError, r"Term 'smooth'.*bandwidth"),
+    ("term-reads", lambda c: Term("t", lambda p, d: p["x"], reads=("x",)), ValueError, r"Term 't'.*reads"),
+    ("term-fn", lambda c: Term("t", None), ValueError, r"Term 't'.*fn"),
+    ("problem-empty", lambda c: Problem([]), ValueError, r"at least one term"),
+    ("problem-duplicate", lambda c: Problem([SIMPLE.terms[0], SIMPLE.terms[0]]), ValueError, r"unique term names"),
+    ("problem-undeclared-sequence", lambda c: Problem([Term("a", lambda p, d: p["x"])], unknowns={"g": sequence()}), ValueError, r"'g'"),
+    ("bandwidth-check", lambda c: check_bandwidths(WRONG_BAND, {"x": jnp.zeros((7, 2))}), ValueError, r"Term 'shift' declares bandwidth=0 but reads 1"),
+    ("solve-check-bandwidth", lambda c: solve(WRONG_BAND, {"x": jnp.zeros((7, 2))}, check_bandwidth=True), ValueError, r"Term 'shift'"),
+    ("batch-weights-negative", lambda c: solve_batch(SIMPLE, {"x": jnp.zeros((2, 3, 2))}, None, weights={"fit": jnp.array([1.0, -1.0])}), ValueError, r"weights\['fit'\]"),
+    ("batch-max-steps", lambda c: solve_batch(SIMPLE, {"x": jnp.zeros((2, 3, 2))}, None, max_steps=0), ValueError, r"max_steps"),
+    ("with-weights-unknown", lambda c: with_weights(SIMPLE, {"nope": 1.0}), ValueError, r"nope"),
+    ("pad-sequences-short", lambda c: pad_sequences([np.zeros((5, 2))], length=3), ValueError, r"length=3"),
+    # --- physics -------------------------------------------------------------------------
+    ("check-trans-shape", lambda c: jaxmocap.physics.check(c.scene, np.zeros((3, 24, 3)), np.zeros((3, 2))), ValueError, r"trans has shape \(3, 2\)"),
+    ("check-pose-shape", lambda c: jaxmocap.physics.check(c.scene, np.zeros((3, 72)), np.zeros((3, 3))), ValueError, r"poses has shape"),
+    ("check-nan-pose", lambda c: jaxmocap.physics.check(c.scene, np.full((3, 24, 3), np.nan), np.zeros((3, 3))), ValueError, r"poses contains NaN"),
+    ("check-nan-trans", lambda c: jaxmocap.physics.check(c.scene, np.zeros((3, 24, 3)), np.full((3, 3), np.inf)), ValueError, r"trans contains NaN"),
+    ("check-zero-frames", lambda c: jaxmocap.physics.check(c.scene, np.zeros((0, 24, 3)), np.zeros((0, 3))), ValueError, r"no frames"),
+    ("check-chunk", lambda c: jaxmocap.physics.check(c.scene, np.zeros((3, 24, 3)), np.zeros((3, 3)), chunk=0), ValueError, r"chunk"),
+    ("report-arrays", lambda c: jaxmocap.physics.plausibility_report(c.motion.poses, c.motion.trans), ValueError, r"body must be a jaxmocap Body"),
+    ("report-motion-arrays", lambda c: jaxmocap.physics.plausibility_report(c.body, c.motion.poses), ValueError, r"motion must be a jaxmocap\.motion\.Motion"),
+    ("report-ground", lambda c: jaxmocap.physics.plausibility_report(c.body, c.motion, ground="floor"), ValueError, r"ground"),
+    # --- metrics -------------------------------------------------------------------------
+    ("pose-errors-frames", lambda c: metrics.pose_errors(c.body, np.zeros((50, 24, 3)), np.zeros((86, 24, 3))), ValueError, r"pred_poses has shape \(50, 24, 3\) but true_poses has \(86, 24, 3\)"),
+    ("position-errors-frames", lambda c: metrics.position_errors(np.zeros((5, 24, 3)), np.zeros((6, 24, 3))), ValueError, r"pred_joints.*true_joints"),
+    ("position-errors-joints", lambda c: metrics.position_errors(np.zeros((5, 10, 3)), np.zeros((5, 10, 3))), ValueError, r"pred_joints.*10 joints"),
+    ("angle-errors-frames", lambda c: metrics.angle_errors(np.zeros((5, 24, 3, 3)), np.zeros((4, 24, 3, 3))), ValueError, r"pred_rotations.*true_rotations"),
+    ("position-errors-align", lambda c: metrics.position_errors(np.zeros((5, 24, 3)), np.zeros((5, 24, 3)), align="scale"), ValueError, r"align"),
+    ("joint-set", lambda c: metrics.joint_indices("fingers"), ValueError, r"fingers"),
+    ("joint-name", lambda c: metrics.joint_indices(["left_pinky"]), ValueError, r"left_pinky"),
+    ("mpjpe-mask-shape", lambda c: metrics.mpjpe(np.zeros((5, 24, 3)), np.zeros((5, 24, 3)), mask=np.ones(4, bool)), ValueError, r"mask has shape"),
+]  # fmt: skip
+
+
+@pytest.mark.parametrize("action, error, match", [c[1:] for c in CASES], ids=[c[0] for c in CASES])
+def test_bad_input(ctx, action, error, match):
+    with pytest.raises(error, match=match):
+        action(ctx)
+
+
+def test_table_is_large_and_unique():
+    ids = [c[0] for c in CASES]
+    assert len(set(ids)) == len(ids)
+    assert len(ids) + len(CLI_CASES) >= 80
+
+
+# --- the command line: exit status 2 and one line naming the file or the option ----------
+
+
+CLI_CASES = [
+    ("inspect-missing", ["inspect", "{dir}/nope.npz"], r"nope\.npz"),
+    ("inspect-text-npz", ["inspect", "{dir}/cli_text.npz"], r"cli_text\.npz: not an \.npz"),
+    ("convert-output-suffix", ["convert", str(CMU / "02_01.amc"), "{dir}/out.txt"], r"out\.txt.*\.npz"),
+    ("check-body-name", ["check", "{dir}/nope.amc", "--body", "default-medium"], r"default-medium.*default-low"),
+    ("check-ground", ["check", "{dir}/nope.amc", "--ground", "floor"], r"--ground"),
+    ("check-out-folder", ["check", "{dir}/nope.amc", "--out", "{dir}/cli_text.npz/sub"], r"--out .*cli_text\.npz/sub"),
+    ("export-missing", ["export", "{dir}/nope.bvh", "{dir}/exported"], r"nope\.bvh"),
+]
+
+
+@pytest.mark.parametrize("argv", [c[1] for c in CLI_CASES], ids=[c[0] for c in CLI_CASES])
+def test_cli_bad_input(ctx, capsys, argv):
+    from jaxmocap.cli import main
+
+    ctx.file("cli_text.npz", "hello")
+    match = dict((tuple(c[1]), c[2]) for c in CLI_CASES)[tuple(argv)]
+    status = main([a.format(dir=ctx.dir) for a in argv])
+    err = capsys.readouterr().err
+    assert status == 2
+    assert len(err.strip().splitlines()) == 1, err
+    assert err.startswith(f"jaxmocap {argv[0]}: error: ")
+    import re
+
+    assert re.search(match, err), err
+
+
+@pytest.mark.parametrize("argv", [["demo", "--seconds", "-1"], ["export", "a.npz", "out", "--every", "0"], ["convert", "a", "b.npz", "--fps", "0"]])
+def test_cli_rejects_non_positive_numbers(capsys, argv):
+    from jaxmocap.cli import main
+
+    with pytest.raises(SystemExit) as e:
+        main(argv)
+    assert e.value.code == 2
+    assert "must be positive" in capsys.readouterr().err
+
+
+def test_cli_missing_backend_is_one_line():
+    """JAX_PLATFORMS naming a backend this machine lacks: one line, status 2 (a subprocess,
+    since this process's backend is already up)."""
+    env = dict(os.environ, JAX_PLATFORMS="cuda", PYTHONPATH=str(REPO))
+    run = subprocess.run(
+        [sys.executable, "-m", "jaxmocap.cli", "inspect", str(CMU / "02_01.amc")],
+        env=env, capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    if run.returncode == 0:
+        pytest.skip("this machine has a CUDA backend")
+    assert run.returncode == 2, run.stderr
+    assert run.stderr.strip().splitlines() == [run.stderr.strip()]
+    assert "JAX_PLATFORMS='cuda'" in run.stderr
+
+
+# --- silent wrong results that now say so -------------------------------------------------
+
+
+def test_no_observations_is_not_success(ctx):
+    """SIP with every sample after the calibration frame dropped is not `result == 0`."""
+    from jaxmocap.solve import NO_OBSERVATIONS, nan_mask, result_message
+
+    ori, acc = ctx.readings()
+    ori[1:], acc[1:] = np.nan, np.nan
+    setup = ctx.calibrate(orientation=ori, acceleration=acc)
+    # The rule sparse_inertial_poser(_batch) applies to the engine's result (checked here
+    # directly: a full SIP compile would cost this file half its time budget).
+    assert int(I._unless_observed(setup.data, jnp.asarray(0))) == NO_OBSERVATIONS
+    assert int(I._unless_observed(ctx.setup.data, jnp.asarray(0))) == 0
+    batched = I.stack_setups([setup, ctx.setup])
+    assert np.asarray(I._unless_observed(batched.data, jnp.zeros(2, int))).tolist() == [NO_OBSERVATIONS, 0]
+    assert "no observations" in result_message(NO_OBSERVATIONS)
+    # The engine's own rule: every masked term empty.
+    masked = Problem([Term("obs", lambda p, d: p["x"] - d, mask=lambda d: nan_mask(d))])
+    sol = solve(masked, {"x": jnp.zeros((3, 2))}, jnp.full((3, 2), jnp.nan), max_steps=2)
+    assert int(sol.result) == NO_OBSERVATIONS and not bool(sol.converged)
+    sol = solve(masked, {"x": jnp.zeros((3, 2))}, jnp.ones((3, 2)).at[1:].set(jnp.nan), max_steps=50)
+    assert int(sol.result) == 0  # one observed row is enough
+
+
+def test_first_complete_frame():
+    ori = np.broadcast_to(np.eye(3), (5, 2, 3, 3)).copy()
+    ori[0, 1] = ori[1, 0] = np.nan
+    assert I.first_complete_frame(ori) == 2
+    ori[:, 0] = np.nan
+    assert I.first_complete_frame(ori) is None
+
+
+def test_bandwidth_check_accepts_honest_terms():
+    from jaxmocap.solve import measure_bandwidths, second_difference
+
+    honest = Problem([Term("fit", lambda p, d: p["x"] - 1.0), Term("smooth", lambda p, d: second_difference(p["x"]), bandwidth=1)])
+    assert measure_bandwidths(honest, {"x": jnp.zeros((9, 2))}) == {"fit": 0, "smooth": 1}
+    declared = Problem([Term("fit", lambda p, d: p["x"] - 1.0), Term("shift", _shift_term, bandwidth=1)])
+    assert check_bandwidths(declared, {"x": jnp.zeros((7, 2))}) == {"fit": 0, "shift": 1}
+
+
+def test_motion_repr_is_short(ctx):
+    text = repr(ctx.motion)
+    assert len(text) < 120 and "12 frames" in text and "30 fps" in text
+
+
+def test_converted_cmu_motion_has_amass_betas(tmp_path):
+    """CMU motions carry no betas; the AMASS file holds SMPL-H's 16 zeros, not an empty array."""
+    from jaxmocap.motion import save_amass
+
+    m = Motion(np.zeros((3, 24, 3)), np.zeros((3, 3)), 30.0)
+    path = save_amass(m, tmp_path / "m.npz")
+    with np.load(path) as f:
+        assert f["betas"].shape == (16,)
+    with zipfile.ZipFile(path) as z:
+        assert "betas.npy" in z.namelist()

@@ -1,0 +1,195 @@
+"""Property-based tests: the file readers get truncated, mutated and random bytes.
+
+Whatever the bytes, a reader either reads the file or raises its own error naming the file
+(MotionFileError / BodyFileError, both ValueErrors) — never another exception, never a hang.
+Each seed is a small valid file; hypothesis truncates it, overwrites a few bytes, splices
+random bytes in, or replaces it with random bytes. Few examples each (the suite's time
+budget); `derandomize` keeps runs reproducible.
+"""
+
+from __future__ import annotations
+
+import io
+import os
+import pickle
+import signal
+import uuid
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import random_smpl_dict
+
+hypothesis = pytest.importorskip("hypothesis")
+from hypothesis import HealthCheck, given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+from jaxmocap.body.io import BodyFileError, load_body  # noqa: E402
+from jaxmocap.motion import MotionFileError  # noqa: E402
+from jaxmocap.motion.amass import load_amass  # noqa: E402
+from jaxmocap.motion.asf_amc import load_asf_amc  # noqa: E402
+from jaxmocap.motion.bvh import load_bvh  # noqa: E402
+from jaxmocap.sensors.scenario import load_dip  # noqa: E402
+
+CMU = Path(__file__).resolve().parents[2] / "shared" / "data" / "cmu"
+# JAXMOCAP_FUZZ_EXAMPLES=2000 explores further with fresh random examples (a long run).
+_LONG = int(os.environ.get("JAXMOCAP_FUZZ_EXAMPLES", "0"))
+FUZZ = settings(
+    max_examples=_LONG or 50, deadline=None, derandomize=not _LONG, database=None,
+    suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow, HealthCheck.data_too_large],
+)  # fmt: skip
+
+
+@st.composite
+def spoiled(draw, seed: bytes) -> bytes:
+    """`seed` truncated, with bytes overwritten, with bytes spliced in, or random bytes."""
+    how = draw(st.sampled_from(["truncate", "overwrite", "splice", "random"]))
+    if how == "truncate":
+        return seed[: draw(st.integers(0, max(len(seed) - 1, 0)))]
+    if how == "random":
+        return draw(st.binary(max_size=512))
+    data = bytearray(seed)
+    for _ in range(draw(st.integers(1, 6))):
+        at = draw(st.integers(0, len(data)))
+        chunk = draw(st.binary(min_size=1, max_size=8))
+        data[at : at + (len(chunk) if how == "overwrite" else 0)] = chunk
+    return bytes(data)
+
+
+def _write(folder: Path, suffix: str, data: bytes, stem: str = "") -> Path:
+    path = folder / f"{stem or 'fuzz'}_{uuid.uuid4().hex[:8]}{suffix}"
+    path.write_bytes(data)
+    return path
+
+
+class _Hang(Exception):
+    pass
+
+
+def _alarm(signum, frame):
+    raise _Hang("a reader took more than 20 s on a small file")
+
+
+def _reads_or_names(path: Path, error: type, read) -> None:
+    """`read(path)` succeeds or raises `error` with the file name in the message, in < 20 s."""
+    old = signal.signal(signal.SIGALRM, _alarm)
+    signal.alarm(20)
+    try:
+        with np.errstate(all="ignore"):  # overflow in absurd numbers is the data's problem
+            read(path)
+    except error as e:
+        assert path.name in str(e), f"{type(e).__name__} does not name the file: {e}"
+    finally:
+        signal.alarm(0)
+        signal.signal(signal.SIGALRM, old)
+
+
+# --- seeds ------------------------------------------------------------------------------
+
+
+def _amc_seed(frames: int = 3) -> bytes:
+    out = []
+    for line in (CMU / "02_01.amc").read_text().splitlines():
+        if line.strip().isdigit() and int(line) > frames:
+            break
+        out.append(line)
+    return ("\n".join(out) + "\n").encode()
+
+
+BVH_SEED = b"""HIERARCHY
+ROOT hips
+{
+  OFFSET 0 0 0
+  CHANNELS 6 Xposition Yposition Zposition Zrotation Xrotation Yrotation
+  JOINT spine
+  {
+    OFFSET 0 10 0
+    CHANNELS 3 Zrotation Xrotation Yrotation
+    End Site
+    {
+      OFFSET 0 10 0
+    }
+  }
+}
+MOTION
+Frames: 2
+Frame Time: 0.0333333
+0 90 0 0 0 0 5 0 0
+1 90 0 0 10 0 5 5 0
+"""
+
+
+def _npz_bytes(**arrays) -> bytes:
+    buf = io.BytesIO()
+    np.savez(buf, **arrays)
+    return buf.getvalue()
+
+
+AMASS_SEED = _npz_bytes(
+    poses=np.zeros((3, 72)), trans=np.zeros((3, 3)), betas=np.zeros(16),
+    gender=np.array("female"), mocap_framerate=np.array(60.0),
+)  # fmt: skip
+SMPL = random_smpl_dict(num_vertices=30, num_betas=4, seed=1)
+SMPL_PKL_SEED = pickle.dumps(SMPL, protocol=2)
+SMPL_NPZ_SEED = _npz_bytes(**SMPL)
+DIP_SEED = pickle.dumps(
+    {"imu_ori": np.tile(np.eye(3), (2, 17, 1, 1)), "imu_acc": np.zeros((2, 17, 3)), "gt": np.zeros((2, 72))},
+    protocol=2,
+)
+
+
+def test_seeds_are_valid(tmp_path):
+    """The unspoiled seeds load, so the properties below test spoiling, not the seeds."""
+    load_asf_amc(_write(tmp_path, ".amc", _amc_seed()), asf_path=CMU / "02.asf")
+    load_bvh(_write(tmp_path, ".bvh", BVH_SEED))
+    load_amass(_write(tmp_path, ".npz", AMASS_SEED))
+    load_body(_write(tmp_path, ".pkl", SMPL_PKL_SEED))
+    load_body(_write(tmp_path, ".npz", SMPL_NPZ_SEED))
+    load_dip(_write(tmp_path, ".pkl", DIP_SEED))
+
+
+@FUZZ
+@given(data=spoiled(_amc_seed()))
+def test_amc_bytes(tmp_path, data):
+    path = _write(tmp_path, ".amc", data)
+    _reads_or_names(path, MotionFileError, lambda p: load_asf_amc(p, asf_path=CMU / "02.asf"))
+
+
+@FUZZ
+@given(data=spoiled((CMU / "02.asf").read_bytes() if (CMU / "02.asf").is_file() else b""))
+def test_asf_bytes(tmp_path, data):
+    amc = tmp_path / "seed.amc"
+    if not amc.exists():
+        amc.write_bytes(_amc_seed())
+    path = _write(tmp_path, ".asf", data)
+    _reads_or_names(path, MotionFileError, lambda p: load_asf_amc(amc, asf_path=p))
+
+
+@FUZZ
+@given(data=spoiled(BVH_SEED))
+def test_bvh_bytes(tmp_path, data):
+    _reads_or_names(_write(tmp_path, ".bvh", data), MotionFileError, load_bvh)
+
+
+@FUZZ
+@given(data=spoiled(AMASS_SEED))
+def test_amass_npz_bytes(tmp_path, data):
+    _reads_or_names(_write(tmp_path, ".npz", data), MotionFileError, load_amass)
+
+
+@FUZZ
+@given(data=spoiled(SMPL_PKL_SEED))
+def test_body_pkl_bytes(tmp_path, data):
+    _reads_or_names(_write(tmp_path, ".pkl", data), BodyFileError, load_body)
+
+
+@FUZZ
+@given(data=spoiled(SMPL_NPZ_SEED))
+def test_body_npz_bytes(tmp_path, data):
+    _reads_or_names(_write(tmp_path, ".npz", data), BodyFileError, load_body)
+
+
+@FUZZ
+@given(data=spoiled(DIP_SEED))
+def test_dip_pkl_bytes(tmp_path, data):
+    _reads_or_names(_write(tmp_path, ".pkl", data), MotionFileError, load_dip)
