@@ -1,0 +1,72 @@
+"""Choosing MuVS's weights on held-out tuning clips (never on the evaluation clips).
+
+Three cmu_cc clips that `muvs_tables.py` does not evaluate (005_03 dance, 006_04
+basketball, 007_02 walk), 40 frames, 4 views, the same sensor errors. Stage 1 on joints
+for several pose-prior weights λ_θ, then the silhouette stage for several silhouette
+settings from the best λ_θ; MPJPE (mm, 24 joints), the share of frames with legs on the
+correct side, and the shape error (mm, zero-pose vertices).
+
+    python experiments/muvs_tuning.py            # -> out/muvs_tuning/muvs_tuning.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+from muvs_tables import CC, build, joints_of, legs_correct, shape_error
+
+from jaxmocap.body import default_body
+from jaxmocap.methods import multiview as mv
+
+TUNING = ("005_03.bvh", "006_04.bvh", "007_02.bvh")
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--frames", type=int, default=40)
+    ap.add_argument("--priors", type=float, nargs="+", default=[20.0, 5.0, 1.0])
+    ap.add_argument("--out", type=Path, default=Path("out/muvs_tuning"))
+    args = ap.parse_args(argv)
+    args.out.mkdir(parents=True, exist_ok=True)
+    body = default_body("low")
+    data, truth = build([CC / f for f in TUNING], args.frames, 100, body)
+    true_joints = np.stack([joints_of(body, t["poses"], t["betas"][:10], t["trans"]) for t in truth])
+    p0 = mv.initialise(data)
+
+    def score(p):
+        B = len(truth)
+        betas = p["betas"] if p["betas"].ndim == 3 else np.repeat(p["betas"][:, None], args.frames, 1)
+        pred = np.stack([joints_of(body, p["pose"][b], betas[b], p["trans"][b]) for b in range(B)])
+        legs = [legs_correct(pred[b], true_joints[b], body) for b in range(B)]
+        return {
+            "mpjpe_mm": float(np.linalg.norm(pred - true_joints, axis=-1).mean() * 1000),
+            "legs_correct": float(sum(ok[a].sum() for ok, a in legs) / max(sum(a.sum() for _, a in legs), 1)),
+            "shape_error_mm": float(np.mean([shape_error(body, np.median(betas[b], 0), truth[b]["betas"]) for b in range(B)])),
+        }
+
+    result = {"clips": list(TUNING), "frames": args.frames, "prior": {}, "silhouettes": {}}
+    best, fits = None, {}
+    for prior in args.priors:
+        t0 = time.perf_counter()
+        pj, _ = mv.stage_one(data, p0, mv.MuVSWeights(pose_prior=prior), silhouettes=False)
+        result["prior"][str(prior)] = {**score(pj), "time_s": time.perf_counter() - t0}
+        fits[prior] = pj
+        print("pose_prior", prior, result["prior"][str(prior)], flush=True)
+        if best is None or result["prior"][str(prior)]["mpjpe_mm"] < result["prior"][str(best)]["mpjpe_mm"]:
+            best = prior
+    variants = {"default": {}, "slack_4px": {"silhouette_slack": 4.0}, "weight_0.1": {"silhouette_model": 0.1, "silhouette_mask": 0.1}}
+    for name, change in variants.items():
+        w = mv.MuVSWeights(pose_prior=best, anneal=(), **change)
+        ps, _ = mv.stage_one(data, fits[best], w, silhouettes=True)
+        result["silhouettes"][name] = {**change, **score(ps)}
+        print("silhouettes", name, result["silhouettes"][name], flush=True)
+    result["best_pose_prior"] = best
+    (args.out / "muvs_tuning.json").write_text(json.dumps(result, indent=2))
+
+
+if __name__ == "__main__":
+    main()
