@@ -193,3 +193,68 @@ def test_body_npz_bytes(tmp_path, data):
 @given(data=spoiled(DIP_SEED))
 def test_dip_pkl_bytes(tmp_path, data):
     _reads_or_names(_write(tmp_path, ".pkl", data), MotionFileError, load_dip)
+
+
+# --- multi-view inputs: calibrations and OpenPose JSON ----------------------------------
+
+from jaxmocap.formats import (  # noqa: E402
+    CalibratedCamera,
+    CalibrationError,
+    KeypointFileError,
+    load_calibration,
+    read_openpose,
+    save_calibration,
+    write_openpose,
+)
+
+
+def _calibration_seeds() -> dict:
+    import tempfile
+
+    cam = CalibratedCamera(
+        name="cam01", K=np.array([[800.0, 0, 320], [0, 800, 240], [0, 0, 1]]),
+        dist=np.array([0.01, -0.02, 0.0, 0.0, 0.0]), R=np.eye(3), t=np.array([0.0, 0.0, 4.0]),
+        width=640, height=480,
+    )  # fmt: skip
+    seeds = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for fmt, name in (("pose2sim", "calib.toml"), ("qualisys", "calib.qca.txt"), ("npz", "calib.npz")):
+            save_calibration(Path(tmp) / name, [cam], fmt)
+            seeds[fmt] = (name, (Path(tmp) / name).read_bytes())
+        save_calibration(Path(tmp) / "easy", [cam], "easymocap")
+        seeds["easymocap"] = ("intri.yml", (Path(tmp) / "easy" / "intri.yml").read_bytes())
+        seeds["extri"] = (Path(tmp) / "easy" / "extri.yml").read_bytes()
+        write_openpose(Path(tmp) / "op", ["cam01"], [np.ones((1, 1, 25, 3))], "body25")
+        seeds["openpose"] = next((Path(tmp) / "op" / "cam01").glob("*.json")).read_bytes()
+    return seeds
+
+
+CALIB = _calibration_seeds()
+
+
+@pytest.mark.parametrize("fmt", ["pose2sim", "qualisys", "easymocap", "npz"])
+def test_calibration_bytes(tmp_path, fmt):
+    name, seed = CALIB[fmt]
+
+    @FUZZ
+    @given(data=spoiled(seed))
+    def run(data):
+        folder = tmp_path / uuid.uuid4().hex[:8]
+        folder.mkdir()
+        if fmt == "easymocap":
+            (folder / "extri.yml").write_bytes(CALIB["extri"])
+        path = folder / name
+        path.write_bytes(data)
+        _reads_or_names(path, CalibrationError, lambda p: load_calibration(p, format=fmt))
+
+    run()
+
+
+@FUZZ
+@given(data=spoiled(CALIB["openpose"]))
+def test_openpose_json_bytes(tmp_path, data):
+    root = tmp_path / uuid.uuid4().hex[:8]
+    (root / "cam01").mkdir(parents=True)
+    path = root / "cam01" / "cam01_000000000000_keypoints.json"
+    path.write_bytes(data)
+    _reads_or_names(path, KeypointFileError, lambda p: read_openpose(root, "body25"))

@@ -44,6 +44,7 @@ the wrong way round or a calibration of another video mode).
 from __future__ import annotations
 
 import dataclasses
+import io
 import re
 import tomllib
 import xml.etree.ElementTree as ET
@@ -631,7 +632,7 @@ def _read_easymocap(path: Path) -> list[CalibratedCamera]:
         return store[key]
 
     for name in names:
-        where = f"{intri_path.parent} (camera {name})"
+        where = f"{intri_path} + {extri_path.name} (camera {name})"
         K = need(intri, f"K_{name}", intri_path, name)
         dist = intri.get(f"dist_{name}", intri.get(f"D_{name}", np.zeros(5)))
         width, height = intri.get(f"W_{name}", 0), intri.get(f"H_{name}", 0)
@@ -692,17 +693,18 @@ _NPZ_KEYS = ("names", "K", "dist", "R", "t", "width", "height")
 
 def _read_npz(path: Path) -> list[CalibratedCamera]:
     try:
-        with np.load(path, allow_pickle=False) as f:
+        # From memory: numpy leaks the file handle of a damaged zip it opened itself.
+        with np.load(io.BytesIO(path.read_bytes()), allow_pickle=False) as f:
             missing = [k for k in _NPZ_KEYS if k not in f]
             if missing:
                 raise CalibrationError(
                     f"{path}: missing arrays {missing}; a jaxmocap calibration npz has {list(_NPZ_KEYS)}."
                 )
             data = {k: f[k] for k in _NPZ_KEYS}
-    except (OSError, ValueError) as e:
-        if isinstance(e, CalibrationError):
-            raise
-        raise CalibrationError(f"{path}: not a readable npz ({e}).") from None
+    except CalibrationError:
+        raise
+    except Exception as e:  # a damaged archive fails in zipfile, numpy or zlib, in many types
+        raise CalibrationError(f"{path}: not a readable npz ({type(e).__name__}: {e}).") from None
     V = len(data["names"])
     for k in _NPZ_KEYS[1:]:
         if len(data[k]) != V:
