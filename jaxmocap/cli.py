@@ -224,12 +224,28 @@ def _run_check(args) -> int:
     return run_check(args.motion, body=args.body, fps=args.fps, ground=args.ground, out=args.out)
 
 
+# --- sweep --------------------------------------------------------------------------
+
+
+def _configure_sweep(p: argparse.ArgumentParser) -> None:
+    from .app.sweep import configure_parser
+
+    configure_parser(p)
+
+
+def _run_sweep(args) -> int:
+    from .app.sweep import main_args
+
+    return main_args(args)
+
+
 COMMANDS: list[Command] = [
     Command("inspect", "summarise a motion file or a body model file", _configure_inspect, _run_inspect),
     Command("convert", "convert any readable motion to an AMASS-style .npz", _configure_convert, _run_convert),
     Command("export", "pose a body with a motion; write meshes (and pictures)", _configure_export, _run_export),
     Command("demo", "walk → posed body → meshes and pictures (the `make demo` job)", _configure_demo, _run_demo),
     Command("check", "physical plausibility: ground penetration, floating, foot skating", _configure_check, _run_check),
+    Command("sweep", "grid of methods × weights × sensor errors × datasets, resumable", _configure_sweep, _run_sweep),
 ]
 
 
