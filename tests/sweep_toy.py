@@ -5,7 +5,7 @@ Unknown x (T, 3) per frame; terms "data" (x_t - y_t, weight w_data) and "smooth"
 of ragged lengths with Gaussian noise of std `noise` (the sensor-error preset's
 acc_noise). A cell with w_data = 0 raises (x is then undetermined up to a line), which
 the tests use as a failing cell. Environment: SWEEP_TOY_LOG appends each solved cell's
-weights and sequence to a file; SWEEP_TOY_SLEEP sleeps per call (kill tests).
+sequence, noise and weights to a file; SWEEP_TOY_SLEEP sleeps per call (kill tests).
 """
 
 from __future__ import annotations
@@ -25,6 +25,7 @@ class Track:
     y: np.ndarray
     truth: np.ndarray
     index: int
+    noise: float
 
     @property
     def length(self) -> int:
@@ -50,7 +51,7 @@ class ToyMethod:
         for i in range(int(dataset["sequences"])):
             T = int(dataset["frames"]) - (i % 3) * 2  # ragged: T, T-2, T-4
             truth = np.cumsum(rng.normal(scale=0.1, size=(T, 3)), 0)
-            out.append(Track(truth + rng.normal(scale=noise, size=truth.shape), truth, i))
+            out.append(Track(truth + rng.normal(scale=noise, size=truth.shape), truth, i, noise))
         return out
 
     def solve(self, items, weights, options):
@@ -66,6 +67,6 @@ class ToyMethod:
         if os.environ.get("SWEEP_TOY_LOG"):
             with open(os.environ["SWEEP_TOY_LOG"], "a") as f:
                 for it, wd, ws in zip(items, weights["data"], weights["smooth"]):
-                    f.write(f"{it.index} {wd:g} {ws:g}\n")
+                    f.write(f"{it.index} {it.noise:g} {wd:g} {ws:g}\n")
         time.sleep(float(os.environ.get("SWEEP_TOY_SLEEP", "0")))
         return [{"rmse": float(np.sqrt(np.mean((x[i, : it.length] - it.truth) ** 2)))} for i, it in enumerate(items)]

@@ -373,12 +373,13 @@ def run_sweep(config: dict, out=None, *, prepare_only: bool = False, summary: bo
                 if store.done(cell):
                     continue
                 if items is None:
-                    errors_by_cell[cell] = "dataset failed to load"
+                    errors_by_cell[cell] = f"dataset {d!r} failed to load"
+                elif hasattr(items[i], "error"):
+                    errors_by_cell[cell] = f"sequence {i} failed to prepare: {items[i].error}"
                 todo.append(cell)
     for cell, msg in errors_by_cell.items():
-        if rank == 0:
-            store.write(cell, {"error": msg, "variant": cell.variant, "dataset": cell.dataset,
-                               "errors": cell.errors, "index": cell.index})  # fmt: skip
+        if rank == 0:  # recorded once; a resume retries nothing that is recorded
+            store.write(cell, {**_where(cell), "error": msg})
     todo = [c for c in todo if c not in errors_by_cell]
     # Cells of one method and one padded length go together (one compiled program).
     from ..solve import length_buckets

@@ -54,7 +54,11 @@ class SweepMethod(Protocol):
     metrics: tuple[str, ...]
 
     def sequences(self, dataset: dict, errors: dict | None, cache: Path) -> list[Any]:
-        """The dataset's sequences under a sensor-error preset; each has `.length`."""
+        """The dataset's sequences under a sensor-error preset; each has `.length`.
+
+        An item with an `error` attribute (e.g. `FailedItem`) is a sequence that failed
+        to prepare: its cells record that error and the sweep goes on.
+        """
 
     def solve(self, items: Sequence[Any], weights: dict[str, np.ndarray], options: dict) -> list[dict]:
         """Per item i (all of one padded length), solve with weights[k][i]; return metrics."""
@@ -160,6 +164,14 @@ def scenario_for(dataset: dict, errors: dict | None, cache: Path, body=None):
 
 
 @dataclasses.dataclass
+class FailedItem:
+    """A sequence that could not be prepared: its cells record `error` and are not solved."""
+
+    error: str
+    length: int
+
+
+@dataclasses.dataclass
 class InertialItem:
     setup: Any
     truth: np.ndarray  # (T, 24, 3)
@@ -215,21 +227,28 @@ class InertialMethod:
         from ..methods import inertial as I
 
         sc = scenario_for(dataset, errors, cache, self.body)
-        setups = [I.from_scenario(sc, i, self.body) for i in range(sc.num_sequences)]
-        truths = [np.asarray(sc.sequence(i)["poses"][0]) for i in range(sc.num_sequences)]
-        betas = [np.asarray(sc.sequence(i)["betas"][0]) for i in range(sc.num_sequences)]
+        out = []
+        for i in range(sc.num_sequences):
+            seq = sc.sequence(i)
+            try:
+                setup = I.from_scenario(sc, i, self.body)
+            except ValueError as e:  # e.g. a dropout at frame 0: no calibration, this sequence only
+                out.append(FailedItem(f"{type(e).__name__}: {e}", int(sc["length"][i])))
+                continue
+            out.append(InertialItem(setup, np.asarray(seq["poses"][0]), np.asarray(seq["betas"][0]), None,
+                                    sc.meta["names"][i]))  # fmt: skip
         # SOP with the thesis weights starts every SIP variant: one shared start per
         # sequence, so variants differ by their weights alone (paired comparisons).
-        inits = [None] * len(setups)
         if self.name == "sip":
             from ..solve import length_buckets
 
-            for T, members in length_buckets([s.num_frames for s in setups]):
-                stacked, _ = I.pad_setups([setups[i] for i in members], T)
+            ok = [it for it in out if isinstance(it, InertialItem)]
+            for T, members in length_buckets([it.length for it in ok]):
+                stacked, _ = I.pad_setups([ok[i].setup for i in members], T)
                 poses = np.asarray(_sop_batch(stacked))
                 for j, i in enumerate(members):
-                    inits[i] = poses[j, : setups[i].num_frames]
-        return [InertialItem(s, t, b, x, n) for s, t, b, x, n in zip(setups, truths, betas, inits, sc.meta["names"])]
+                    ok[i].init = poses[j, : ok[i].length]
+        return out
 
     def solve(self, items, weights, options):
         from ..methods import inertial as I

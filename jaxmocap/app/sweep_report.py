@@ -245,7 +245,7 @@ def _plots(root, config, values, variants, metric, analysis) -> None:
             elif xs and max(xs) > 0:
                 ax.set_xscale("symlog", linthresh=min(x for x in xs if x > 0))
             ax.set(xlabel=f"w_{w}", ylabel=f"mean {metric}", title=" / ".join(key))
-            if len(lines) <= 10:
+            if lines and len(lines) <= 10:
                 ax.legend(fontsize=5)
     fig.tight_layout()
     fig.savefig(root / "weights.png", dpi=80)

@@ -48,9 +48,10 @@ __all__ = [
 
 #: Multiplier on the counted buffers for XLA's temporaries (linearisation tangents,
 #: the damped copy of H during a rejected step, the while_loop's double buffers).
-#: Measured on SIP (T = 1000, H200): XLA's own memory analysis of the compiled chunk
-#: over the counted bytes; see benchmarks/results/sweep_scale.json.
-MEMORY_OVERHEAD = 3.0
+#: SIP, T = 1000, one H200: the counted buffers are 190 MiB per sequence and the
+#: device's peak was 19.0 GiB for chunks of 112, i.e. ≤ 174 MiB per sequence with all
+#: inputs and outputs included (benchmarks/results/sweep_scale.json); 1.5 keeps a margin.
+MEMORY_OVERHEAD = 1.5
 
 
 def pad_sequences(sequences: Sequence[Any], length: int | None = None) -> tuple[Any, Array]:
@@ -230,7 +231,9 @@ def plan_batch(problem, params0: dict, data: Any = None, frame_mask=None, *, chu
     full = -(-B // D) * D
     if chunk_size == "auto":
         fit = max(1, int(memory_fraction * free) // max(per, 1))  # per device
-        size = min(full, fit * D)
+        # As few chunks as fit, then as equal as possible: little padding in the last.
+        chunks = -(-B // (fit * D))
+        size = min(full, -(-B // (chunks * D)) * D)
     elif chunk_size is None:
         size = full
     elif isinstance(chunk_size, (int, np.integer)) and chunk_size >= 1:
