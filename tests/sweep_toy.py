@@ -3,8 +3,8 @@
 Unknown x (T, 3) per frame; terms "data" (x_t - y_t, weight w_data) and "smooth"
 (x_{t-1} - 2 x_t + x_{t+1}, bandwidth 1, weight w_smooth). Sequences are random walks
 of ragged lengths with Gaussian noise of std `noise` (the sensor-error preset's
-acc_noise). A cell with w_data = 0 raises (x is then undetermined up to a line), which
-the tests use as a failing cell. Environment: SWEEP_TOY_LOG appends each solved cell's
+acc_noise). A cell with w_data = 0 raises (x is then undetermined up to a line), and
+sequence 2 at noise >= 0.2 fails to prepare: the tests' two kinds of failing cells. Environment: SWEEP_TOY_LOG appends each solved cell's
 sequence, noise and weights to a file; SWEEP_TOY_SLEEP sleeps per call (kill tests).
 """
 
@@ -17,6 +17,7 @@ import time
 import jax.numpy as jnp
 import numpy as np
 
+from jaxmocap.app.sweep_methods import FailedItem
 from jaxmocap.solve import Problem, Term, second_difference, solve_batch
 
 
@@ -51,6 +52,9 @@ class ToyMethod:
         for i in range(int(dataset["sequences"])):
             T = int(dataset["frames"]) - (i % 3) * 2  # ragged: T, T-2, T-4
             truth = np.cumsum(rng.normal(scale=0.1, size=(T, 3)), 0)
+            if i == 2 and noise >= 0.2:
+                out.append(FailedItem("simulated calibration failure", T))
+                continue
             out.append(Track(truth + rng.normal(scale=noise, size=truth.shape), truth, i, noise))
         return out
 

@@ -19,9 +19,10 @@ solve raises records the error and the sweep goes on.
 
 Several processes (`jax.distributed.initialize()`, which reads SLURM's and similar
 launchers' variables, or `--distributed`) share the cells: process p of P takes every
-P-th pending cell group, all write to the same DIR (a shared file system), and process
-0 waits for the others and writes the summary. The cells are independent, so no
-process waits for another during the solves.
+P-th batch of cells (cut from the whole grid, so any P solves the same batches and gets
+the same numbers), all write to the same DIR (a shared file system), and process 0
+waits for the others and writes the summary. The cells are independent, so no process
+waits for another during the solves.
 """
 
 from __future__ import annotations
@@ -355,7 +356,7 @@ def run_sweep(config: dict, out=None, *, prepare_only: bool = False, summary: bo
         for _, m, d, spec, e, _ in groups:
             if hasattr(m, "prepare"):
                 _wait_for(cache / f".{d}__{e}.ready", 1800)
-    todo, errors_by_cell = [], {}
+    grid, errors_by_cell = [], {}
     items_of = {}
     for name, m, d, spec, e, errors in groups:
         try:
@@ -370,36 +371,39 @@ def run_sweep(config: dict, out=None, *, prepare_only: bool = False, summary: bo
                 continue
             for i in range(n):
                 cell = Cell(vid, d, e, i, tuple(sorted(v["weights"].items())))
-                if store.done(cell):
-                    continue
                 if items is None:
                     errors_by_cell[cell] = f"dataset {d!r} failed to load"
                 elif hasattr(items[i], "error"):
                     errors_by_cell[cell] = f"sequence {i} failed to prepare: {items[i].error}"
-                todo.append(cell)
-    for cell, msg in errors_by_cell.items():
-        if rank == 0:  # recorded once; a resume retries nothing that is recorded
-            store.write(cell, {**_where(cell), "error": msg})
-    todo = [c for c in todo if c not in errors_by_cell]
-    # Cells of one method and one padded length go together (one compiled program).
+                else:
+                    grid.append(cell)
+    if rank == 0:  # process 0 records them; a resume retries nothing that is recorded
+        for cell, msg in errors_by_cell.items():
+            if not store.done(cell):
+                store.write(cell, {**_where(cell), "error": msg})
+    # Cells of one method and one padded length go together (one compiled program). The
+    # batches are cut from the whole grid, whatever is on disk, and batch b belongs to
+    # process b mod P: every process count solves the same batches, so the results are
+    # the same bit for bit; finished cells are dropped from their batch afterwards.
     from ..solve import length_buckets
 
     batches = []
     for name, m in methods.items():
-        mine = [c for c in todo if var[c.variant]["method"] == name]
-        if not mine:
+        cells_m = [c for c in grid if var[c.variant]["method"] == name]
+        if not cells_m:
             continue
-        lengths = [items_of[(name, c.dataset, c.errors)][c.index].length for c in mine]
+        lengths = [items_of[(name, c.dataset, c.errors)][c.index].length for c in cells_m]
         for T, members in length_buckets(lengths):
-            cells = [mine[i] for i in members]
+            cells = [cells_m[i] for i in members]
             # Every call of a bucket has `size` cells (the last one padded): one shape.
             size = min(config["batch_size"], len(cells))
             for s in range(0, len(cells), size):
                 batches.append((name, size, cells[s : s + size]))
-    batches = batches[rank::nproc]
+    batches = [(name, size, [c for c in cells if not store.done(c)]) for name, size, cells in batches[rank::nproc]]
+    batches = [b for b in batches if b[2]]
     total = sum(len(b[2]) for b in batches)
-    log(f"sweep {config['name']!r}: {len(var)} variants, {len(todo)} cells to run"
-        + (f" ({total} on process {rank} of {nproc})" if nproc > 1 else "") + f", results in {root}")  # fmt: skip
+    log(f"sweep {config['name']!r}: {len(var)} variants, {len(grid) + len(errors_by_cell)} cells, "
+        f"{total} to run" + (f" on process {rank} of {nproc}" if nproc > 1 else "") + f", results in {root}")  # fmt: skip
     bar = _progress(total, progress and rank == 0)
     for name, size, cells in batches:
         m = methods[name]
@@ -416,7 +420,7 @@ def run_sweep(config: dict, out=None, *, prepare_only: bool = False, summary: bo
 
 
 def _solve_cells(method, cells, size, items_of, name, config, store) -> None:
-    """Solve one batch of cells and write each; a failing batch is retried cell by cell."""
+    """Solve one batch of cells and write each; a failing batch is bisected down to its failing cells."""
     items = [items_of[(name, c.dataset, c.errors)][c.index] for c in cells]
 
     def run(idx):
@@ -429,18 +433,23 @@ def _solve_cells(method, cells, size, items_of, name, config, store) -> None:
         dt = (time.perf_counter() - t0) / len(full)
         return res[: len(idx)], dt
 
-    try:
-        results, dt = run(list(range(len(cells))))
-        for c, r in zip(cells, results):
-            store.write(c, _record(c, r, dt))
-    except Exception:  # noqa: BLE001 - isolate the failing cells, keep the others
-        for i, c in enumerate(cells):
-            try:
-                (r,), dt = run([i])
-                store.write(c, _record(c, r, dt))
-            except Exception as err:  # noqa: BLE001
-                store.write(c, {**_where(c), "error": f"{type(err).__name__}: {err}",
-                                "traceback": traceback.format_exc(limit=4)})  # fmt: skip
+    def attempt(idx):
+        # A failing call is split in halves until the failing cells are alone: a rare
+        # failure in a large batch costs O(log batch) extra calls, not one per cell.
+        try:
+            results, dt = run(idx)
+        except Exception as err:  # noqa: BLE001 - isolate the failing cells, keep the others
+            if len(idx) == 1:
+                store.write(cells[idx[0]], {**_where(cells[idx[0]]), "error": f"{type(err).__name__}: {err}",
+                                            "traceback": traceback.format_exc(limit=4)})  # fmt: skip
+                return
+            attempt(idx[: len(idx) // 2])
+            attempt(idx[len(idx) // 2 :])
+            return
+        for i, r in zip(idx, results):
+            store.write(cells[i], _record(cells[i], r, dt))
+
+    attempt(list(range(len(cells))))
 
 
 def _where(c: Cell) -> dict:

@@ -82,10 +82,18 @@ def _baseline_id(config: dict, variants: dict, method: str) -> str | None:
     return None
 
 
-def write_summary(root, config: dict, records: list[dict], variants: dict, log=print) -> dict:
-    """Write summary.md, summary.csv, summary.json, cells.csv and the plots into `root`."""
-    root = Path(root)
-    metric = config["metric"]
+def summary_metrics(config: dict) -> list[str]:
+    """The primary metric first, then every other metric the methods report (not "cost",
+    which measures a different objective for every weight setting)."""
+    from .sweep_methods import resolve_method
+
+    out = [config["metric"]]
+    for name in config["methods"]:
+        out += [m for m in getattr(resolve_method(name), "metrics", ()) if m not in out and m != "cost"]
+    return out
+
+
+def _analyse(records, metric, config, variants):
     values, failed = _table(records, metric)
     rows, analysis = [], {}
     for key, by_var in sorted(values.items()):
@@ -101,8 +109,8 @@ def write_summary(root, config: dict, records: list[dict], variants: dict, log=p
         for vid, x in sorted(by_var.items()):
             arr = np.asarray(list(x.values()))
             stat = (lambda f: float(f(arr)) if len(arr) else float("nan"))  # noqa: E731
-            row = {"method": method, "dataset": dataset, "errors": errors, "variant": vid, "n": len(arr),
-                   "failed": failed.get((key, vid), 0), "mean": stat(np.mean), "std": stat(np.std),
+            row = {"metric": metric, "method": method, "dataset": dataset, "errors": errors, "variant": vid,
+                   "n": len(arr), "failed": failed.get((key, vid), 0), "mean": stat(np.mean), "std": stat(np.std),
                    "median": stat(np.median), **{f"w_{k}": w for k, w in variants[vid]["weights"].items()},
                    **{f"term_{t}": on for t, on in variants[vid]["terms"].items()}}  # fmt: skip
             for ref_name, ref in (("baseline", base), ("best", best)):
@@ -117,12 +125,27 @@ def write_summary(root, config: dict, records: list[dict], variants: dict, log=p
         res["flat_region"] = [v for v, r in res["variants"].items() if r["flat"]]
         res["baseline_in_flat_region"] = None if base is None else base in res["flat_region"]
         analysis["|".join(key)] = res
-    _write_csv(root / "summary.csv", rows)
+    return values, rows, analysis
+
+
+def write_summary(root, config: dict, records: list[dict], variants: dict, log=print) -> dict:
+    """Write summary.md, summary.csv, summary.json, cells.csv and the plots into `root`.
+
+    Every metric of `summary_metrics` gets its section; the plots show the primary metric
+    (`boxplot.png`, `weights.png`) and the others against the weights (`weights_<metric>.png`).
+    """
+    root = Path(root)
+    metrics = summary_metrics(config)
+    analysis, all_rows, text = {}, [], []
+    for k, metric in enumerate(metrics):
+        values, rows, analysis[metric] = _analyse(records, metric, config, variants)
+        all_rows += rows
+        text.append(_markdown(config, analysis[metric], metric, len(records), primary=k == 0))
+        _plots(root, config, values, variants, metric, analysis[metric], primary=k == 0)
+    _write_csv(root / "summary.csv", all_rows)
     _write_csv(root / "cells.csv", [_cell_row(r) for r in records])
-    text = _markdown(config, analysis, metric, len(records))
-    _atomic(root / "summary.md", text)
+    _atomic(root / "summary.md", "\n".join(text))
     _atomic(root / "summary.json", json.dumps(analysis, indent=1, default=float))
-    _plots(root, config, values, variants, metric, analysis)
     log(f"summary: {root / 'summary.md'}")
     return analysis
 
@@ -153,8 +176,11 @@ def _atomic(path: Path, text: str) -> None:
     os.replace(tmp, path)
 
 
-def _markdown(config, analysis, metric, n_records) -> str:
-    L = [f"# Sweep {config['name']!r}: {metric}", "",
+def _markdown(config, analysis, metric, n_records, primary=True) -> str:
+    if not primary:
+        L = [f"# {metric}", "", "The same comparisons for this metric.", ""]
+    else:
+        L = [f"# Sweep {config['name']!r}: {metric}", "",
          f"{n_records} cells. Lower is better. Paired statistics over sequences against the baseline "
          "(default weights, every term on): mean difference with bootstrap 95 % CI, Wilcoxon signed-rank "
          f"and paired t p-values, effect size d_z. Flat region: variants whose paired difference to the best "
@@ -163,7 +189,7 @@ def _markdown(config, analysis, metric, n_records) -> str:
         method, dataset, errors = key.split("|")
         vs = res["variants"]
         base = res["baseline"]
-        L += [f"## {method} on {dataset}, sensor errors {errors}", ""]
+        L += [f"## {metric}: {method} on {dataset}, sensor errors {errors}", ""]
         if res.get("all_failed"):
             L += ["Every cell failed; see the errors in cells.csv.", ""]
             continue
@@ -188,17 +214,26 @@ def _markdown(config, analysis, metric, n_records) -> str:
                      f"{r.get('vs_baseline_wilcoxon_p', float('nan')):.2g} | {r.get('vs_baseline_ttest_p', float('nan')):.2g} | "
                      f"{r.get('vs_baseline_effect_dz', float('nan')):+.2f} | {'yes' if r['flat'] else ''} |")  # fmt: skip
         L.append("")
-    L += ["Plots: `boxplot.png` (per variant), `weights.png` (mean against each swept weight).", ""]
+    if primary:
+        L += ["Plots: `boxplot.png` (per variant), `weights.png` (mean against each swept weight).", ""]
+    else:
+        L += [f"Plot: `weights_{metric}.png`.", ""]
     return "\n".join(L)
 
 
-def _plots(root, config, values, variants, metric, analysis) -> None:
+def _plots(root, config, values, variants, metric, analysis, primary=True) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     keys = sorted(values)
+    if primary:
+        _boxplot(plt, root, keys, values, metric, analysis)
+    _weight_plot(plt, root / ("weights.png" if primary else f"weights_{metric}.png"), config, keys, values, variants, metric)
+
+
+def _boxplot(plt, root, keys, values, metric, analysis) -> None:
     fig, axes = plt.subplots(len(keys), 1, figsize=(max(6.0, 0.16 * max(len(values[k]) for k in keys) + 2), 3.2 * len(keys)),
                              squeeze=False)  # fmt: skip
     for ax, key in zip(axes[:, 0], keys):
@@ -217,6 +252,9 @@ def _plots(root, config, values, variants, metric, analysis) -> None:
     fig.tight_layout()
     fig.savefig(root / "boxplot.png", dpi=80)
     plt.close(fig)
+
+
+def _weight_plot(plt, path, config, keys, values, variants, metric) -> None:
     swept = list(config["grid"]["weights"])
     if not swept:
         return
@@ -248,7 +286,7 @@ def _plots(root, config, values, variants, metric, analysis) -> None:
             if lines and len(lines) <= 10:
                 ax.legend(fontsize=5)
     fig.tight_layout()
-    fig.savefig(root / "weights.png", dpi=80)
+    fig.savefig(path, dpi=80)
     plt.close(fig)
 
 
