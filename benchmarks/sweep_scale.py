@@ -156,8 +156,8 @@ def main(argv=None) -> int:
 
     devices = jax.local_devices()
     if len(devices) >= 2:
-        sol, _ = _timed(lambda: _solve(stacked, init, it, devices=devices))  # compile
-        sol, wall_n = _timed(lambda: _solve(stacked, init, it, devices=devices))
+        _timed(lambda: _solve(stacked, init, it, devices=devices))  # compile
+        _, wall_n = _timed(lambda: _solve(stacked, init, it, devices=devices))
         out["speedup_2_gpus"] = wall / wall_n
         out["multi_gpu"] = {"devices": len(devices), "wall_s": wall_n, "one_device_wall_s": wall,
                             "plan": _plan(stacked, init, devices=devices).to_dict()}  # fmt: skip

@@ -21,11 +21,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-sys.path.insert(0, str(Path(__file__).parent))
-import sweep_toy  # noqa: E402
-from jaxmocap.app import SweepConfigError, run_sweep, validate_config, variants  # noqa: E402
-from jaxmocap.app.sweep import Store  # noqa: E402
-from jaxmocap.solve import Problem, Term, length_buckets, plan_batch, second_difference, solve_batch  # noqa: E402
+from jaxmocap.app import SweepConfigError, run_sweep, validate_config, variants
+from jaxmocap.app.sweep import Store
+from jaxmocap.solve import Problem, Term, length_buckets, plan_batch, second_difference, solve_batch
 
 ROOT = Path(__file__).resolve().parent.parent
 ENV = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), str(ROOT / "tests")]), "JAX_PLATFORMS": "cpu"}

@@ -35,6 +35,7 @@ import time
 import tomllib
 import traceback
 from pathlib import Path
+
 import numpy as np
 
 from .sweep_methods import Cell, resolve_method

@@ -108,7 +108,7 @@ def _analyse(records, metric, config, variants):
         res = {"baseline": base, "best": best, "best_mean": means[best], "variants": {}}
         for vid, x in sorted(by_var.items()):
             arr = np.asarray(list(x.values()))
-            stat = (lambda f: float(f(arr)) if len(arr) else float("nan"))  # noqa: E731
+            stat = (lambda f, arr=arr: float(f(arr)) if len(arr) else float("nan"))  # noqa: E731
             row = {"metric": metric, "method": method, "dataset": dataset, "errors": errors, "variant": vid,
                    "n": len(arr), "failed": failed.get((key, vid), 0), "mean": stat(np.mean), "std": stat(np.std),
                    "median": stat(np.median), **{f"w_{k}": w for k, w in variants[vid]["weights"].items()},
@@ -203,7 +203,7 @@ def _markdown(config, analysis, metric, n_records, primary=True) -> str:
         else:
             L.append("- the grid has no baseline variant (default weights, all terms on)")
         L.append(f"- flat region: {len(res['flat_region'])} of {len(vs)} variants")
-        L += ["", f"| variant | n | failed | mean | median | Δ vs baseline [95 % CI] | Wilcoxon p | t-test p | d_z | flat |",
+        L += ["", "| variant | n | failed | mean | median | Δ vs baseline [95 % CI] | Wilcoxon p | t-test p | d_z | flat |",
               "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]  # fmt: skip
         order = sorted(vs, key=lambda v: (np.isnan(vs[v]["mean"]), vs[v]["mean"]))
         for vid in order:
