@@ -13,9 +13,13 @@ unknowns per frame, the band, the residual rows, the dtypes), reads the device's
 memory and runs the batch in equal chunks; the last chunk is padded by repeating its
 last member, so every chunk has one shape and one compiled program serves them all.
 
-Devices: with several local devices the batch axis of each chunk is split over a
-one-axis mesh (`jax.shard_map`, axis "batch"); each device runs its own `while_loop`
-over its own members, with no communication. Several processes (`jax.distributed`)
+Devices: with several local devices each owns a contiguous block of the batch and
+solves it chunk by chunk with the same single-device program, dispatched
+asynchronously, so the devices run at once and each `while_loop` waits only for its
+own members (no communication); the result is one array per leaf, split along the
+batch over a one-axis mesh (`NamedSharding(Mesh(devices, ("batch",)), P("batch"))`).
+An SPMD `shard_map` of the vmapped solve hung on two host-platform CPU devices, and
+per-device dispatch needs no collective at all. Several processes (`jax.distributed`)
 do not share a solve: their work (sweep cells) is independent, so each process solves
 its own share on its local devices (see `jaxmocap.app.sweep`).
 """
@@ -31,7 +35,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from jax import Array
-from jax.sharding import Mesh, PartitionSpec
+from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from .solver import METHODS, Args, Solution, _check, _solve_core
 
@@ -299,17 +303,40 @@ def solve_batch(
     devices = tuple(jax.local_devices() if devices is None else devices)
     plan = plan_batch(problem, params0, data, frame_mask, chunk_size=chunk_size, devices=devices,
                       memory_fraction=memory_fraction, dtype=dtype, factor_dtype=factor_dtype)  # fmt: skip
-    mesh = Mesh(np.asarray(devices), ("batch",)) if len(devices) > 1 else None
     batched = (params0, data, frame_mask, weights, rtol, atol)
-    if plan.num_chunks == 1 and plan.chunk_size == B:
-        return _batch_jit(problem, layout, *batched, max_steps, mesh=mesh, **static)
-    size, outs = plan.chunk_size, []
+    if len(devices) == 1 and plan.num_chunks == 1 and plan.chunk_size == B:
+        return _batch_jit(problem, layout, *batched, max_steps, **static)
+    D, size = len(devices), plan.chunk_size
+    per = size // D  # members per device and chunk
+    # Device d owns the contiguous members [d·n, (d+1)·n) of the batch padded to n·D
+    # (repeating the last member), and solves them in chunks of `per`: every call has
+    # one shape, so each device compiles once, and no device waits for another.
+    n = plan.num_chunks * per
+    shards = [[] for _ in devices]
     for k in range(plan.num_chunks):
-        # The last chunk repeats its last member up to the common size: one shape, one program.
-        idx = jnp.asarray(np.minimum(np.arange(k * size, (k + 1) * size), B - 1))
-        chunk = jax.tree_util.tree_map(lambda x, idx=idx: x[idx], batched)
-        outs.append(_batch_jit(problem, layout, *chunk, max_steps, mesh=mesh, **static))
-    return jax.tree_util.tree_map(lambda *xs: jnp.concatenate(xs)[:B], *outs)
+        for d, device in enumerate(devices):
+            idx = np.minimum(np.arange(d * n + k * per, d * n + (k + 1) * per), B - 1)
+            chunk = jax.tree_util.tree_map(lambda x, idx=jnp.asarray(idx): x[idx], batched)
+            args = (problem, *chunk, max_steps)
+            if D > 1:
+                args = _to_device(args, device)
+            shards[d].append(_batch_jit(args[0], layout, *args[1:], **static))
+    parts = [jax.tree_util.tree_map(lambda *xs: jnp.concatenate(xs), *s) if len(s) > 1 else s[0] for s in shards]
+    if D == 1:
+        return jax.tree_util.tree_map(lambda x: x[:B], parts[0])
+    # One array per leaf, split over a one-axis mesh of the devices along the batch.
+    sharding = NamedSharding(Mesh(np.asarray(devices), ("batch",)), PartitionSpec("batch"))
+
+    def assemble(*xs):
+        return jax.make_array_from_single_device_arrays((n * D,) + xs[0].shape[1:], sharding, list(xs))
+
+    whole = jax.tree_util.tree_map(assemble, *parts)
+    return whole if n * D == B else jax.tree_util.tree_map(lambda x: x[:B], whole)
+
+
+def _to_device(tree, device):
+    """Every array leaf of `tree` on `device` (the problem's constants included)."""
+    return jax.tree_util.tree_map(lambda x: jax.device_put(x, device) if eqx.is_array(x) else x, tree)
 
 
 def _batch_core(problem, layout, params0, data, frame_mask, weights, rtol, atol, max_steps, static):
@@ -322,17 +349,5 @@ def _batch_core(problem, layout, params0, data, frame_mask, weights, rtol, atol,
 
 
 @eqx.filter_jit
-def _batch_jit(problem, layout, params0, data, frame_mask, weights, rtol, atol, max_steps, *, mesh, **static):
-    if mesh is None:
-        return _batch_core(problem, layout, params0, data, frame_mask, weights, rtol, atol, max_steps, static)
-    # Split the batch over the mesh; the problem's arrays (weights, constants) and the
-    # step cap are replicated. Each device loops over its own members only.
-    dynamic, rest = eqx.partition(problem, eqx.is_array)
-
-    def local(dyn, p, d, m, w, rt, at, steps):
-        return _batch_core(eqx.combine(dyn, rest), layout, p, d, m, w, rt, at, steps, static)
-
-    batch, rep = PartitionSpec("batch"), PartitionSpec()
-    fn = jax.shard_map(local, mesh=mesh, in_specs=(rep, batch, batch, batch, batch, batch, batch, rep),
-                       out_specs=batch, check_vma=False)  # fmt: skip
-    return fn(dynamic, params0, data, frame_mask, weights, rtol, atol, max_steps)
+def _batch_jit(problem, layout, params0, data, frame_mask, weights, rtol, atol, max_steps, **static):
+    return _batch_core(problem, layout, params0, data, frame_mask, weights, rtol, atol, max_steps, static)
