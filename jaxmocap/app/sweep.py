@@ -12,7 +12,7 @@ differs from the interrupted one (the message names each changed entry).
 Work is cut into cells, one (variant, dataset, sensor errors, sequence) each. Cells of
 one method and one padded length are solved together, every variant's weights a traced
 (B,) array, so one compiled program serves the whole grid (`solve_batch`, which chunks
-to the device's memory and splits each chunk over the local devices). Each finished
+to the device's memory and splits the batch over the local devices). Each finished
 cell is written to `DIR/cells/` atomically (temp file + rename) with the config's hash;
 a killed sweep resumes with the cells on disk and repeats none of them; a cell whose
 solve raises records the error and the sweep goes on.

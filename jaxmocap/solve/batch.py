@@ -313,14 +313,16 @@ def solve_batch(
     # one shape, so each device compiles once, and no device waits for another.
     n = plan.num_chunks * per
     shards = [[] for _ in devices]
+    # The problem's constants and the step cap, once per device.
+    consts = [(problem, max_steps) if D == 1 else _to_device((problem, max_steps), dev) for dev in devices]
     for k in range(plan.num_chunks):
         for d, device in enumerate(devices):
             idx = np.minimum(np.arange(d * n + k * per, d * n + (k + 1) * per), B - 1)
             chunk = jax.tree_util.tree_map(lambda x, idx=jnp.asarray(idx): x[idx], batched)
-            args = (problem, *chunk, max_steps)
             if D > 1:
-                args = _to_device(args, device)
-            shards[d].append(_batch_jit(args[0], layout, *args[1:], **static))
+                chunk = _to_device(chunk, device)
+            prob, steps = consts[d]
+            shards[d].append(_batch_jit(prob, layout, *chunk, steps, **static))
     parts = [jax.tree_util.tree_map(lambda *xs: jnp.concatenate(xs), *s) if len(s) > 1 else s[0] for s in shards]
     if D == 1:
         return jax.tree_util.tree_map(lambda x: x[:B], parts[0])
