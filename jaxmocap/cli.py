@@ -273,6 +273,19 @@ def _run_multiview(args) -> int:
     print(f"wrote    {out / r['outputs']['smpl']}, {len(r['outputs']['overlays'])} overlays in {out / 'overlays'}, "
           f"meshes in {out / 'meshes'}, {out / 'report.md'}")
     return 0
+# --- sweep --------------------------------------------------------------------------
+
+
+def _configure_sweep(p: argparse.ArgumentParser) -> None:
+    from .app.sweep import configure_parser
+
+    configure_parser(p)
+
+
+def _run_sweep(args) -> int:
+    from .app.sweep import main_args
+
+    return main_args(args)
 
 
 COMMANDS: list[Command] = [
@@ -282,6 +295,7 @@ COMMANDS: list[Command] = [
     Command("demo", "walk → posed body → meshes and pictures (the `make demo` job)", _configure_demo, _run_demo),
     Command("check", "physical plausibility: ground penetration, floating, foot skating", _configure_check, _run_check),
     Command("multiview", "fit SMPL to multi-camera OpenPose keypoints (Multi-view SMPLify)", _configure_multiview, _run_multiview),
+    Command("sweep", "grid of methods × weights × sensor errors × datasets, resumable", _configure_sweep, _run_sweep),
 ]
 
 

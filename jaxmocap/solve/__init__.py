@@ -7,7 +7,12 @@ call `solve` (one sequence, through `optx.least_squares`) or `solve_batch` (many
 padded with masks, per-member weights). Solves are differentiable (implicit adjoint).
 """
 
+from .batch import BatchPlan as BatchPlan
+from .batch import bytes_per_sequence as bytes_per_sequence
+from .batch import free_memory_bytes as free_memory_bytes
+from .batch import length_buckets as length_buckets
 from .batch import pad_sequences as pad_sequences
+from .batch import plan_batch as plan_batch
 from .batch import solve_batch as solve_batch
 from .batch import with_weights as with_weights
 from .residuals import Cauchy as Cauchy
