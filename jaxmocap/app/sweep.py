@@ -354,7 +354,7 @@ def run_sweep(config: dict, out=None, *, prepare_only: bool = False, summary: bo
         log(f"prepared datasets in {cache}")
         return root
     if nproc > 1:
-        for _, m, d, spec, e, _ in groups:
+        for _, m, d, _spec, e, _ in groups:
             if hasattr(m, "prepare"):
                 _wait_for(cache / f".{d}__{e}.ready", 1800)
     grid, errors_by_cell = [], {}
@@ -389,12 +389,12 @@ def run_sweep(config: dict, out=None, *, prepare_only: bool = False, summary: bo
     from ..solve import length_buckets
 
     batches = []
-    for name, m in methods.items():
+    for name in methods:
         cells_m = [c for c in grid if var[c.variant]["method"] == name]
         if not cells_m:
             continue
         lengths = [items_of[(name, c.dataset, c.errors)][c.index].length for c in cells_m]
-        for T, members in length_buckets(lengths):
+        for _T, members in length_buckets(lengths):
             cells = [cells_m[i] for i in members]
             # Every call of a bucket has `size` cells (the last one padded): one shape.
             size = min(config["batch_size"], len(cells))
