@@ -60,3 +60,15 @@ def random_body(smpl_dict):
         d["v_template"], d["f"], d["shapedirs"], d["posedirs"], d["J_regressor"], d["weights"],
         dtype=np.float64,
     )
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _release_compiled_programs():
+    """Drop JAX's compiled programs after each test module: the suite runs in one process
+    and would otherwise keep every module's executables (several GB by the end; a compile
+    late in the run crashed once under that memory pressure)."""
+    yield
+    import gc
+
+    jax.clear_caches()
+    gc.collect()

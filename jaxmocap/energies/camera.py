@@ -16,8 +16,11 @@ coefficients (stage 2).
   l(x, Ŝ) is the distance to the nearest projected model vertex (the argmin is taken
   without gradient: the derivative of a minimum is that of its minimiser almost
   everywhere), with a Huber loss of δ = 1 px giving the L1 tails of eq. 4.5 and a
-  smooth core. Both choices sample Ŝ by vertices instead of pixels; a vertex spacing of
-  1-2 px at our image sizes bounds the difference.
+  smooth core. Both sums are over pixels in eq. 4.5; here each sampled point stands for
+  area/count pixels (area = the mask's pixel count, which the model's silhouette matches at
+  the solution), so the two sums keep the balance of eq. 4.5. Without that weighting the
+  ~600 model points per view outweighed the 256 mask points and E_S shrank the body
+  (measured on held-out clips: shape error 41.8 -> 73.5 mm).
 - E_T (eq. 4.7-4.8): every 3-D joint coordinate trajectory of a window against its
   reconstruction B c from the first `num_dct` DCT-II basis vectors, ρ_σ2 per coordinate.
 - E_β: ‖β‖² (shape coefficients are unit-variance PCA coordinates); E_θ: the Gaussian
@@ -61,11 +64,13 @@ class Silhouettes(eqx.Module):
 
     distance: (T, V, H, W) distance in px from each pixel to the mask (0 inside).
     points: (T, V, M, 2) pixel centres sampled from the mask; valid: (T, V, M).
+    area: (T, V) the mask's pixel count (what the sampled points stand for).
     """
 
     distance: Array
     points: Array
     valid: Array
+    area: Array
 
 
 def silhouette_data(masks: np.ndarray, num_points: int = 256, seed: int = 0) -> Silhouettes:
@@ -78,6 +83,7 @@ def silhouette_data(masks: np.ndarray, num_points: int = 256, seed: int = 0) -> 
     distance = np.zeros(masks.shape, np.float32)
     points = np.zeros((T, V, num_points, 2), np.float32)
     valid = np.zeros((T, V, num_points), bool)
+    area = masks.sum((2, 3)).astype(np.float32)
     for t in range(T):
         for v in range(V):
             m = masks[t, v]
@@ -88,7 +94,7 @@ def silhouette_data(masks: np.ndarray, num_points: int = 256, seed: int = 0) -> 
             pick = rng.choice(len(xs), min(num_points, len(xs)), replace=False)
             points[t, v, : len(pick)] = np.stack([xs[pick] + 0.5, ys[pick] + 0.5], -1)
             valid[t, v, : len(pick)] = True
-    return Silhouettes(jnp.asarray(distance), jnp.asarray(points), jnp.asarray(valid))
+    return Silhouettes(jnp.asarray(distance), jnp.asarray(points), jnp.asarray(valid), jnp.asarray(area))
 
 
 class CameraData(eqx.Module):
@@ -179,7 +185,8 @@ def silhouette_terms(w_model: float = 1.0, w_mask: float = 1.0, stride: int = 1,
         verts = _posed(params, data).vertices[:, ::stride]
         uv, _ = _views(data, verts)  # (T, V, N, 2)
         dist = jax.vmap(jax.vmap(_bilinear))(data.silhouettes.distance, uv)
-        return dist[..., None]  # (T, V, N, 1)
+        per_point = jnp.sqrt(data.silhouettes.area / uv.shape[-2])[..., None]  # each vertex: area/N px
+        return (per_point * dist)[..., None]  # (T, V, N, 1)
 
     def mask_points(params, data: CameraData):
         verts = _posed(params, data).vertices[:, ::stride]
@@ -190,7 +197,9 @@ def silhouette_terms(w_model: float = 1.0, w_mask: float = 1.0, stride: int = 1,
         closest = jnp.take_along_axis(uv, nearest[..., None], axis=-2)
         e = x - closest
         d = jnp.sqrt(jnp.sum(e * e, -1, keepdims=True) + 1e-12)
-        return huber(e * (jnp.maximum(d - slack, 0.0) / d))  # (T, V, M, 2), length max(d - slack, 0)
+        count = jnp.maximum(jnp.sum(data.silhouettes.valid, -1), 1)  # (T, V)
+        per_point = jnp.sqrt(data.silhouettes.area / count)[..., None, None]  # each point: area/M px
+        return per_point * huber(e * (jnp.maximum(d - slack, 0.0) / d))  # (T, V, M, 2)
 
     def has_mask(data: CameraData):
         return jnp.any(data.silhouettes.valid, -1)[..., None]  # (T, V, 1)

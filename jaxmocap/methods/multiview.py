@@ -73,8 +73,8 @@ class MuVSWeights:
     pose_prior: float = 20.0
     shape: float = 50.0
     anneal: tuple[float, ...] = (20.0, 4.0, 1.0)
-    silhouette_model: float = 0.5
-    silhouette_mask: float = 0.5
+    silhouette_model: float = 0.1
+    silhouette_mask: float = 0.1
     silhouette_stride: int = 2
     silhouette_slack: float = 2.0
     temporal: float = 2e5
@@ -394,5 +394,5 @@ def mask_views(data: CameraData, keep: Sequence[int]) -> CameraData:
     on = jnp.asarray(on)
     sil = data.silhouettes
     if sil is not None:
-        sil = Silhouettes(sil.distance, sil.points, sil.valid & on[:, None])
+        sil = Silhouettes(sil.distance, sil.points, sil.valid & on[:, None], sil.area)
     return dataclasses_replace(data, confidence=data.confidence * on[:, None], silhouettes=sil)
