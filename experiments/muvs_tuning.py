@@ -58,7 +58,8 @@ def main(argv=None):
         print("pose_prior", prior, result["prior"][str(prior)], flush=True)
         if best is None or result["prior"][str(prior)]["mpjpe_mm"] < result["prior"][str(best)]["mpjpe_mm"]:
             best = prior
-    variants = {"default": {}, "slack_4px": {"silhouette_slack": 4.0}, "weight_0.1": {"silhouette_model": 0.1, "silhouette_mask": 0.1}}
+    variants = {"default": {}, "slack_4px": {"silhouette_slack": 4.0},
+                "weight_0.03": {"silhouette_model": 0.03, "silhouette_mask": 0.03}}
     for name, change in variants.items():
         w = mv.MuVSWeights(pose_prior=best, anneal=(), **change)
         ps, _ = mv.stage_one(data, fits[best], w, silhouettes=True)
