@@ -21,7 +21,8 @@ Parts (keys of results/sweep_scale.json):
 - `sweep`: `run_sweep` on experiments/sweeps/sip_ablation.toml (16 128 cells of 120
   frames × 20 steps): wall time, cells, frames × iterations per second. Its summary is
   copied to `--sweep-summary` if given.
-- `speedup_2_gpus`: the batch on all local GPUs over the batch on one (same process,
+- `speedup_2_gpus`, `speedup_4_gpus`, `speedup_8_gpus` (those the machine has): the batch on
+  the first 2, 4, 8 local GPUs over the batch on one (same process,
   same data). null when fewer than 2 devices are visible (recorded in
   `speedup_2_gpus_note`).
 """
@@ -155,14 +156,20 @@ def main(argv=None) -> int:
         save()
 
     devices = jax.local_devices()
-    if len(devices) >= 2:
-        _timed(lambda: _solve(stacked, init, it, devices=devices))  # compile
-        _, wall_n = _timed(lambda: _solve(stacked, init, it, devices=devices))
-        out["speedup_2_gpus"] = wall / wall_n
-        out["multi_gpu"] = {"devices": len(devices), "wall_s": wall_n, "one_device_wall_s": wall,
-                            "plan": _plan(stacked, init, devices=devices).to_dict()}  # fmt: skip
-        print(f"{len(devices)} devices: {wall_n:.1f} s, speed-up {wall / wall_n:.2f}", flush=True)
-    else:
+    counts = [n for n in (2, 4, 8) if n <= len(devices)]
+    out["multi_gpu"] = {}
+    for n in counts:  # the same batch on the first n devices of this machine
+        subset = devices[:n]
+        _timed(lambda subset=subset: _solve(stacked, init, it, devices=subset))  # compile
+        _, wall_n = _timed(lambda subset=subset: _solve(stacked, init, it, devices=subset))
+        out[f"speedup_{n}_gpus"] = wall / wall_n
+        stats = [d.memory_stats() or {} for d in subset]
+        out["multi_gpu"][str(n)] = {
+            "wall_s": wall_n, "one_device_wall_s": wall, "plan": _plan(stacked, init, devices=subset).to_dict(),
+            "peak_bytes_per_device": [st.get("peak_bytes_in_use") for st in stats],
+        }  # fmt: skip
+        print(f"{n} devices: {wall_n:.1f} s, speed-up {wall / wall_n:.2f}", flush=True)
+    if not counts:
         out["speedup_2_gpus"] = None
         out["speedup_2_gpus_note"] = (
             f"unmeasured: {len(devices)} device visible ({devices[0].device_kind}); run this script on a "
