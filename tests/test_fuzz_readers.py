@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 from conftest import random_smpl_dict
 
-hypothesis = pytest.importorskip("hypothesis")
+# hypothesis is a pinned test dependency (pyproject's `test` extra): imported, never skipped.
 from hypothesis import HealthCheck, given, settings  # noqa: E402
 from hypothesis import strategies as st  # noqa: E402
 

@@ -43,6 +43,7 @@ from ..energies.camera import (
     keypoint_term,
     pose_prior_term,
     shape_term,
+    silhouette_data,
     silhouette_terms,
     temporal_term,
 )
@@ -136,8 +137,6 @@ def camera_data(
     uv = np.nan_to_num(keypoints[..., :2])
     sil = None
     if masks is not None:
-        from ..energies.camera import silhouette_data
-
         masks = np.asarray(masks, bool)
         if masks.shape[:2] != (T, V):
             raise ValueError(f"masks must be (T={T}, V={V}, H, W); got shape {masks.shape}.")
