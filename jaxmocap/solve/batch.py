@@ -316,15 +316,19 @@ def solve_batch(
     # (repeating the last member), and solves them in chunks of `per`: every call has
     # one shape, so each device compiles once, and no device waits for another.
     n = plan.num_chunks * per
+    # Every device's block (and the problem's constants and step cap) is gathered and
+    # sent before any solve is queued: a gather queued on the source device behind that
+    # device's first solve would hold the other devices idle until it finished.
+    blocks, consts = [], []
+    for d, device in enumerate(devices):
+        idx = jnp.asarray(np.minimum(np.arange(d * n, (d + 1) * n), B - 1))
+        block = jax.tree_util.tree_map(lambda x, idx=idx: x[idx], batched)
+        blocks.append(block if D == 1 else _to_device(block, device))
+        consts.append((problem, max_steps) if D == 1 else _to_device((problem, max_steps), device))
     shards = [[] for _ in devices]
-    # The problem's constants and the step cap, once per device.
-    consts = [(problem, max_steps) if D == 1 else _to_device((problem, max_steps), dev) for dev in devices]
     for k in range(plan.num_chunks):
-        for d, device in enumerate(devices):
-            idx = np.minimum(np.arange(d * n + k * per, d * n + (k + 1) * per), B - 1)
-            chunk = jax.tree_util.tree_map(lambda x, idx=jnp.asarray(idx): x[idx], batched)
-            if D > 1:
-                chunk = _to_device(chunk, device)
+        for d in range(D):
+            chunk = jax.tree_util.tree_map(lambda x, k=k: x[k * per : (k + 1) * per], blocks[d])
             prob, steps = consts[d]
             shards[d].append(_batch_jit(prob, layout, *chunk, steps, **static))
     parts = [jax.tree_util.tree_map(lambda *xs: jnp.concatenate(xs), *s) if len(s) > 1 else s[0] for s in shards]
