@@ -1,5 +1,6 @@
 """Motion files and retargeting: AMASS npz, ASF/AMC, BVH, retarget, resample, library, errors."""
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -23,10 +24,12 @@ from jaxmocap.motion import (
     save_motion,
 )
 from jaxmocap.motion.amass import Z_UP_TO_Y_UP
-from jaxmocap.motion.retarget import CMU_ASF_MAP, CMU_BVH_MAP, smpl_joint_positions, smpl_rest
+from jaxmocap.motion.retarget import CMU_ASF_MAP, CMU_BVH_MAP, rest_kind, smpl_joint_positions, smpl_rest
 
 CMU = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "cmu"
 needs_cmu = pytest.mark.skipif(not (CMU / "02.asf").is_file(), reason="needs ../shared/data/cmu")
+CC = CMU.parent / "cmu_cc"
+needs_cc = pytest.mark.skipif(not (CC / "007_02.bvh").is_file(), reason="needs ../shared/data/cmu_cc")
 N = {n: i for i, n in enumerate(SMPL_JOINT_NAMES)}
 ASF_UNIT = 0.0254 / 0.45
 
@@ -467,6 +470,62 @@ def test_retarget_cmu_walk(smpl_like_body):
         ("spine1", "spine2"),
     ]:
         assert errors[bone] < 0.1  # aligned bones follow the source exactly
+
+
+def _reframed(src, frames):
+    """The same motion on a rig whose bone j carries the constant frame `frames[j]`.
+
+    World positions stay; global rotations become G_j R_j, and the zero pose is rebuilt
+    from the child offsets expressed in the new parent frames (as a BVH of that rig has).
+    """
+    R = np.asarray(frames)
+    rest = np.zeros_like(src.rest_positions)
+    for j, p in enumerate(src.parents):
+        if p >= 0:
+            rest[j] = rest[p] + R[p].T @ (src.rest_positions[j] - src.rest_positions[p])
+    return dataclasses.replace(
+        src, rest_positions=rest, tips=np.einsum("nba,nb->na", R, src.tips), rotations=src.rotations @ R
+    )
+
+
+@needs_cmu
+def test_retarget_motion_rest_does_not_depend_on_bone_frames(smpl_like_body):
+    # Rigs from animation tools give each bone its own frame (legs pointing up at zero).
+    # In "motion" mode the SMPL poses are the same whatever frames the bones carry.
+    src = load_asf_amc(CMU / "02_01.amc")
+    frames = Rotation.random(len(src.names), random_state=3).as_matrix()
+    a = retarget(src, body=smpl_like_body, rest="motion")
+    b = retarget(_reframed(src, frames), body=smpl_like_body, rest="motion")
+    np.testing.assert_allclose(
+        Rotation.from_rotvec(a.poses.reshape(-1, 3)).as_matrix(),
+        Rotation.from_rotvec(b.poses.reshape(-1, 3)).as_matrix(), atol=1e-6,
+    )  # fmt: skip
+    np.testing.assert_allclose(a.trans, b.trans, atol=1e-9)
+    # A random rig is recognised as one whose zero pose is not a rest pose; CMU's is one.
+    assert rest_kind(_reframed(src, frames), smpl_rest(smpl_like_body)[0], CMU_ASF_MAP) == "motion"
+    assert rest_kind(src, smpl_rest(smpl_like_body)[0], CMU_ASF_MAP) == "zero"
+    # The data-chosen twists keep the knee a hinge about SMPL's x axis where it bends.
+    for knee in ("left_knee", "right_knee"):
+        k = a.poses[:, N[knee]]
+        bent = np.linalg.norm(k, axis=1) > np.radians(20)
+        assert bent.sum() > 50 and (np.abs(k[bent, 0]) / np.linalg.norm(k[bent], axis=1)).mean() > 0.9
+
+
+@needs_cc
+def test_retarget_cc_rig_walk_is_anatomical(smpl_like_body):
+    # The CC rig's zero pose has legs and arms pointing up; before the "motion" rest its
+    # hips came out twisted by ~170°.
+    m = load_motion(CC / "007_02.bvh", body=smpl_like_body)
+    deg = np.degrees(np.linalg.norm(m.poses, axis=-1))
+    for j in ("left_hip", "right_hip", "left_knee", "right_knee", "spine1", "spine2", "spine3", "neck"):
+        assert deg[:, N[j]].max() < 75, (j, deg[:, N[j]].max())
+    knee = m.poses[:, N["left_knee"]]
+    assert 40 < np.degrees(knee[:, 0].max() - knee[:, 0].min()) < 90  # flexion about x
+    assert np.degrees(np.linalg.norm(m.poses[:, 0] - m.poses[:1, 0], axis=-1)).max() < 60  # a straight walk
+    joints = smpl_world(m, smpl_like_body)
+    ahead = joints[:, N["left_ankle"], 2] - joints[:, N["right_ankle"], 2]
+    assert np.count_nonzero(np.diff(np.sign(ahead))) >= 2  # feet alternate
+    assert 0.8 < joints[:, 0, 1].mean() < 1.05  # pelvis at standing height, soles on the floor
 
 
 @needs_cmu

@@ -24,6 +24,19 @@ Method (global-orientation transfer with rest-direction alignment):
    with the neck's A). Joints whose source direction is degenerate (a zero-length
    source segment) use their parent's A. SMPL joints without any source joint
    get the identity local rotation.
+   Rigs from animation tools (the CC rig of ../shared/data/cmu_cc) give each bone its own
+   frame, so their all-channels-zero pose is no rest pose (legs and arms point up) and
+   the minimal rotation A_j is a guess (a 180° turn about an arbitrary axis: hips came
+   out twisted by ~170°). `rest="motion"` (chosen by `rest_kind` when a mapped segment
+   points more than 90° away from SMPL's) fixes A_j from the clip instead:
+   - a limb joint keeps A_j d_smpl ∥ d_src (positions as before) and takes the twist
+     about d_smpl that brings the clip's local rotations, summed, closest to identity
+     (max Σ_t tr(G_parent(t)ᵀ G_src(t) A_j), in closed form);
+   - leaves and the spine (whose rest curvature is the rig's own) take the whole A_j
+     that way (Kabsch);
+   - the root aligns SMPL's rest torso (pelvis→neck, hip to hip) with the source's,
+     both seen from the source root over the clip.
+   The result does not depend on the frames the bones carry (a test re-frames a CMU rig).
 3. Local rotations R_j = G_parent⁻¹ G_j, as axis-angle (scipy).
 4. Root translation: the SMPL pelvis joint follows the source point q(pelvis) (CMU: the
    ASF root / BVH Hips, the pelvis centre between the hips), in metres, unscaled:
@@ -54,6 +67,7 @@ __all__ = [
     "alignment",
     "detect_mapping",
     "minimal_rotation",
+    "rest_kind",
     "retarget",
     "retarget_rotations",
     "smpl_joint_positions",
@@ -116,7 +130,7 @@ CMU_BVH_HAHNE_MAP: dict[str, str | tuple[str, str]] = {
 # Reallusion Character Creator rig (../shared/data/cmu_cc): CMU motion re-exported from
 # iClone. Its twist, "share", finger and face bones are left out (hands stay at rest).
 CC_BASE_MAP: dict[str, str | tuple[str, str]] = {
-    "pelvis": "CC_Base_Pelvis",
+    "pelvis": "CC_Base_Hip",  # the root: the spine hangs from it; CC_Base_Pelvis carries only the legs
     "left_hip": "CC_Base_L_Thigh", "right_hip": "CC_Base_R_Thigh",
     "left_knee": "CC_Base_L_Calf", "right_knee": "CC_Base_R_Calf",
     "left_ankle": "CC_Base_L_Foot", "right_ankle": "CC_Base_R_Foot",
@@ -205,27 +219,102 @@ def _resolve(mapping: dict, src: SkeletonMotion) -> tuple[list, list]:
     return rot_idx, pt_idx
 
 
-def alignment(src: SkeletonMotion, rest_joints: np.ndarray, mapping: dict) -> np.ndarray:
-    """(24, 3, 3) rest alignments A_j (see the module docstring)."""
-    _rot_idx, pt_idx = _resolve(mapping, src)
-    A = np.zeros((24, 3, 3))
-    A[0] = np.eye(3)
+# In "motion" mode the spine's rest curvature is the rig's own (the CC rig's 5-15 cm
+# segments bend 20-40° against SMPL's): the root carries the torso's axis, and each spine
+# joint keeps the clip's mean bend at zero instead of copying its segment direction.
+_SPINE = tuple(SMPL_JOINT_NAMES.index(n) for n in ("spine1", "spine2", "spine3"))
+
+
+def rest_kind(src: SkeletonMotion, rest_joints: np.ndarray, mapping: dict) -> str:
+    """'zero' if the source's all-channels-zero pose stands like SMPL's rest, else 'motion'.
+
+    Measured on the mapped segments: every segment of a standing zero pose (CMU ASF and
+    BVH, Mixamo) lies within 90° of SMPL's rest direction; animation rigs whose bones
+    carry their own frames (the CC rig: legs and arms point up at zero) do not.
+    """
+    _, pt_idx = _resolve(mapping, src)
     for j in range(1, 24):
         c = _CHILD[j]
-        A[j] = np.eye(3) if c < 0 else A[SMPL_PARENTS[j]]
         if c < 0 or pt_idx[j] is None or pt_idx[c] is None:
             continue
         d_src = src.rest_positions[pt_idx[c]] - src.rest_positions[pt_idx[j]]
         d_smpl = rest_joints[c] - rest_joints[j]
-        if np.linalg.norm(d_src) > 1e-6 and np.linalg.norm(d_smpl) > 1e-9:
-            A[j] = minimal_rotation(d_smpl, d_src)
+        if np.linalg.norm(d_src) > 1e-6 and np.dot(d_src, d_smpl) < 0:
+            return "motion"
+    return "zero"
+
+
+def alignment(src: SkeletonMotion, rest_joints: np.ndarray, mapping: dict, rest: str = "auto") -> np.ndarray:
+    """(24, 3, 3) rest alignments A_j (see the module docstring; `rest` as in `retarget`)."""
+    if rest == "auto":
+        rest = rest_kind(src, rest_joints, mapping)
+    if rest not in ("zero", "motion"):
+        raise ValueError(f"rest must be 'auto', 'zero' or 'motion', got {rest!r}.")
+    rot_idx, pt_idx = _resolve(mapping, src)
+    A = np.zeros((24, 3, 3))
+    A[0] = np.eye(3) if rest == "zero" else _root_alignment(src, rest_joints, rot_idx, pt_idx)
+    for j in range(1, 24):
+        c, p = _CHILD[j], SMPL_PARENTS[j]
+        d_src = d_smpl = np.zeros(3)
+        if c >= 0 and pt_idx[j] is not None and pt_idx[c] is not None:
+            d_src = src.rest_positions[pt_idx[c]] - src.rest_positions[pt_idx[j]]
+            d_smpl = rest_joints[c] - rest_joints[j]
+        has_direction = np.linalg.norm(d_src) > 1e-6 and np.linalg.norm(d_smpl) > 1e-9
+        if rest == "zero":
+            A[j] = np.eye(3) if c < 0 else A[p]
+            if has_direction:
+                A[j] = minimal_rotation(d_smpl, d_src)
+        elif rot_idx[j] is not None:
+            # The parent's SMPL rotation over the clip, G_p = G_src · A_p (unmapped: its parent's).
+            q = p
+            while rot_idx[q] is None:
+                q = SMPL_PARENTS[q]
+            M = np.einsum("tba,tbc->ac", src.rotations[:, rot_idx[q]] @ A[q], src.rotations[:, rot_idx[j]])
+            limb = has_direction and j not in _SPINE
+            A[j] = _twist_closest(M, d_smpl, d_src) if limb else _closest_rotation(M)
     return A
 
 
-def retarget_rotations(src: SkeletonMotion, rest_joints: np.ndarray, mapping: dict) -> np.ndarray:
+def _root_alignment(src: SkeletonMotion, rest_joints: np.ndarray, rot_idx: list, pt_idx: list) -> np.ndarray:
+    """A_0 taking SMPL's rest torso (up: pelvis→neck, left: right hip→left hip) onto the
+    source's, both seen from the source root over the clip (its zero pose says nothing)."""
+    i = {n: SMPL_JOINT_NAMES.index(n) for n in ("pelvis", "neck", "left_hip", "right_hip")}
+    if any(pt_idx[j] is None for j in i.values()):
+        return np.eye(3)
+    q = src.positions[:, [pt_idx[i[n]] for n in ("pelvis", "neck", "left_hip", "right_hip")]]
+    G0 = src.rotations[:, rot_idx[0]]
+    src_v = [np.einsum("tba,tb->a", G0, q[:, 1] - q[:, 0]), np.einsum("tba,tb->a", G0, q[:, 2] - q[:, 3])]
+    J = rest_joints
+    smpl_v = [J[i["neck"]] - J[i["pelvis"]], J[i["left_hip"]] - J[i["right_hip"]]]
+    H = sum(np.outer(a / np.linalg.norm(a), b / np.linalg.norm(b)) for a, b in zip(smpl_v, src_v))
+    return _closest_rotation(H)
+
+
+def _closest_rotation(M: np.ndarray) -> np.ndarray:
+    """argmax_R tr(M R) over rotations (Kabsch): the R making M R closest to a multiple of I."""
+    U, _, Vt = np.linalg.svd(M)
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))])
+    return Vt.T @ D @ U.T
+
+
+def _twist_closest(M: np.ndarray, d_smpl: np.ndarray, d_src: np.ndarray) -> np.ndarray:
+    """A = A₀ R(k, φ) with A d_smpl ∥ d_src, the twist φ about k = d_smpl maximising tr(M A).
+
+    A₀ is the minimal rotation; tr(M A₀ R(k, φ)) = a cos φ + b sin φ + const with
+    a = tr N − kᵀNk, b = tr(N [k]×), N = M A₀ (Rodrigues), so φ = atan2(b, a).
+    """
+    k = d_smpl / np.linalg.norm(d_smpl)
+    A0 = minimal_rotation(d_smpl, d_src)
+    N = M @ A0
+    K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    phi = np.arctan2(np.trace(N @ K), np.trace(N) - k @ N @ k)
+    return A0 @ Rotation.from_rotvec(phi * k).as_matrix()
+
+
+def retarget_rotations(src: SkeletonMotion, rest_joints: np.ndarray, mapping: dict, rest: str = "auto") -> np.ndarray:
     """(T, 24, 3, 3) SMPL global rotations G_j = G_src · A_j (identity local if unmapped)."""
     rot_idx, _ = _resolve(mapping, src)
-    A = alignment(src, rest_joints, mapping)
+    A = alignment(src, rest_joints, mapping, rest)
     T = src.num_frames
     G = np.zeros((T, 24, 3, 3))
     for j in range(24):
@@ -258,6 +347,7 @@ def retarget(
     floor: bool = True,
     world_rotation=None,
     name: str | None = None,
+    rest: str = "auto",
 ) -> Motion:
     """Retarget `src` onto SMPL's tree for `body` (default `jaxmocap.default_body()`).
 
@@ -272,6 +362,11 @@ def retarget(
         world_rotation: 3x3 rotation from the source world frame to jaxmocap's (y up);
             default identity (right for CMU data).
         name: the Motion's name (default: the source file).
+        rest: what the source rotations are relative to. "zero": the all-channels-zero
+            pose is a standing rest pose (CMU ASF/BVH, Mixamo); "motion": it is not (rigs
+            whose bones carry their own frames, e.g. the CC rig), so each A_j's twist
+            (and the whole A_j of leaves) is the one that keeps the clip's mean local
+            rotation closest to identity; "auto" (default): `rest_kind` decides.
     """
     if body is None:
         from ..body.io import default_body
@@ -280,21 +375,21 @@ def retarget(
     if world_rotation is not None:
         src = _rotate_world(src, np.asarray(world_rotation, np.float64))
     mapping = detect_mapping(src) if mapping is None else mapping
-    rest, sole = smpl_rest(body, betas)
-    G = retarget_rotations(src, rest, mapping)
+    rest_joints, sole = smpl_rest(body, betas)
+    G = retarget_rotations(src, rest_joints, mapping, rest)
     parents = np.array(SMPL_PARENTS)
     local = np.concatenate([G[:, :1], np.swapaxes(G[:, parents[1:]], -1, -2) @ G[:, 1:]], axis=1)
     T = src.num_frames
     poses = Rotation.from_matrix(local.reshape(-1, 3, 3)).as_rotvec().reshape(T, 24, 3)
     _, pt_idx = _resolve(mapping, src)
-    trans = src.positions[:, pt_idx[0]] - rest[0]
+    trans = src.positions[:, pt_idx[0]] - rest_joints[0]
     if floor:
-        joints = smpl_joint_positions(G, rest, trans)
+        joints = smpl_joint_positions(G, rest_joints, trans)
         feet = [
             SMPL_JOINT_NAMES.index(n)
             for n in ("left_ankle", "right_ankle", "left_foot", "right_foot")
         ]
-        clearance = (rest[feet, 1] - sole).min()
+        clearance = (rest_joints[feet, 1] - sole).min()
         trans = trans + np.array([0.0, clearance - joints[:, feet, 1].min(), 0.0])
     nb = body.num_betas
     motion = Motion(
