@@ -27,6 +27,7 @@ its own share on its local devices (see `jaxmocap.app.sweep`).
 from __future__ import annotations
 
 import dataclasses
+from concurrent.futures import ThreadPoolExecutor
 from collections.abc import Sequence
 from typing import Any
 
@@ -325,12 +326,20 @@ def solve_batch(
         block = jax.tree_util.tree_map(lambda x, idx=idx: x[idx], batched)
         blocks.append(block if D == 1 else _to_device(block, device))
         consts.append((problem, max_steps) if D == 1 else _to_device((problem, max_steps), device))
-    shards = [[] for _ in devices]
-    for k in range(plan.num_chunks):
-        for d in range(D):
-            chunk = jax.tree_util.tree_map(lambda x, k=k: x[k * per : (k + 1) * per], blocks[d])
-            prob, steps = consts[d]
-            shards[d].append(_batch_jit(prob, layout, *chunk, steps, **static))
+
+    def run(d):
+        prob, steps = consts[d]
+        chunks = [jax.tree_util.tree_map(lambda x, k=k: x[k * per : (k + 1) * per], blocks[d]) for k in range(plan.num_chunks)]
+        return [_batch_jit(prob, layout, *chunk, steps, **static) for chunk in chunks]
+
+    # One host thread per device: on GPU the host waits on every LM iteration's loop
+    # condition, so a single thread would run the devices one after the other (measured
+    # 0.91x on two H200s).
+    if D == 1:
+        shards = [run(0)]
+    else:
+        with ThreadPoolExecutor(D) as pool:
+            shards = list(pool.map(run, range(D)))
     parts = [jax.tree_util.tree_map(lambda *xs: jnp.concatenate(xs), *s) if len(s) > 1 else s[0] for s in shards]
     if D == 1:
         return jax.tree_util.tree_map(lambda x: x[:B], parts[0])
