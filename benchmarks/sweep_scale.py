@@ -202,7 +202,7 @@ def main(argv=None) -> int:
         if args.sweep_summary:
             dst = Path(args.sweep_summary)
             dst.mkdir(parents=True, exist_ok=True)
-            for f in ("summary.md", "summary.csv", "summary.json", "boxplot.png", "weights.png", "cells.csv"):
+            for f in ("summary.md", "summary.csv", "summary.json", "cells.csv", *(p.name for p in root.glob("*.png"))):
                 if (root / f).exists():
                     shutil.copy(root / f, dst / f)
     out["load_average_1_5_15min_at_end"] = list(os.getloadavg())
