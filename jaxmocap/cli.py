@@ -40,10 +40,10 @@ def _add_body_option(parser: argparse.ArgumentParser, default: str = "default-lo
     )
 
 
-def _load_motion(path, fps=None, body=None):
+def _load_motion(path, fps=None, body=None, **options):
     from .motion.io import load_motion
 
-    return load_motion(path, fps=fps, body=body)
+    return load_motion(path, fps=fps, body=body, **options)
 
 
 def _positive(kind):
@@ -61,6 +61,7 @@ def _positive(kind):
 
 def _configure_inspect(p: argparse.ArgumentParser) -> None:
     p.add_argument("file", help="a motion file (.npz AMASS/jaxmocap, .amc, .bvh) or a body model (.pkl/.npz)")
+    p.add_argument("--map", help="joint map for a .bvh/.amc: a built-in rig name or a TOML/JSON file (default: detect)")
 
 
 def _is_body_file(path: Path) -> bool:
@@ -84,6 +85,8 @@ def _run_inspect(args) -> int:
     if not path.exists():
         raise FileNotFoundError(f"{path}: no such file.")
     if _is_body_file(path):
+        if args.map:
+            raise ValueError("--map applies to .bvh/.amc motion files, not to a body model.")
         from .body.io import load_body
 
         body = load_body(path)
@@ -96,7 +99,8 @@ def _run_inspect(args) -> int:
         print(f"betas        {body.num_betas} shape components")
         print(f"rest height  {np.ptp(v[:, 1]):.3f} m (template, y up)")
         return 0
-    motion = _load_motion(path)
+    rig = _describe_rig(path, args.map)
+    motion = _load_motion(path, **({"mapping": args.map} if args.map else {}))
     trans = motion.trans
     step = np.linalg.norm(np.diff(trans, axis=0), axis=1)
     ground = np.linalg.norm(np.diff(trans[:, [0, 2]], axis=0), axis=1)
@@ -110,7 +114,38 @@ def _run_inspect(args) -> int:
     print(f"root height  {trans[:, 1].min():.3f} .. {trans[:, 1].max():.3f} m (y up)")
     print(f"gender       {motion.gender}")
     print(f"betas        {betas}")
+    for line in rig:
+        print(line)
     return 0
+
+
+def _describe_rig(path: Path, mapping) -> list[str]:
+    """Lines naming the skeleton's rig and how it is retargeted (BVH and ASF/AMC only)."""
+    from .body.io import default_body
+    from .motion.retarget import OPTIONAL_JOINTS, RIGS, resolve_mapping, rest_kind, smpl_rest, strip_namespace
+
+    if path.suffix.lower() == ".bvh":
+        from .motion.bvh import load_bvh
+
+        src = load_bvh(path)
+    elif path.suffix.lower() == ".amc":
+        from .motion.asf_amc import load_asf_amc
+
+        src = load_asf_amc(path)
+    else:
+        return []
+    src = strip_namespace(src)
+    name, table = resolve_mapping(mapping, src)
+    rest = rest_kind(src, smpl_rest(default_body())[0], table)
+    label = RIGS[name][0] if name in RIGS else name
+    used = [k for k, v in table.items() if all(j in src.names for j in ((v,) if isinstance(v, str) else v))]
+    left = [n for n in OPTIONAL_JOINTS if n not in used]
+    return [
+        f"rig          {label} ({len(src.names)} source joints, {len(used)}/24 SMPL joints mapped"
+        + (f"; at rest: {', '.join(left)})" if left else ")"),
+        f"rest         {rest}: "
+        + ("the all-zero pose stands like SMPL's" if rest == "zero" else "bones carry their own frames; rest taken from the clip"),
+    ]
 
 
 # --- convert ------------------------------------------------------------------------

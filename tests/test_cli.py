@@ -44,6 +44,20 @@ def test_inspect_motion(amass_file, capsys):
     assert path == pytest.approx(0.5, abs=1e-6)  # 15 steps of 1/30 m
 
 
+@pytest.mark.skipif(find_cmu_dir() is None or not (find_cmu_dir().parent / "cmu_cc" / "005_02.bvh").is_file(), reason="needs ../shared/data/cmu_cc")
+def test_inspect_names_the_rig(capsys):
+    clip = find_cmu_dir().parent / "cmu_cc" / "005_02.bvh"
+    assert main(["inspect", str(clip)]) == 0
+    out = capsys.readouterr().out
+    assert "frames       562" in out and "fps          60" in out
+    assert "rig          Reallusion Character Creator" in out and "22/24 SMPL joints mapped" in out
+    assert "rest         motion" in out
+    assert main(["inspect", str(clip), "--map", "cc"]) == 0
+    capsys.readouterr()
+    assert main(["inspect", str(clip), "--map", "mixamo"]) != 0
+    assert "names 'Hips', which" in capsys.readouterr().err
+
+
 def test_inspect_body(body_file, capsys):
     assert main(["inspect", str(body_file)]) == 0
     out = capsys.readouterr().out

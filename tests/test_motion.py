@@ -24,7 +24,16 @@ from jaxmocap.motion import (
     save_motion,
 )
 from jaxmocap.motion.amass import Z_UP_TO_Y_UP
-from jaxmocap.motion.retarget import CMU_ASF_MAP, CMU_BVH_MAP, rest_kind, smpl_joint_positions, smpl_rest
+from jaxmocap.motion.retarget import (
+    CMU_ASF_MAP,
+    CMU_BVH_MAP,
+    MIXAMO_MAP,
+    detect_rig,
+    rest_kind,
+    smpl_joint_positions,
+    smpl_rest,
+    strip_namespace,
+)
 
 CMU = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "cmu"
 needs_cmu = pytest.mark.skipif(not (CMU / "02.asf").is_file(), reason="needs ../shared/data/cmu")
@@ -486,6 +495,87 @@ def _reframed(src, frames):
     return dataclasses.replace(
         src, rest_positions=rest, tips=np.einsum("nba,nb->na", R, src.tips), rotations=src.rotations @ R
     )
+
+
+def _write_bvh(path, names, parents, offsets, local, root_pos, extra_leaves=(), units=100.0):
+    """A BVH file (ZYX Euler channels, `units` per metre) of local rotations (T, N, 3, 3).
+
+    `extra_leaves` are (parent index, name) helper bones with random rotations: a rig's
+    twist/"share" bones, which no map names and which must not change the result.
+    """
+    rng = np.random.default_rng(1)
+    T, N = local.shape[:2]
+    kids = {j: [c for c in range(N) if parents[c] == j] for j in range(N)}
+    helpers = {j: [n for p, n in extra_leaves if p == j] for j in range(N)}
+    lines, cols = ["HIERARCHY"], []
+
+    def emit(j, depth):
+        pad = "  " * depth
+        lines.append(f"{pad}{'ROOT' if parents[j] < 0 else 'JOINT'} {names[j]}")
+        lines.append(pad + "{")
+        lines.append(f"{pad}  OFFSET " + " ".join(f"{x * units:.6f}" for x in offsets[j]))
+        chans = (["Xposition", "Yposition", "Zposition"] if parents[j] < 0 else []) + ["Zrotation", "Yrotation", "Xrotation"]
+        lines.append(f"{pad}  CHANNELS {len(chans)} " + " ".join(chans))
+        if parents[j] < 0:
+            cols.append(root_pos * units)
+        cols.append(Rotation.from_matrix(local[:, j]).as_euler("ZYX", degrees=True))
+        for c in kids[j]:
+            emit(c, depth + 1)
+        for h in helpers[j]:
+            lines.extend([f"{pad}  JOINT {h}", pad + "  {", f"{pad}    OFFSET 0.0 0.0 0.0",
+                      f"{pad}    CHANNELS 3 Zrotation Yrotation Xrotation", f"{pad}    End Site", pad + "    {",
+                          f"{pad}      OFFSET 0.0 2.0 0.0", pad + "    }", pad + "  }"])  # fmt: skip
+            cols.append(rng.uniform(-40, 40, size=(T, 3)))
+        if not kids[j] and not helpers[j]:
+            lines.extend([f"{pad}  End Site", pad + "  {", f"{pad}    OFFSET 0.0 5.0 0.0", pad + "  }"])
+        lines.append(pad + "}")
+
+    emit(0, 0)
+    values = np.concatenate(cols, axis=1)
+    lines += ["MOTION", f"Frames: {T}", "Frame Time: 0.033333"]
+    lines += [" ".join(f"{v:.6f}" for v in row) for row in values]
+    Path(path).write_text("\n".join(lines) + "\n")
+
+
+MADE_UP = {n: f"rig:B{j:02d}" for j, n in enumerate(SMPL_JOINT_NAMES)}
+
+
+def test_retarget_made_up_rig_from_a_bvh_file_with_a_toml_map(smpl_like_body, tmp_path):
+    # Known answer: a rig with SMPL's rest skeleton under other names (with a namespace,
+    # centimetres, helper bones) gives back the SMPL motion it was written from.
+    rng = np.random.default_rng(7)
+    rest, _ = smpl_rest(smpl_like_body)
+    T = 4
+    rotvec = rng.normal(scale=0.4, size=(T, 24, 3))
+    local = Rotation.from_rotvec(rotvec.reshape(-1, 3)).as_matrix().reshape(T, 24, 3, 3)
+    offsets = np.array([rest[0] * 0] + [rest[j] - rest[SMPL_PARENTS[j]] for j in range(1, 24)])
+    trans = rng.normal(scale=0.2, size=(T, 3)) + [0, 0.9, 0]
+    names = [MADE_UP[n] for n in SMPL_JOINT_NAMES]
+    helpers = [(N["left_hip"], "rig:ThighTwistL"), (N["right_knee"], "rig:KneeShareR")]
+    path = tmp_path / "made_up.bvh"
+    _write_bvh(path, names, SMPL_PARENTS, offsets, local, trans, helpers)
+    table = tmp_path / "made_up.toml"
+    table.write_text("[map]\n" + "".join(f'{k} = "{v.split(":")[1]}"\n' for k, v in MADE_UP.items()))
+    m = load_motion(path, body=smpl_like_body, mapping=table, floor=False)
+    np.testing.assert_allclose(
+        Rotation.from_rotvec(m.poses.reshape(-1, 3)).as_matrix(), local.reshape(-1, 3, 3), atol=1e-5
+    )
+    np.testing.assert_allclose(m.trans, trans - rest[0], atol=1e-5)
+    # An incomplete map names what is missing; a built-in name that does not fit fails clearly.
+    table.write_text("".join(f'{k} = "{v.split(":")[1]}"\n' for k, v in MADE_UP.items() if "knee" not in k))
+    with pytest.raises(ValueError, match=r"\['left_knee', 'right_knee'\] unmapped"):
+        load_motion(path, body=smpl_like_body, mapping=table)
+    with pytest.raises(ValueError, match="No built-in SMPL joint map"):
+        load_motion(path, body=smpl_like_body)
+
+
+def test_detect_rig_mixamo_with_namespace():
+    names = tuple(f"mixamorig:{v}" for v in MIXAMO_MAP.values())
+    src = SkeletonMotion(names, (-1,) * len(names), np.zeros((len(names), 3)), np.zeros((len(names), 3)),
+                         np.tile(np.eye(3), (1, len(names), 1, 1)), np.zeros((1, len(names), 3)), 30.0, "x")  # fmt: skip
+    assert detect_rig(strip_namespace(src))[0] == "mixamo"
+    no_fingers = dataclasses.replace(src, names=tuple(n.replace("Middle1", "Stub") for n in src.names))
+    assert detect_rig(strip_namespace(no_fingers))[0] == "mixamo"  # fingers are optional
 
 
 @needs_cmu

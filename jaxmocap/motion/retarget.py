@@ -28,7 +28,7 @@ Method (global-orientation transfer with rest-direction alignment):
    frame, so their all-channels-zero pose is no rest pose (legs and arms point up) and
    the minimal rotation A_j is a guess (a 180° turn about an arbitrary axis: hips came
    out twisted by ~170°). `rest="motion"` (chosen by `rest_kind` when a mapped segment
-   points more than 90° away from SMPL's) fixes A_j from the clip instead:
+   points more than 120° away from SMPL's) fixes A_j from the clip instead:
    - a limb joint keeps A_j d_smpl ∥ d_src (positions as before) and takes the twist
      about d_smpl that brings the clip's local rotations, summed, closest to identity
      (max Σ_t tr(G_parent(t)ᵀ G_src(t) A_j), in closed form);
@@ -61,17 +61,25 @@ from .sequence import Motion
 from .skeleton import SkeletonMotion
 
 __all__ = [
+    "CC_BASE_MAP",
     "CMU_ASF_MAP",
     "CMU_BVH_HAHNE_MAP",
     "CMU_BVH_MAP",
+    "MIXAMO_MAP",
+    "OPTIONAL_JOINTS",
+    "RIGS",
     "alignment",
     "detect_mapping",
+    "detect_rig",
+    "load_mapping",
     "minimal_rotation",
+    "resolve_mapping",
     "rest_kind",
     "retarget",
     "retarget_rotations",
     "smpl_joint_positions",
     "smpl_rest",
+    "strip_namespace",
 ]
 
 # SMPL joint -> source joint name, or (rotation joint, point joint).
@@ -143,10 +151,34 @@ CC_BASE_MAP: dict[str, str | tuple[str, str]] = {
     "left_wrist": "CC_Base_L_Hand", "right_wrist": "CC_Base_R_Hand",
 }  # fmt: skip
 
-_TABLES = (
-    ("lfemur", CMU_ASF_MAP), ("LeftHip", CMU_BVH_MAP), ("LeftUpLeg", CMU_BVH_HAHNE_MAP),
-    ("CC_Base_L_Thigh", CC_BASE_MAP),
-)  # fmt: skip
+# Mixamo (Adobe) characters, usually with a "mixamorig:" namespace, which is ignored.
+MIXAMO_MAP: dict[str, str | tuple[str, str]] = {
+    "pelvis": "Hips",
+    "left_hip": "LeftUpLeg", "right_hip": "RightUpLeg",
+    "left_knee": "LeftLeg", "right_knee": "RightLeg",
+    "left_ankle": "LeftFoot", "right_ankle": "RightFoot",
+    "left_foot": "LeftToeBase", "right_foot": "RightToeBase",
+    "spine1": "Spine", "spine2": "Spine1", "spine3": "Spine2",
+    "neck": "Neck", "head": "Head",
+    "left_collar": "LeftShoulder", "right_collar": "RightShoulder",
+    "left_shoulder": "LeftArm", "right_shoulder": "RightArm",
+    "left_elbow": "LeftForeArm", "right_elbow": "RightForeArm",
+    "left_wrist": "LeftHand", "right_wrist": "RightHand",
+    "left_hand": "LeftHandMiddle1", "right_hand": "RightHandMiddle1",
+}  # fmt: skip
+
+# Built-in rigs, tried in this order: the first whose required joints the source has.
+RIGS: dict[str, tuple[str, dict]] = {
+    "cmu_asf": ("CMU ASF/AMC skeleton", CMU_ASF_MAP),
+    "cmu_bvh": ("CMU BVH (131_01-style names)", CMU_BVH_MAP),
+    "cmu_bvh_hahne": ("CMU BVH, MotionBuilder-friendly release (B. Hahne)", CMU_BVH_HAHNE_MAP),
+    "cc": ("Reallusion Character Creator / iClone (CC_Base_*)", CC_BASE_MAP),
+    "mixamo": ("Mixamo", MIXAMO_MAP),
+}
+
+# SMPL joints a map may leave out (rigs without toes or fingers): they keep their rest
+# pose relative to the parent. Every other SMPL joint must be mapped.
+OPTIONAL_JOINTS = ("left_foot", "right_foot", "left_hand", "right_hand")
 
 # Primary child of each SMPL joint (-1 for leaves): the only child, neck for spine3.
 _CHILD = [-1] * 24
@@ -156,15 +188,82 @@ for _j, _p in enumerate(SMPL_PARENTS[1:], 1):
 _CHILD[9] = SMPL_JOINT_NAMES.index("neck")
 
 
-def detect_mapping(src: SkeletonMotion) -> dict:
-    """The built-in table whose key joint names the source has (ValueError otherwise)."""
-    for key, table in _TABLES:
-        if key in src.names:
-            return table
+def detect_rig(src: SkeletonMotion) -> tuple[str, dict]:
+    """(name, map) of the first built-in rig of `RIGS` whose required joints `src` has."""
+    names = set(src.names)
+    for name, (_, table) in RIGS.items():
+        if all(_joint(v, 0) in names and _joint(v, 1) in names for k, v in table.items() if k not in OPTIONAL_JOINTS):
+            return name, table
     raise ValueError(
-        f"No built-in SMPL joint mapping for the skeleton of {src.name or 'this motion'} "
-        f"(joints {list(src.names)[:12]}...); pass mapping={{smpl_joint: source_joint}}."
+        f"No built-in SMPL joint map fits the skeleton of {src.name or 'this motion'} "
+        f"(joints {list(src.names)[:12]}...; built-in rigs: {', '.join(RIGS)}). Pass "
+        "mapping={smpl_joint: source_joint} or the path of a TOML/JSON file holding that table "
+        "(`jaxmocap.motion.retarget.load_mapping`)."
     )
+
+
+def detect_mapping(src: SkeletonMotion) -> dict:
+    """The built-in map fitting `src` (ValueError otherwise); see `detect_rig`."""
+    return detect_rig(src)[1]
+
+
+def _joint(v, k: int) -> str:
+    return v if isinstance(v, str) else v[k]
+
+
+def load_mapping(path) -> dict:
+    """A joint map from a TOML or JSON file: {smpl_joint: source_joint or [rotation, point]}.
+
+    The table may sit at the top level or under a `[map]` table (TOML) / "map" key (JSON).
+    """
+    import json
+    import tomllib
+    from pathlib import Path
+
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no such joint-map file.")
+    try:
+        text = path.read_text()
+        table = json.loads(text) if path.suffix.lower() == ".json" else tomllib.loads(text)
+    except (ValueError, UnicodeDecodeError) as e:
+        raise ValueError(f"{path}: not a TOML/JSON joint map ({type(e).__name__}: {e}).") from e
+    table = table.get("map", table)
+    bad = {k: v for k, v in table.items() if not (isinstance(v, str) or (isinstance(v, list) and len(v) == 2 and all(isinstance(x, str) for x in v)))}
+    if bad:
+        raise ValueError(
+            f"{path}: each entry must be smpl_joint = \"source joint\" or [\"rotation joint\", \"point joint\"]; "
+            f"got {bad}."
+        )
+    return {k: v if isinstance(v, str) else tuple(v) for k, v in table.items()}
+
+
+def resolve_mapping(mapping, src: SkeletonMotion) -> tuple[str, dict]:
+    """(rig name, map) for `mapping`: None (detect), a built-in rig name, a file or a dict."""
+    from pathlib import Path
+
+    if mapping is None:
+        return detect_rig(src)
+    if isinstance(mapping, str) and mapping in RIGS:
+        return mapping, RIGS[mapping][1]
+    if isinstance(mapping, (str, Path)):
+        return str(mapping), load_mapping(mapping)
+    if isinstance(mapping, dict):
+        return "user map", mapping
+    raise TypeError(
+        f"mapping must be None, a built-in rig name ({', '.join(RIGS)}), a TOML/JSON file or a dict; "
+        f"got {type(mapping).__name__}."
+    )
+
+
+def strip_namespace(src: SkeletonMotion) -> SkeletonMotion:
+    """`src` with joint-name namespaces ("mixamorig:Hips" -> "Hips") removed, if unambiguous."""
+    import dataclasses
+
+    short = tuple(n.rsplit(":", 1)[-1] for n in src.names)
+    if short == src.names or len(set(short)) < len(short):
+        return src
+    return dataclasses.replace(src, names=short)
 
 
 def minimal_rotation(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -203,19 +302,26 @@ def _resolve(mapping: dict, src: SkeletonMotion) -> tuple[list, list]:
         raise ValueError(
             f"mapping has keys {unknown} that are not SMPL joints {list(SMPL_JOINT_NAMES)}."
         )
+    missing = [n for n in SMPL_JOINT_NAMES if n not in mapping and n not in OPTIONAL_JOINTS]
+    if missing:
+        raise ValueError(
+            f"mapping leaves SMPL joints {missing} unmapped; give each a joint of "
+            f"{src.name or 'the skeleton'} (joints: {list(src.names)}). Only {list(OPTIONAL_JOINTS)} "
+            "may be left out (they keep their rest pose)."
+        )
     rot_idx, pt_idx = [None] * 24, [None] * 24
     for k, v in mapping.items():
         j = SMPL_JOINT_NAMES.index(k)
         r, p = (v, v) if isinstance(v, str) else v
         if r not in src.names or p not in src.names:
+            if k in OPTIONAL_JOINTS:
+                continue  # a rig without toes or fingers: rest pose
             missing = r if r not in src.names else p
             raise ValueError(
                 f"mapping[{k!r}] names {missing!r}, which {src.name or 'the skeleton'} "
                 "does not have."
             )
         rot_idx[j], pt_idx[j] = src.names.index(r), src.names.index(p)
-    if rot_idx[0] is None:
-        raise ValueError("mapping must give the pelvis (the source root).")
     return rot_idx, pt_idx
 
 
@@ -228,9 +334,9 @@ _SPINE = tuple(SMPL_JOINT_NAMES.index(n) for n in ("spine1", "spine2", "spine3")
 def rest_kind(src: SkeletonMotion, rest_joints: np.ndarray, mapping: dict) -> str:
     """'zero' if the source's all-channels-zero pose stands like SMPL's rest, else 'motion'.
 
-    Measured on the mapped segments: every segment of a standing zero pose (CMU ASF and
-    BVH, Mixamo) lies within 90° of SMPL's rest direction; animation rigs whose bones
-    carry their own frames (the CC rig: legs and arms point up at zero) do not.
+    Measured on the mapped segments: every segment of a standing zero pose lies within
+    120° of SMPL's rest direction (CMU BVH's arms hang down: 90°); animation rigs whose
+    bones carry their own frames (the CC rig: legs and arms point up at zero) do not.
     """
     _, pt_idx = _resolve(mapping, src)
     for j in range(1, 24):
@@ -239,7 +345,9 @@ def rest_kind(src: SkeletonMotion, rest_joints: np.ndarray, mapping: dict) -> st
             continue
         d_src = src.rest_positions[pt_idx[c]] - src.rest_positions[pt_idx[j]]
         d_smpl = rest_joints[c] - rest_joints[j]
-        if np.linalg.norm(d_src) > 1e-6 and np.dot(d_src, d_smpl) < 0:
+        # Past 120° the minimal rotation stops meaning anything (at 180° its axis is arbitrary).
+        cos = np.dot(d_src, d_smpl) / max(np.linalg.norm(d_src) * np.linalg.norm(d_smpl), 1e-12)
+        if np.linalg.norm(d_src) > 1e-6 and cos < -0.5:
             return "motion"
     return "zero"
 
@@ -355,8 +463,12 @@ def retarget(
         src: the source motion (from `load_asf_amc` / `load_bvh`).
         body: the SMPL-layout body whose rest joints define the target bone directions.
         betas: its shape (default zeros); stored in the Motion.
-        mapping: {SMPL joint name: source joint or (rotation joint, point joint)};
-            default: the built-in table matching the source's joint names.
+        mapping: {SMPL joint name: source joint or (rotation joint, point joint)}, the
+            path of a TOML/JSON file holding that table, or a built-in rig name (`RIGS`:
+            cmu_asf, cmu_bvh, cmu_bvh_hahne, cc, mixamo); default: the first built-in rig
+            whose joints the source has. Namespaces ("mixamorig:Hips") are ignored. Every
+            SMPL joint but `OPTIONAL_JOINTS` (toes, finger bases) must be mapped; twist and
+            helper bones need no entry (the mapped joints' global rotations include them).
         fps: resample to this rate (slerp), default: the source's rate.
         floor: shift vertically so the feet touch y = 0 (see the module docstring).
         world_rotation: 3x3 rotation from the source world frame to jaxmocap's (y up);
@@ -374,7 +486,8 @@ def retarget(
         body = default_body()
     if world_rotation is not None:
         src = _rotate_world(src, np.asarray(world_rotation, np.float64))
-    mapping = detect_mapping(src) if mapping is None else mapping
+    src = strip_namespace(src)
+    _, mapping = resolve_mapping(mapping, src)
     rest_joints, sole = smpl_rest(body, betas)
     G = retarget_rotations(src, rest_joints, mapping, rest)
     parents = np.array(SMPL_PARENTS)
