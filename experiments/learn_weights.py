@@ -67,7 +67,7 @@ from jaxmocap.methods import inertial as I  # noqa: E402
 from jaxmocap.sensors import IMUErrorModel, ScenarioConfig, make_scenario  # noqa: E402
 from jaxmocap.solve import solve  # noqa: E402
 from jaxmocap.solve.batch import with_weights  # noqa: E402
-from jaxmocap.viz.demo import find_cmu_dir  # noqa: E402
+from jaxmocap.motion.io import find_cmu_dir  # noqa: E402
 
 #: Declared split: the first clip of each activity (in `sip_tables.CLIPS` order) trains.
 TRAIN = ("02_01.amc", "02_03.amc", "02_05.amc")

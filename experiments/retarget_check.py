@@ -127,7 +127,7 @@ def main(argv=None) -> int:
     (args.out / "retarget_check.json").write_text(json.dumps(result, indent=1) + "\n")
 
     # 3. One dance clip on the default body.
-    from jaxmocap.viz.demo import export_motion
+    from jaxmocap.app.demo import export_motion
 
     dance = load_motion(args.cc / args.dance, fps=30.0, body=body)
     pictures = export_motion(dance, body, args.out / "retarget_dance", fmt="glb", every=3).pictures

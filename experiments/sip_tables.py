@@ -40,7 +40,8 @@ from jaxmocap import metrics
 from jaxmocap.body import default_body, forward
 from jaxmocap.methods import inertial as I
 from jaxmocap.sensors import IMUErrorModel, ScenarioConfig, make_scenario
-from jaxmocap.viz.demo import find_cmu_dir
+from jaxmocap.motion.io import find_cmu_dir
+from jaxmocap.viz.plot import plot_error_curves
 
 #: CMU clips and the TotalCapture-style activity they stand for (Tables 3.4-3.5).
 CLIPS = {
@@ -204,9 +205,9 @@ def _plots(per_seq, curves, out: Path):
     out.mkdir(parents=True, exist_ok=True)
     dyn = next((c for c in ("02_04.amc", "02_03.amc") if c in curves), next(iter(curves)))
     c = curves[dyn]
-    metrics.plot_error_curves({k: e["mpjae"] for k, e in c.items()}, out / "sip_tables_curve_mpjae.png", 30.0,
+    plot_error_curves({k: e["mpjae"] for k, e in c.items()}, out / "sip_tables_curve_mpjae.png", 30.0,
                               "MPJAE [°]", f"CMU {dyn}: SOP / SIP (6 IMUs), IT (13 IMUs)")
-    metrics.plot_error_curves({k: e["mpjpe"] for k, e in c.items()}, out / "sip_tables_curve_mpjpe.png", 30.0,
+    plot_error_curves({k: e["mpjpe"] for k, e in c.items()}, out / "sip_tables_curve_mpjpe.png", 30.0,
                               "MPJPE [mm]", f"CMU {dyn}: SOP / SIP (6 IMUs), IT (13 IMUs)")
     per_joint = {m: np.concatenate([r["methods"][m]["_frames"]["mpjae"] for r in per_seq]) for m in ("SOP", "SIP", "IT")}
     metrics.plot_per_joint(per_joint, metrics.JOINT_SETS["totalcapture_mpjae"], out / "sip_tables_joints_mpjae.png",

@@ -160,7 +160,7 @@ def _configure_convert(p: argparse.ArgumentParser) -> None:
 
 def _run_convert(args) -> int:
     from .motion.amass import save_amass
-    from .viz.demo import resolve_body
+    from .body.io import resolve_body
 
     out = Path(args.output)
     if out.suffix.lower() != ".npz":
@@ -187,7 +187,8 @@ def _configure_export(p: argparse.ArgumentParser) -> None:
 
 
 def _run_export(args) -> int:
-    from .viz.demo import export_motion, resolve_body
+    from .app.demo import export_motion
+    from .body.io import resolve_body
 
     body = resolve_body(args.body)
     motion = _load_motion(args.motion, fps=args.fps, body=body)
@@ -216,7 +217,7 @@ def _configure_demo(p: argparse.ArgumentParser) -> None:
 
 
 def _run_demo(args) -> int:
-    from .viz.demo import run_demo
+    from .app.demo import run_demo
 
     result = run_demo(args.out, body=args.body, seconds=args.seconds, every=args.every,
                       progress=sys.stderr.isatty(), fit=not args.no_fit)
@@ -255,7 +256,7 @@ def _configure_check(p: argparse.ArgumentParser) -> None:
 
 
 def _run_check(args) -> int:
-    from .physics.cli import run_check
+    from .app.physics import run_check
 
     return run_check(args.motion, body=args.body, fps=args.fps, ground=args.ground, out=args.out)
 

@@ -16,7 +16,6 @@ per-joint errors; the `summary` helpers average them per sequence.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from pathlib import Path
 
 import jax.numpy as jnp
 import numpy as np
@@ -35,8 +34,6 @@ __all__ = [
     "mpjae",
     "pose_errors",
     "summary",
-    "plot_error_curves",
-    "plot_per_joint",
 ]
 
 _LR = lambda *names: tuple(f"{s}_{n}" for n in names for s in ("left", "right"))  # noqa: E731
@@ -179,53 +176,3 @@ def pose_errors(body, pred_poses, true_poses, betas=None, pred_trans=None, true_
 def summary(errors: dict) -> dict:
     """Per-sequence mean ± std (over frames and joints) of each per-frame error array."""
     return {k: {"mean": float(np.mean(v)), "std": float(np.std(v))} for k, v in errors.items()}
-
-
-def plot_error_curves(curves: dict, path, fps: float = 30.0, ylabel: str = "MPJAE [°]", title: str = "") -> Path:
-    """Per-frame error (mean over joints) of several methods over time, one line each.
-
-    curves: {method name: (T,) or (T, N_J) errors}.
-    """
-    from matplotlib.figure import Figure
-
-    from .viz.plot import save_figure
-
-    fig = Figure(figsize=(8, 3.2))
-    ax = fig.subplots()
-    for name, e in curves.items():
-        e = np.asarray(e)
-        e = e.mean(-1) if e.ndim == 2 else e
-        ax.plot(np.arange(len(e)) / fps, e, label=f"{name} (mean {e.mean():.1f})", lw=1.4)
-    ax.set_xlabel("time [s]")
-    ax.set_ylabel(ylabel)
-    ax.set_title(title, fontsize=10)
-    ax.grid(alpha=0.3)
-    ax.legend(frameon=False, fontsize=9)
-    fig.set_dpi(120)
-    fig.tight_layout()
-    return save_figure(fig, path)
-
-
-def plot_per_joint(errors: dict, joint_names: Sequence[str], path, ylabel: str = "MPJAE [°]", title: str = "") -> Path:
-    """Grouped bars: mean error per joint for each method. errors: {method: (T, N_J) or (N_J,)}."""
-    from matplotlib.figure import Figure
-
-    from .viz.plot import save_figure
-
-    names = list(joint_names)
-    fig = Figure(figsize=(max(6, 0.6 * len(names)), 3.4))
-    ax = fig.subplots()
-    width = 0.8 / max(len(errors), 1)
-    x = np.arange(len(names))
-    for i, (method, e) in enumerate(errors.items()):
-        e = np.asarray(e)
-        e = e.mean(0) if e.ndim == 2 else e
-        ax.bar(x + (i - (len(errors) - 1) / 2) * width, e, width, label=method)
-    ax.set_xticks(x, [n.replace("_", " ") for n in names], rotation=45, ha="right", fontsize=8)
-    ax.set_ylabel(ylabel)
-    ax.set_title(title, fontsize=10)
-    ax.grid(alpha=0.3, axis="y")
-    ax.legend(frameon=False, fontsize=9)
-    fig.set_dpi(120)
-    fig.tight_layout()
-    return save_figure(fig, path)

@@ -1,5 +1,7 @@
 """Shared fixtures: float64 on, and small random models in SMPL's exact file layout."""
 
+from pathlib import Path
+
 import jax
 import numpy as np
 import pytest
@@ -72,3 +74,24 @@ def _release_compiled_programs():
 
     jax.clear_caches()
     gc.collect()
+
+
+def assert_picture(path, min_bytes=10_000, min_colour_fraction=0.0, min_drawn_fraction=0.0):
+    """A PNG with content: not blank, some dark ink, and (if asked) enough drawn pixels
+    (anything not page-white) and enough coloured ones.
+
+    Coloured: saturation (max - min over RGB) above 0.3, i.e. plotted data rather than the
+    black, grey and white of axes, text and page.
+    """
+    import matplotlib.image
+
+    path = Path(path)
+    assert path.is_file() and path.suffix == ".png", path
+    assert path.stat().st_size > min_bytes, (path, path.stat().st_size)
+    image = matplotlib.image.imread(path)[..., :3]
+    assert image.std() > 0.05, f"{path} is blank"
+    assert (image < 0.5).mean() > 0.001, f"{path} has no dark ink"
+    drawn = (image.min(-1) < 0.9).mean()
+    assert drawn >= min_drawn_fraction, f"{path}: {drawn:.4f} of its pixels drawn, expected >= {min_drawn_fraction}"
+    colour = (image.max(-1) - image.min(-1) > 0.3).mean()
+    assert colour >= min_colour_fraction, f"{path}: {colour:.4f} of its pixels coloured, expected >= {min_colour_fraction}"

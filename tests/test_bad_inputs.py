@@ -170,7 +170,7 @@ CASES = [
     ("body-gender", lambda c: jaxmocap.load_body(c.dir / "x.pkl", gender="other"), ValueError, r"gender"),
     ("body-num-betas-zero", lambda c: jaxmocap.load_body(c.dir / "x.pkl", num_betas=0), ValueError, r"num_betas"),
     ("default-body-resolution", lambda c: jaxmocap.default_body("medium"), ValueError, r"resolution"),
-    ("resolve-body-name", lambda c: jaxmocap.viz.demo.resolve_body("default-medium"), BodyFileError, r"default-medium.*default-low, default-full, mannequin"),
+    ("resolve-body-name", lambda c: jaxmocap.body.resolve_body("default-medium"), BodyFileError, r"default-medium.*default-low, default-full, mannequin"),
     ("forward-pose-shape", lambda c: jaxmocap.forward(c.body, np.zeros((23, 3))), ValueError, r"pose"),
     ("forward-betas-long", lambda c: jaxmocap.forward(c.body, np.zeros((24, 3)), np.zeros(400)), ValueError, r"betas"),
     ("forward-trans-shape", lambda c: jaxmocap.forward(c.body, np.zeros((24, 3)), None, np.zeros(2)), ValueError, r"trans"),

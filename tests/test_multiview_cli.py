@@ -21,7 +21,7 @@ from jaxmocap.motion.amass import Z_UP_TO_Y_UP, load_amass
 from jaxmocap.motion.library import walk
 from jaxmocap.sensors.camera import project_points, ring_cameras
 from jaxmocap.sensors.keypoints import keypoint_regressor
-from jaxmocap.viz.mesh import posed_vertices
+from jaxmocap.body import posed_vertices
 
 W, H, T, FPS = 1280, 720, 9, 30.0
 EMPTY = (3, 4)  # (view, frame): camera 4 sees no one in frame 4

@@ -5,20 +5,20 @@ import numpy as np
 import pytest
 import trimesh
 
-from jaxmocap.body import forward
+from conftest import assert_picture
+
+from jaxmocap.body import forward, mannequin_body, posed_vertices
 from jaxmocap.motion import Motion
 from jaxmocap.viz import (
     MeshExportError,
     export_mesh,
     export_sequence,
-    mannequin_body,
     plot_body,
     plot_pose,
     plot_sequence,
-    posed_vertices,
     scalars_to_colors,
 )
-from jaxmocap.viz.mannequin import MANNEQUIN_JOINTS
+from jaxmocap.body.mannequin import MANNEQUIN_JOINTS
 
 T = 16  # one jit shape for the whole file (chunks of 8 or 16)
 
@@ -41,14 +41,6 @@ def motion():
 @pytest.fixture(scope="module")
 def posed(body, motion):
     return posed_vertices(body, motion, chunk=8)
-
-
-def assert_picture(path, min_bytes=10_000):
-    assert path.is_file() and path.suffix == ".png"
-    assert path.stat().st_size > min_bytes
-    image = matplotlib.image.imread(path)[..., :3]
-    assert image.std() > 0.05  # not blank
-    assert (image < 0.5).mean() > 0.001  # some dark ink on the white page
 
 
 def test_mannequin_layout(body):

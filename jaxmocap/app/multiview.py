@@ -347,7 +347,7 @@ def fit_recording(
     from ..methods.multiview import MuVSWeights, camera_data, initialise, stage_one, stage_two
     from ..sensors.keypoints import KEYPOINT_FORMATS, keypoint_regressor
     from ..sensors.triangulation import select_person
-    from ..viz.demo import resolve_body
+    from ..body.io import resolve_body
 
     if not fps > 0:
         raise ValueError(f"fps must be positive, got {fps}.")

@@ -33,7 +33,7 @@ import numpy as np
 
 from .model import SMPL_JOINT_NAMES, SMPL_PARENTS, Body, make_body
 
-__all__ = ["load_body", "save_body", "default_body", "BodyFileError"]
+__all__ = ["BODY_CHOICES", "BodyFileError", "default_body", "load_body", "resolve_body", "save_body"]
 
 _DATA = Path(__file__).parent / "data"
 _REQUIRED = ("v_template", "f", "shapedirs", "J_regressor", "weights", "kintree_table")
@@ -310,3 +310,31 @@ def default_body(resolution: str = "low", dtype=jnp.float32) -> Body:
         body = load_body(_DATA / f"default_body_{resolution}.npz", gender="neutral", dtype=dtype)
         _DEFAULT_CACHE[key] = dataclasses.replace(body, kind="default")
     return _DEFAULT_CACHE[key]
+
+
+#: Short names accepted wherever a body is asked for (or give a model file path).
+BODY_CHOICES = ("default-low", "default-full", "mannequin")
+
+
+def resolve_body(spec: str | os.PathLike | Body | None = "default-low") -> Body:
+    """A body from "default-low", "default-full", "mannequin", or a model file path.
+
+    Raises:
+        BodyFileError (a ValueError) for a missing or unreadable model file.
+    """
+    if isinstance(spec, Body):
+        return spec
+    spec = "default-low" if spec is None else spec
+    if spec in ("default-low", "default-full"):
+        return default_body(str(spec).split("-")[1])
+    if spec == "mannequin":
+        from .mannequin import mannequin_body
+
+        return mannequin_body(detail=2)
+    path = Path(spec)
+    if not path.exists() and path.suffix.lower() not in (".pkl", ".npz"):
+        raise BodyFileError(
+            f"{spec}: not a body name or a model file; use default-low, default-full, mannequin, "
+            "or the path of an SMPL / SMPL-H / SMPL-X .pkl or .npz file."
+        )
+    return load_body(spec)

@@ -180,7 +180,7 @@ def forward(body: Body, pose, betas=None, trans=None) -> BodyOutput:
         joint_rotations (..., J, 3, 3); batch axes broadcast across the inputs.
 
     Memory grows with the batch (about 1.4 GiB per 1000 frames on the full default body):
-    pose long sequences in chunks with `jaxmocap.viz.mesh.posed_vertices(body, motion,
+    pose long sequences in chunks with `jaxmocap.body.posed_vertices(body, motion,
     chunk=256)`.
     """
     pose = jnp.asarray(pose)

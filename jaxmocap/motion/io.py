@@ -10,6 +10,7 @@ Dispatch on the suffix:
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
@@ -18,7 +19,7 @@ from .._checks import check_rate
 from .sequence import Motion
 from .skeleton import MotionFileError, check_file, read_npz
 
-__all__ = ["FORMAT_VERSION", "load_motion", "save_motion"]
+__all__ = ["FORMAT_VERSION", "find_cmu_dir", "load_motion", "save_motion"]
 
 FORMAT_VERSION = 1
 
@@ -97,3 +98,15 @@ def load_motion(path, fps: float | None = None, body=None, asf=None, **retarget_
             "jaxmocap), .amc (with its .asf) or .bvh."
         )
     return motion if fps is None else motion.resample(fps)
+
+
+def find_cmu_dir() -> Path | None:
+    """The CMU clip folder: $JAXMOCAP_CMU, else `shared/data/cmu` beside the repository."""
+    env = os.environ.get("JAXMOCAP_CMU")
+    if env:
+        return Path(env) if Path(env).is_dir() else None
+    repo = Path(__file__).resolve().parents[2]
+    for candidate in (repo.parent / "shared" / "data" / "cmu", repo / "shared" / "data" / "cmu"):
+        if candidate.is_dir():
+            return candidate
+    return None

@@ -89,7 +89,7 @@ def plausibility_report(
         chunk: frames posed at once.
     """
     from ..motion.sequence import Motion
-    from ..viz.mesh import posed_vertices
+    from ..body.posed import posed_vertices
 
     if not isinstance(body, Body):
         raise ValueError(f"body must be a jaxmocap Body, got {type(body).__name__}: call plausibility_report(body, motion).")

@@ -30,7 +30,7 @@ def collect_poses(cmu_dir=None, fps: float = 30.0) -> tuple[np.ndarray, list[dic
     from ..body.io import default_body
     from ..motion import library
     from ..motion.io import load_motion
-    from ..viz.demo import find_cmu_dir
+    from ..motion.io import find_cmu_dir
 
     body = default_body("low")
     chunks, records = [], []

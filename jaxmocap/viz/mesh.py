@@ -8,23 +8,19 @@ OBJ carry no convention (most tools, e.g. MeshLab and Blender's OBJ importer wit
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable
 from pathlib import Path
 
-import jax
-import jax.numpy as jnp
 import numpy as np
 import trimesh
 
-from ..body.kinematics import forward
-from ..body.model import Body
+from .._progress import progress as show_progress
 
 __all__ = [
     "MESH_FORMATS",
     "MeshExportError",
     "export_mesh",
     "export_sequence",
-    "posed_vertices",
     "scalars_to_colors",
 ]
 
@@ -190,7 +186,7 @@ def export_sequence(
 
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    iterator: Iterable[int] = _progress(frames, progress, f"writing {fmt.upper()}")
+    iterator: Iterable[int] = show_progress(frames, progress, f"writing {fmt.upper()}")
     if fmt == "glb":
         scene = trimesh.Scene()
         for t in iterator:
@@ -203,77 +199,3 @@ def export_sequence(
         mesh = _trimesh(vertices[t], faces, colors_at(t), cmap, vmin, vmax)
         paths.append(_write(mesh, folder / f"{prefix}{t:04d}.{fmt}", fmt))
     return paths
-
-
-def _progress(items, enabled: bool, desc: str, unit: str = "frame"):
-    if not enabled:
-        return items
-    from tqdm.auto import tqdm
-
-    return tqdm(items, desc=desc, unit=unit, leave=False)
-
-
-@jax.jit
-def _forward_chunk(body: Body, pose, betas, trans):
-    out = forward(body, pose, betas, trans)
-    return out.vertices, out.joints
-
-
-def _chunk_size(n: int, max_chunk: int) -> int:
-    """The smallest power of two >= n, capped at max_chunk: few distinct jit shapes."""
-    size = 1
-    while size < min(n, max_chunk):
-        size *= 2
-    return min(size, max_chunk)
-
-
-def posed_vertices(
-    body: Body,
-    motion,
-    frames: slice | Sequence[int] | np.ndarray | None = None,
-    chunk: int = 256,
-    progress: bool = False,
-    betas=None,
-) -> tuple[np.ndarray, np.ndarray]:
-    """Pose `body` with every frame of `motion` (batched forward, jitted, chunked).
-
-    Frames are processed `chunk` at a time (padded to a power of two, so a handful of
-    shapes is ever compiled) to bound memory at about chunk·V·12 floats of skinning
-    transforms.
-
-    Args:
-        body: the body model.
-        motion: a `Motion` (poses (T, 24, 3), trans (T, 3), betas (B,)).
-        frames: which frames (slice or index array); default all.
-        chunk: frames per batched forward call.
-        progress: show a tqdm progress bar.
-        betas: shape coefficients to use instead of `motion.betas`. Either is cut to the
-            body's first `body.num_betas` components (empty means the mean shape).
-    Returns:
-        (vertices (T', V, 3), joints (T', J, 3)) as NumPy arrays in the body's dtype.
-    """
-    poses = np.asarray(motion.poses)
-    trans = np.asarray(motion.trans)
-    if frames is not None:
-        poses, trans = poses[frames], trans[frames]
-    if poses.ndim != 3 or poses.shape[1:] != (body.num_joints, 3):
-        raise ValueError(f"motion poses have shape {poses.shape}; expected (T, {body.num_joints}, 3).")
-    dtype = np.dtype(body.dtype)
-    b = np.asarray(motion.betas if betas is None else betas, dtype).reshape(-1)[: body.num_betas]
-    b = np.zeros(body.num_betas, dtype) if b.size == 0 else b
-    T = poses.shape[0]
-    V, J = body.num_vertices, body.num_joints
-    vertices = np.empty((T, V, 3), dtype)
-    joints = np.empty((T, J, 3), dtype)
-    size = _chunk_size(T, chunk)
-    for start in _progress(range(0, T, size), progress, f"posing {size} frames at a time", "batch"):
-        stop = min(start + size, T)
-        n = stop - start
-        pose = np.zeros((size, J, 3), dtype)
-        tr = np.zeros((size, 3), dtype)
-        pose[:n], tr[:n] = poses[start:stop], trans[start:stop]
-        v, j = _forward_chunk(body, jnp.asarray(pose), jnp.asarray(b), jnp.asarray(tr))
-        vertices[start:stop] = np.asarray(v)[:n]
-        joints[start:stop] = np.asarray(j)[:n]
-    return vertices, joints
-

@@ -16,6 +16,7 @@ culled and Lambert shading from a light above the camera's left shoulder.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -27,7 +28,7 @@ from matplotlib.figure import Figure
 
 from ..body.model import SMPL_JOINT_NAMES
 
-__all__ = ["plot_pose", "plot_body", "plot_sequence", "camera_basis"]
+__all__ = ["camera_basis", "plot_body", "plot_error_curves", "plot_per_joint", "plot_pose", "plot_sequence"]
 
 LEFT_COLOR = "#2b6cb0"  # the body's left side: blue
 RIGHT_COLOR = "#c53030"  # right side: red
@@ -464,4 +465,46 @@ def plot_sequence(
     ax_curve.tick_params(labelsize=8)
     duration = f"{time[-1] - time[0]:.2f} s" if fps else f"{T} frames"
     fig.suptitle(title or f"Motion: {T} frames, {duration}", fontsize=12, fontweight="bold")
+    return save_figure(fig, path)
+
+
+def plot_error_curves(curves: dict, path, fps: float = 30.0, ylabel: str = "MPJAE [°]", title: str = "") -> Path:
+    """Per-frame error (mean over joints) of several methods over time, one line each.
+
+    curves: {method name: (T,) or (T, N_J) errors}.
+    """
+    fig = Figure(figsize=(8, 3.2))
+    ax = fig.subplots()
+    for name, e in curves.items():
+        e = np.asarray(e)
+        e = e.mean(-1) if e.ndim == 2 else e
+        ax.plot(np.arange(len(e)) / fps, e, label=f"{name} (mean {e.mean():.1f})", lw=1.4)
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel(ylabel)
+    ax.set_title(title, fontsize=10)
+    ax.grid(alpha=0.3)
+    ax.legend(frameon=False, fontsize=9)
+    fig.set_dpi(120)
+    fig.tight_layout()
+    return save_figure(fig, path)
+
+
+def plot_per_joint(errors: dict, joint_names: Sequence[str], path, ylabel: str = "MPJAE [°]", title: str = "") -> Path:
+    """Grouped bars: mean error per joint for each method. errors: {method: (T, N_J) or (N_J,)}."""
+    names = list(joint_names)
+    fig = Figure(figsize=(max(6, 0.6 * len(names)), 3.4))
+    ax = fig.subplots()
+    width = 0.8 / max(len(errors), 1)
+    x = np.arange(len(names))
+    for i, (method, e) in enumerate(errors.items()):
+        e = np.asarray(e)
+        e = e.mean(0) if e.ndim == 2 else e
+        ax.bar(x + (i - (len(errors) - 1) / 2) * width, e, width, label=method)
+    ax.set_xticks(x, [n.replace("_", " ") for n in names], rotation=45, ha="right", fontsize=8)
+    ax.set_ylabel(ylabel)
+    ax.set_title(title, fontsize=10)
+    ax.grid(alpha=0.3, axis="y")
+    ax.legend(frameon=False, fontsize=9)
+    fig.set_dpi(120)
+    fig.tight_layout()
     return save_figure(fig, path)

@@ -1,62 +1,20 @@
 """The end-to-end demo (`jaxmocap demo`, `make demo`): a walk, posed, exported and pictured,
 then captured again from six simulated IMUs with SOP and SIP (von Marcard ch. 3).
 
-Also holds the small pieces the command line shares: picking a body from a short name
-(`resolve_body`) and exporting a motion's meshes and pictures (`export_motion`).
+Also exports a motion's meshes and pictures (`export_motion`, `jaxmocap export`).
 """
 
 from __future__ import annotations
 
 import dataclasses
-import os
 import time
 from pathlib import Path
 
+from ..body.io import resolve_body
 from ..body.model import Body
+from ..motion.io import find_cmu_dir
 
-__all__ = ["BODY_CHOICES", "DemoResult", "ExportResult", "export_motion", "find_cmu_dir", "resolve_body", "run_demo"]
-
-#: Short names accepted wherever a body is asked for (or give a model file path).
-BODY_CHOICES = ("default-low", "default-full", "mannequin")
-
-
-def resolve_body(spec: str | os.PathLike | Body | None = "default-low") -> Body:
-    """A body from "default-low", "default-full", "mannequin", or a model file path.
-
-    Raises:
-        BodyFileError (a ValueError) for a missing or unreadable model file.
-    """
-    if isinstance(spec, Body):
-        return spec
-    from ..body.io import BodyFileError, default_body, load_body
-
-    spec = "default-low" if spec is None else spec
-    if spec in ("default-low", "default-full"):
-        return default_body(str(spec).split("-")[1])
-    if spec == "mannequin":
-        from .mannequin import mannequin_body
-
-        return mannequin_body(detail=2)
-    path = Path(spec)
-    if not path.exists() and path.suffix.lower() not in (".pkl", ".npz"):
-        raise BodyFileError(
-            f"{spec}: not a body name or a model file; use default-low, default-full, mannequin, "
-            "or the path of an SMPL / SMPL-H / SMPL-X .pkl or .npz file."
-        )
-    return load_body(spec)
-
-
-def find_cmu_dir() -> Path | None:
-    """The CMU clip folder: $JAXMOCAP_CMU, else `shared/data/cmu` beside the repository."""
-    env = os.environ.get("JAXMOCAP_CMU")
-    if env:
-        return Path(env) if Path(env).is_dir() else None
-    repo = Path(__file__).resolve().parents[2]
-    for candidate in (repo.parent / "shared" / "data" / "cmu", repo / "shared" / "data" / "cmu"):
-        if candidate.is_dir():
-            return candidate
-    return None
-
+__all__ = ["DemoResult", "ExportResult", "export_motion", "run_demo"]
 
 @dataclasses.dataclass(frozen=True)
 class ExportResult:
@@ -84,8 +42,9 @@ def export_motion(
     with `pictures`, `filmstrip.png` (skeleton filmstrip, trajectory, root height and
     speed) and `body.png` (the shaded mesh at mid-sequence, front/side/¾ views).
     """
-    from .mesh import export_sequence, posed_vertices
-    from .plot import plot_body, plot_sequence
+    from ..body.posed import posed_vertices
+    from ..viz.mesh import export_sequence
+    from ..viz.plot import plot_body, plot_sequence
 
     out_dir = Path(out_dir)
     vertices, joints = posed_vertices(body, motion, progress=progress)
@@ -199,10 +158,12 @@ def _fit_demo(motion, body: Body, out_dir: Path, every: int, seed: int):
     import numpy as np
 
     from ..methods import inertial
-    from ..metrics import JOINT_SETS, plot_error_curves, plot_per_joint, pose_errors
+    from ..metrics import JOINT_SETS, pose_errors
+    from ..viz.plot import plot_error_curves, plot_per_joint
     from ..motion.sequence import Motion
     from ..sensors import IMUErrorModel, ScenarioConfig, make_scenario
-    from .mesh import export_sequence, posed_vertices
+    from ..body.posed import posed_vertices
+    from ..viz.mesh import export_sequence
 
     config = ScenarioConfig(
         fps=motion.fps, max_frames=motion.num_frames, imu_set="sip6", imu_errors=IMUErrorModel.xsens(), betas_std=0.0

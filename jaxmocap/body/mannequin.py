@@ -10,10 +10,14 @@ rest are small seeded random fields; pose blend shapes are zero unless asked for
 
 from __future__ import annotations
 
-import numpy as np
-import trimesh
+from typing import TYPE_CHECKING
 
-from ..body.model import SMPL_JOINT_NAMES, SMPL_PARENTS, Body, make_body
+import numpy as np
+
+if TYPE_CHECKING:
+    import trimesh
+
+from .model import SMPL_JOINT_NAMES, SMPL_PARENTS, Body, make_body
 
 __all__ = ["mannequin_body", "MANNEQUIN_JOINTS"]
 
@@ -56,6 +60,8 @@ _RADII = np.array(
 
 def _tube(a: np.ndarray, b: np.ndarray, radius: float, sections: int) -> trimesh.Trimesh:
     """An open cylinder from a to b (no caps: the joint spheres close it)."""
+    import trimesh
+
     axis = b - a
     length = float(np.linalg.norm(axis))
     cyl = trimesh.creation.cylinder(radius=radius, height=length, sections=sections)
@@ -87,6 +93,8 @@ def mannequin_body(
     Returns:
         A `Body` with kind "mannequin", 24 joints, rigid skinning weights.
     """
+    import trimesh  # only when a mannequin is built: `import jaxmocap` stays light
+
     if detail not in (0, 1, 2):
         raise ValueError(f"detail must be 0, 1 or 2, got {detail}.")
     sections = (8, 12, 20)[detail]

@@ -10,9 +10,9 @@ __all__ = ["run_check"]
 def run_check(motion_path, body="default-low", fps=None, ground="0", out=None) -> int:
     """Print the plausibility report of a motion file; with `out`, write the PNG and PLY."""
     from ..motion.io import load_motion
-    from ..viz.demo import resolve_body
-    from .mjcf import Ground
-    from .report import format_report, plausibility_report, plot_report
+    from ..body.io import resolve_body
+    from ..physics.mjcf import Ground
+    from ..physics.report import format_report, plausibility_report, plot_report
 
     if out is not None:
         # Before minutes of work, not after: an output folder that cannot be made.
