@@ -163,8 +163,8 @@ def step_agreement(T: int = 40) -> dict:
     """Structured vs dense (QR) damped step on the SIP problem: float64, and float32 inputs
     with the factor in float32 or float64, against the float64 dense step."""
     import lineax as lx
-    from optimistix._solver.levenberg_marquardt import _Damped
 
+    from jaxmocap._compat import damped_operator
     from jaxmocap.solve import Args, linear_solver
     from jaxmocap.solve.solver import residuals
 
@@ -180,7 +180,7 @@ def step_agreement(T: int = 40) -> dict:
         def solve_both(y, args=args, factor=factor, dtype=dtype):
             r, lin = jax.linearize(lambda p: residuals(p, args), y)
             struct = jax.eval_shape(lambda: y)
-            op = lx.FunctionLinearOperator(_Damped(lx.FunctionLinearOperator(lin, struct), jnp.asarray(1.0, dtype)), struct)
+            op = lx.FunctionLinearOperator(damped_operator(lx.FunctionLinearOperator(lin, struct), jnp.asarray(1.0, dtype)), struct)
             vec = (r, jax.tree_util.tree_map(jnp.zeros_like, y))
             a = lx.linear_solve(op, vec, linear_solver(args, factor), throw=False)
             b = lx.linear_solve(op, vec, lx.QR(), throw=False)

@@ -49,7 +49,7 @@ from ..body.model import SMPL_PARENTS
 from ..priors.pose_prior import PosePrior
 from ..rotation import hat, left_jacobian_inverse, matrix_to_axis_angle
 from ..solve import Term, nan_mask, second_difference
-from ..solve.structured import shift_frames
+from ..timeseries import shift_frames
 
 __all__ = [
     "GRAVITY_REACTION",

@@ -24,6 +24,7 @@ import numpy as np
 from jax import Array
 
 from .._checks import check_finite
+from .._compat import mjx_contacts
 from ..body.kinematics import forward_kinematics
 from ..body.model import Body
 from ..rotation import axis_angle_to_matrix, matrix_to_quaternion
@@ -210,7 +211,7 @@ def contact_distances_posed(
     qpos = jnp.concatenate([pos, quat], -1).reshape(-1).astype(d0.qpos.dtype)
     d = d0.replace(qpos=qpos)
     d = mjx.collision(scene.mjx_model, mjx.kinematics(scene.mjx_model, d))
-    contact = d._impl.contact
+    contact = mjx_contacts(d)
     table = jnp.asarray(np.asarray(scene.slot_table))
     slot = table[contact.geom[:, 0], contact.geom[:, 1]]
     num_slots = K + K * P + P

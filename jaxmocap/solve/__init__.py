@@ -35,7 +35,7 @@ from .solver import linear_solver as linear_solver
 from .solver import result_message as result_message
 from .solver import solve as solve
 from .structured import StructuredCholesky as StructuredCholesky
-from .structured import shift_frames as shift_frames
+
 from .unknowns import Layout as Layout
 from .unknowns import Unknown as Unknown
 from .unknowns import Windows as Windows

@@ -43,6 +43,8 @@ import optimistix as optx
 from jax import Array
 
 from .._checks import concrete
+from .._compat import DIVERGENCE, MAX_STEPS, SUCCESSFUL, result_code
+from .._compat import result_message as optx_message
 from .residuals import Problem, _sanitise
 from .structured import (
     Structure,
@@ -93,7 +95,7 @@ def result_message(result) -> str:
     """Human-readable meaning of a `Solution.result` index."""
     if int(result) == NO_OBSERVATIONS:
         return "no observations: every observation term was masked out (dropped or missing data)"
-    return optx.RESULTS._index_to_message[int(result)] or "successful"
+    return optx_message(result) or "successful"
 
 
 def _observed(args: Args) -> Array | None:
@@ -268,11 +270,10 @@ class VonMarcardLM(optx.AbstractLeastSquaresSolver):
     def init(self, fn, y, args, options, f_struct, aux_struct, tags):
         st, dtype, fdtype = self._setup(y, args)
         normal, grad, cost = _linearise(y, args, st, dtype, fdtype)
-        R = optx.RESULTS
         ok = jnp.isfinite(cost)
         return _LMState(
             normal, grad, cost, jnp.asarray(10.0, fdtype), jnp.asarray(0), ~ok,
-            jnp.where(ok, R.successful._value, R.nonlinear_divergence._value),
+            jnp.where(ok, SUCCESSFUL, DIVERGENCE),
         )  # fmt: skip
 
     def step(self, fn, y, args, options, state: _LMState, tags):
@@ -305,18 +306,17 @@ class VonMarcardLM(optx.AbstractLeastSquaresSolver):
         y_next = jtu.tree_map(lambda a, b: jnp.where(accept, a, b), y_new, y)
         step = state.step + 1
         done = converged | (step >= self.max_steps)
-        R = optx.RESULTS
-        result = jnp.where(converged, R.successful._value, R.nonlinear_max_steps_reached._value)
+        result = jnp.where(converged, SUCCESSFUL, MAX_STEPS)
         lam = jnp.where(accept, state.lam * 0.1, state.lam * 10.0)
         new = _LMState(normal, grad, cost, lam, step, done, jnp.where(done, result, state.result))
         return y_next, new, None
 
     def terminate(self, fn, y, args, options, state: _LMState, tags):
         return state.done, optx.RESULTS.where(
-            state.result == optx.RESULTS.successful._value,
+            state.result == SUCCESSFUL,
             optx.RESULTS.successful,
             optx.RESULTS.where(
-                state.result == optx.RESULTS.nonlinear_divergence._value,
+                state.result == DIVERGENCE,
                 optx.RESULTS.nonlinear_divergence,
                 optx.RESULTS.nonlinear_max_steps_reached,
             ),
@@ -488,13 +488,13 @@ def _solve_core(args: Args, params0, rtol, atol, max_steps, *, method, solver, f
             adjoint = optx.ImplicitAdjoint(linear_solver=linear_solver(args, factor_dtype, hessian=True))
         steps_cap = None if isinstance(solver, VonMarcardLM) else int(max_steps)
         sol = optx.least_squares(residuals, solver, y0, args, max_steps=steps_cap, adjoint=adjoint, throw=False)
-        value, result, steps = sol.value, sol.result._value, sol.stats["num_steps"]
+        value, result, steps = sol.value, result_code(sol.result), sol.stats["num_steps"]
     value = {k: v.astype(dtype) for k, v in value.items()}
     res = residuals(value, args)
     costs = {k: 0.5 * jnp.sum(r * r) for k, r in res.items()}
     cost = sum(jtu.tree_leaves(costs))
     # A non-finite end point is a divergence whatever the backend said.
-    result = jnp.where(jnp.isfinite(cost), result, optx.RESULTS.nonlinear_divergence._value)
+    result = jnp.where(jnp.isfinite(cost), result, DIVERGENCE)
     observed = _observed(args)
     if observed is not None:
         result = jnp.where(observed, result, NO_OBSERVATIONS)
@@ -534,7 +534,7 @@ def _jaxopt(args: Args, params0, tol, max_steps):
     )  # fmt: skip
     v, state = lm.run(flat(params0), args)
     result = jnp.where(
-        state.error <= tol, optx.RESULTS.successful._value, optx.RESULTS.nonlinear_max_steps_reached._value
+        state.error <= tol, SUCCESSFUL, MAX_STEPS
     )
     return unflat(v), result, state.iter_num
 

@@ -51,6 +51,8 @@ import lineax as lx
 import numpy as np
 from jax import Array
 
+from ..timeseries import shift_frames
+
 from .unknowns import Layout, Windows
 
 __all__ = [
@@ -59,7 +61,6 @@ __all__ = [
     "Normal",
     "Factor",
     "StructuredCholesky",
-    "shift_frames",
     "jacobian_blocks",
     "normal_equations",
     "factor",
@@ -67,19 +68,6 @@ __all__ = [
 ]
 
 _F32_SHIFT = 1e-5
-
-
-def shift_frames(x: Array, d: int) -> Array:
-    """y[s] = x[s - d] along axis 0, zero where s - d is out of range."""
-    if d == 0:
-        return x
-    T = x.shape[0]
-    if abs(d) >= T:
-        return jnp.zeros_like(x)
-    zeros = jnp.zeros((abs(d),) + x.shape[1:], x.dtype)
-    if d > 0:
-        return jnp.concatenate([zeros, x[: T - d]], 0)
-    return jnp.concatenate([x[-d:], zeros], 0)
 
 
 class Structure(eqx.Module):
