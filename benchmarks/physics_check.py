@@ -31,10 +31,11 @@ def main(argv=None) -> int:
     import trimesh
 
     from jaxmocap.body import default_body
-    from jaxmocap.physics import Ground, RigidObject, check, make_scene
+    from jaxmocap.objects import RigidObject
+    from jaxmocap.physics import Ground, check, make_scene
 
     body = default_body("low")
-    box = RigidObject.from_trimesh("box", trimesh.creation.box(extents=(0.3, 0.2, 0.3)))
+    box = RigidObject.from_trimesh(trimesh.creation.box(extents=(0.3, 0.2, 0.3)), "box")
     scene = make_scene(body, ground=Ground(-0.9), objects=[box])
     rng = np.random.default_rng(0)
     fn = jax.jit(lambda s, q, t, o: check(s, q, t, object_positions=o, chunk=args.chunk))

@@ -17,7 +17,7 @@ PACKAGE = Path(__file__).resolve().parents[1] / "jaxmocap"
 LAYERS = [
     ("maths", {"rotation", "timeseries", "_checks", "_progress", "_compat"}),
     ("models", {"body", "solve"}),
-    ("data", {"motion", "formats", "metrics"}),
+    ("data", {"motion", "formats", "metrics", "objects"}),
     ("drawing", {"viz"}),
     ("observation models", {"energies", "sensors", "priors"}),
     ("methods", {"methods"}),

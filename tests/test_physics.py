@@ -20,10 +20,9 @@ from jaxmocap.body import default_body, forward, shaped_joints
 from jaxmocap.energies.imu import InertialData, orientation_term
 from jaxmocap.energies.posed import CombinedData
 from jaxmocap.motion import save_motion
+from jaxmocap.objects import ObjectSDF, RigidObject
 from jaxmocap.physics import (
     Ground,
-    ObjectSDF,
-    RigidObject,
     check,
     detect_foot_contact,
     foot_skating,
@@ -54,7 +53,7 @@ def body():
 
 @pytest.fixture(scope="module")
 def scene(body):
-    box = RigidObject.from_trimesh("box", trimesh.creation.box(extents=BOX))
+    box = RigidObject.from_trimesh(trimesh.creation.box(extents=BOX), "box")
     return make_scene(body, ground=Ground(-0.85), objects=[box])
 
 
@@ -178,6 +177,21 @@ def test_object_sdf_near_surface():
     assert np.abs(np.asarray(sdf(jnp.asarray(p))) - exact)[near].max() < 0.01
     pen = object_penetration(jnp.asarray(p), sdf, jnp.eye(3), jnp.zeros(3))
     assert np.allclose(np.asarray(pen)[face], np.maximum(-exact[face], 0), atol=1e-6)
+    # Gradients flow through the trilinear lookup: inside near a face they point outwards.
+    g = np.asarray(jax.grad(lambda x: sdf(x).sum())(jnp.asarray(p[face])))
+    q_face = q[face]
+    normal = np.eye(3)[np.argmax(q_face, 1)] * np.sign(p[face])
+    assert (np.sum(g * normal, 1) > 0.99).all()
+
+
+def test_object_sdf_refuses_an_open_mesh_and_is_built_once():
+    box = trimesh.creation.box(extents=BOX)
+    open_box = trimesh.Trimesh(box.vertices, box.faces[:-2], process=False)
+    with pytest.raises(ValueError, match="not watertight.*fill_holes"):
+        ObjectSDF.from_trimesh(open_box)
+    obj = RigidObject.box(BOX)
+    assert obj.sdf(resolution=8) is obj.sdf(resolution=8)
+    assert len(obj.parts) == 1 and obj.parts[0][0].shape == (8, 3)  # a box is its own hull
 
 
 def test_ground_residual_gradients_and_descent(body):

@@ -13,6 +13,7 @@ import jax.numpy as jnp
 
 import jaxmocap
 from jaxmocap.body.model import SMPL_PARENTS
+from jaxmocap.objects import RigidObject
 from jaxmocap.sensors import calibration, camera, depth, errors, imu, keypoints, objects, silhouette
 from jaxmocap.sensors import scenario as sc
 
@@ -252,7 +253,7 @@ def test_object_follows_the_hand_during_contact(body):
     poses = np.zeros((T, 24, 3))
     poses[:, 17, 2] = np.linspace(0, 1.0, T)  # right arm swings down
     out = forward(body, jnp.asarray(poses), trans=jnp.asarray(np.tile([0, 0.9, 0], (T, 1))))
-    obj = objects.RigidObject.box((0.1, 0.1, 0.1))
+    obj = RigidObject.box((0.1, 0.1, 0.1))
     traj, contact = objects.contact_trajectory(
         obj, body, np.asarray(out.vertices), np.asarray(out.joints), np.asarray(out.joint_rotations), 2, 6
     )

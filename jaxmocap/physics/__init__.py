@@ -15,7 +15,6 @@ from .energies import FootStationarityResidual as FootStationarityResidual
 from .energies import GroundSupportResidual as GroundSupportResidual
 from .energies import MJXGroundResidual as MJXGroundResidual
 from .energies import ObjectPenetrationResidual as ObjectPenetrationResidual
-from .energies import ObjectSDF as ObjectSDF
 from .energies import PhysicsData as PhysicsData
 from .energies import detect_foot_contact as detect_foot_contact
 from .energies import foot_stationarity as foot_stationarity
@@ -33,7 +32,6 @@ from .metrics import foot_skating as foot_skating
 from .metrics import penetration_summary as penetration_summary
 from .mjcf import BodyGeometry as BodyGeometry
 from .mjcf import Ground as Ground
-from .mjcf import RigidObject as RigidObject
 from .mjcf import capsule_plane_distance as capsule_plane_distance
 from .mjcf import fit_body_geometry as fit_body_geometry
 from .mjcf import scene_mjcf as scene_mjcf

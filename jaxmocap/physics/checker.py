@@ -10,7 +10,7 @@ Distances are signed, metres, negative = penetration. Plane-capsule pairs (all o
 body's ground pairs) are true signed distances at any separation. Mesh pairs
 (bone-object, object-ground) are exact only when touching or penetrating; when separated
 MJX reports a placeholder (1 m in mujoco-mjx 3.17), so read them as penetration depths
-(`jnp.minimum(d, 0)`), and use the vertex SDF of `energies.ObjectSDF` for near-contact.
+(`jnp.minimum(d, 0)`), and use the vertex SDF of `jaxmocap.objects.ObjectSDF` for near-contact.
 """
 
 from __future__ import annotations
@@ -28,7 +28,8 @@ from .._compat import mjx_contacts
 from ..body.kinematics import forward_kinematics
 from ..body.model import Body
 from ..rotation import axis_angle_to_matrix, matrix_to_quaternion
-from .mjcf import FOOT_BONES, BodyGeometry, Ground, RigidObject, fit_body_geometry, scene_mjcf
+from ..objects import RigidObject
+from .mjcf import FOOT_BONES, BodyGeometry, Ground, fit_body_geometry, scene_mjcf
 
 __all__ = [
     "Scene",
@@ -125,7 +126,7 @@ def make_scene(
         body: the body model.
         betas: (B,) shape; default the mean shape.
         ground: the ground plane; default y = 0 with normal +y.
-        objects: rigid objects (`RigidObject.from_trimesh`).
+        objects: rigid objects (`jaxmocap.objects.RigidObject`).
         soles: bones that get a flat-bottomed capsule pair (default the feet).
         geometry: a ready `BodyGeometry` (then `betas` and `soles` are ignored).
     """

@@ -42,6 +42,7 @@ from jax import Array
 from ..body.kinematics import forward_kinematics
 from ..body.model import SMPL_JOINT_NAMES, SMPL_PARENTS, Body
 from ..energies.posed import posed_body
+from ..objects import ObjectSDF
 from ..solve import Term
 from .mjcf import Ground
 
@@ -54,7 +55,6 @@ __all__ = [
     "foot_stationarity",
     "FootStationarityResidual",
     "foot_stationarity_term",
-    "ObjectSDF",
     "object_penetration",
     "ObjectPenetrationResidual",
     "object_penetration_term",
@@ -217,113 +217,6 @@ def foot_stationarity_term(
 
 
 # --- objects --------------------------------------------------------------------------
-
-
-def _point_triangle_distance(p: np.ndarray, tri: np.ndarray) -> np.ndarray:
-    """Unsigned distance of points (N, 3) to triangles (F, 3, 3) -> (N, F) (Ericson 5.1.5)."""
-    a, b, c = tri[None, :, 0], tri[None, :, 1], tri[None, :, 2]
-    p = p[:, None]
-    ab, ac, ap = b - a, c - a, p - a
-    d1, d2 = (ab * ap).sum(-1), (ac * ap).sum(-1)
-    bp = p - b
-    d3, d4 = (ab * bp).sum(-1), (ac * bp).sum(-1)
-    cp = p - c
-    d5, d6 = (ab * cp).sum(-1), (ac * cp).sum(-1)
-    va, vb, vc = d3 * d6 - d5 * d4, d5 * d2 - d1 * d6, d1 * d4 - d3 * d2
-    eps = 1e-30
-    # Face region by default, then override by the Voronoi region that applies.
-    denom = va + vb + vc
-    v = vb / np.where(np.abs(denom) > eps, denom, eps)
-    w = vc / np.where(np.abs(denom) > eps, denom, eps)
-    closest = a + v[..., None] * ab + w[..., None] * ac
-    # edges
-    t_bc = (d4 - d3) / np.where(np.abs((d4 - d3) + (d5 - d6)) > eps, (d4 - d3) + (d5 - d6), eps)
-    on_bc = (va <= 0) & (d4 - d3 >= 0) & (d5 - d6 >= 0)
-    closest = np.where(on_bc[..., None], b + t_bc[..., None] * (c - b), closest)
-    t_ac = d2 / np.where(np.abs(d2 - d6) > eps, d2 - d6, eps)
-    on_ac = (vb <= 0) & (d2 >= 0) & (d6 <= 0)
-    closest = np.where(on_ac[..., None], a + t_ac[..., None] * ac, closest)
-    t_ab = d1 / np.where(np.abs(d1 - d3) > eps, d1 - d3, eps)
-    on_ab = (vc <= 0) & (d1 >= 0) & (d3 <= 0)
-    closest = np.where(on_ab[..., None], a + t_ab[..., None] * ab, closest)
-    # vertices
-    closest = np.where(((d6 >= 0) & (d5 <= d6))[..., None], c, closest)
-    closest = np.where(((d3 >= 0) & (d4 <= d3))[..., None], b, closest)
-    closest = np.where(((d1 <= 0) & (d2 <= 0))[..., None], a, closest)
-    return np.linalg.norm(p - closest, axis=-1)
-
-
-def _winding_number(p: np.ndarray, tri: np.ndarray) -> np.ndarray:
-    """Generalised winding number of points (N, 3) w.r.t. a triangle soup (F, 3, 3)."""
-    a, b, c = (tri[None, :, i] - p[:, None] for i in range(3))
-    la, lb, lc = (np.linalg.norm(x, axis=-1) for x in (a, b, c))
-    det = (a * np.cross(b, c)).sum(-1)
-    den = la * lb * lc + (a * b).sum(-1) * lc + (a * c).sum(-1) * lb + (b * c).sum(-1) * la
-    return (2 * np.arctan2(det, den)).sum(-1) / (4 * np.pi)
-
-
-class ObjectSDF(eqx.Module):
-    """Signed distance field of a rigid object on a regular grid (m; < 0 inside).
-
-    Attributes:
-        values: (Nx, Ny, Nz) signed distances at the grid points.
-        origin: (3,) position of grid point (0, 0, 0) in the object frame.
-        spacing: (3,) grid step.
-    """
-
-    values: Array
-    origin: Array
-    spacing: Array
-
-    @classmethod
-    def from_trimesh(cls, mesh, resolution: int = 32, padding: float = 0.05, chunk: int = 2048) -> ObjectSDF:
-        """Sample the mesh's signed distance on a grid covering its bounds + `padding`.
-
-        Exact point-triangle distances; inside where the winding number exceeds 1/2
-        (robust to small holes). Cost O(resolution³ · faces) in NumPy.
-        """
-        tri = np.asarray(mesh.triangles, np.float64)
-        lo, hi = np.asarray(mesh.bounds[0]) - padding, np.asarray(mesh.bounds[1]) + padding
-        axes = [np.linspace(lo[i], hi[i], resolution) for i in range(3)]
-        grid = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
-        values = np.empty(len(grid))
-        for s in range(0, len(grid), chunk):
-            p = grid[s : s + chunk]
-            dist = _point_triangle_distance(p, tri).min(1)
-            inside = _winding_number(p, tri) > 0.5
-            values[s : s + chunk] = np.where(inside, -dist, dist)
-        return cls(
-            values=jnp.asarray(values.reshape(resolution, resolution, resolution)),
-            origin=jnp.asarray(lo),
-            spacing=jnp.asarray((hi - lo) / (resolution - 1)),
-        )
-
-    def __call__(self, points: Array) -> Array:
-        """Signed distance at points (..., 3) in the object frame, trilinear.
-
-        Outside the grid the value at the clamped point plus the distance to the grid
-        box (an upper bound that keeps the sign and a useful gradient).
-        """
-        dtype = points.dtype
-        spacing, origin = self.spacing.astype(dtype), self.origin.astype(dtype)
-        shape = jnp.asarray(self.values.shape, dtype)
-        u = (points - origin) / spacing
-        uc = jnp.clip(u, 0.0, shape - 1.0)
-        outside = jnp.linalg.norm((u - uc) * spacing, axis=-1)
-        i0 = jnp.clip(jnp.floor(uc), 0, shape - 2).astype(jnp.int32)
-        f = uc - i0
-        vals = self.values.astype(dtype)
-        out = 0.0
-        for dx in (0, 1):
-            for dy in (0, 1):
-                for dz in (0, 1):
-                    w = (
-                        (f[..., 0] if dx else 1 - f[..., 0])
-                        * (f[..., 1] if dy else 1 - f[..., 1])
-                        * (f[..., 2] if dz else 1 - f[..., 2])
-                    )
-                    out = out + w * vals[i0[..., 0] + dx, i0[..., 1] + dy, i0[..., 2] + dz]
-        return out + outside
 
 
 def object_penetration(points: Array, sdf: ObjectSDF, rotation: Array, position: Array, margin: float = 0.0) -> Array:

@@ -31,7 +31,6 @@ self-collisions are never computed. The file loads in plain MuJoCo (`mj_forward`
 
 from __future__ import annotations
 
-import dataclasses
 import xml.etree.ElementTree as ET
 from collections.abc import Sequence
 
@@ -42,11 +41,11 @@ from jax import Array
 
 from ..body.kinematics import forward
 from ..body.model import Body
+from ..objects import RigidObject
 
 __all__ = [
     "Ground",
     "BodyGeometry",
-    "RigidObject",
     "fit_body_geometry",
     "scene_mjcf",
     "FOOT_BONES",
@@ -253,49 +252,6 @@ def fit_body_geometry(
         pos=f(pos), quat=f(quat), size=f(size), rest_joints=f(rest_joints),
         betas=f(np.asarray(b)), fit_rms=f(rms), bone=tuple(bones), name=tuple(names),
     )
-
-
-@dataclasses.dataclass(frozen=True)
-class RigidObject:
-    """A rigid object for the scene: a name and convex parts (vertices, faces) in its frame.
-
-    Build with `RigidObject.from_trimesh`. MJX collides mesh geoms as convex hulls, so a
-    non-convex object must be split into convex parts.
-    """
-
-    name: str
-    parts: tuple[tuple[np.ndarray, np.ndarray], ...]
-
-    @classmethod
-    def from_trimesh(cls, name: str, mesh, decompose: str = "auto") -> RigidObject:
-        """Convex parts of a trimesh mesh (object frame = the mesh's coordinates).
-
-        Args:
-            name: geom/body name prefix in the MJCF.
-            mesh: a `trimesh.Trimesh` or a list of them (already convex parts).
-            decompose: "hull" (one convex hull), "decompose" (trimesh's convex
-                decomposition; needs the optional `coacd` package), or "auto": the mesh
-                itself if convex, else decompose if available, else a ValueError.
-        """
-        import trimesh
-
-        if isinstance(mesh, (list, tuple)):
-            parts = [m.convex_hull for m in mesh]
-        elif decompose == "hull" or (decompose == "auto" and mesh.is_convex):
-            parts = [mesh.convex_hull]
-        elif decompose in ("decompose", "auto"):
-            try:
-                pieces = mesh.convex_decomposition()
-            except Exception as e:  # missing optional dependency or failed decomposition
-                raise ValueError(
-                    f"object {name!r} is not convex and convex decomposition failed ({e}); "
-                    "install `coacd`, pass decompose='hull', or pass a list of convex parts."
-                ) from None
-            pieces = pieces if isinstance(pieces, list) else [pieces]
-            parts = [trimesh.Trimesh(**p).convex_hull if isinstance(p, dict) else p.convex_hull for p in pieces]
-        else:
-            raise ValueError(f"decompose must be 'auto', 'hull' or 'decompose', got {decompose!r}.")
-        return cls(name, tuple((np.asarray(p.vertices, np.float64), np.asarray(p.faces, np.int64)) for p in parts))
 
 
 def _fmt(values) -> str:

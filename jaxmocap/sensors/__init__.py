@@ -30,7 +30,6 @@ from .imu import imu_placement as imu_placement
 from .imu import synthesize_imu as synthesize_imu
 from .keypoints import DetectorErrorModel as DetectorErrorModel
 from .keypoints import keypoint_regressor as keypoint_regressor
-from .objects import RigidObject as RigidObject
 from .scenario import CameraConfig as CameraConfig
 from .scenario import Scenario as Scenario
 from .scenario import ScenarioConfig as ScenarioConfig

@@ -1,7 +1,7 @@
 """Rigid objects with 6-DoF trajectories and hand/foot contact over marked frame ranges.
 
-For human-object scenes (InterCap, Huang ch. 5). An object is a trimesh mesh in its own
-frame (centred at its centroid); its trajectory is (R_o(t), t_o(t)) with world vertices
+For human-object scenes (InterCap, Huang ch. 5). An object is a `jaxmocap.objects.RigidObject`
+(a mesh in its own frame); its trajectory is (R_o(t), t_o(t)) with world vertices
 R_o v + t_o. `contact_trajectory` makes the object physically tied to the body:
 
   - before the contact range it rests where it will be touched (as if on a support);
@@ -24,8 +24,9 @@ import dataclasses
 import numpy as np
 
 from ..body.model import SMPL_JOINT_NAMES
+from ..objects import RigidObject
 
-__all__ = ["RigidObject", "ObjectTrajectory", "CONTACT_PARTS", "contact_vertices", "contact_trajectory"]
+__all__ = ["ObjectTrajectory", "CONTACT_PARTS", "contact_vertices", "contact_trajectory"]
 
 _J = {n: i for i, n in enumerate(SMPL_JOINT_NAMES)}
 
@@ -36,38 +37,6 @@ CONTACT_PARTS = {
     "left_foot": ("left_ankle", ("left_ankle", "left_foot"), (0.0, 0.0, 1.0)),
     "right_foot": ("right_ankle", ("right_ankle", "right_foot"), (0.0, 0.0, 1.0)),
 }
-
-
-@dataclasses.dataclass(frozen=True)
-class RigidObject:
-    """A rigid mesh: vertices (N, 3) in the object frame (centroid at 0), faces (F, 3)."""
-
-    vertices: np.ndarray
-    faces: np.ndarray
-    name: str = "object"
-
-    @classmethod
-    def from_trimesh(cls, mesh, name: str = "object") -> RigidObject:
-        v = np.asarray(mesh.vertices, np.float64)
-        return cls(v - v.mean(0), np.asarray(mesh.faces, np.int32), name)
-
-    @classmethod
-    def box(cls, extents=(0.3, 0.2, 0.2), name: str = "box") -> RigidObject:
-        import trimesh
-
-        return cls.from_trimesh(trimesh.creation.box(extents=extents), name)
-
-    @classmethod
-    def ball(cls, radius: float = 0.11, name: str = "ball") -> RigidObject:
-        import trimesh
-
-        return cls.from_trimesh(trimesh.creation.icosphere(subdivisions=2, radius=radius), name)
-
-    @classmethod
-    def cylinder(cls, radius: float = 0.04, height: float = 0.2, name: str = "bottle") -> RigidObject:
-        import trimesh
-
-        return cls.from_trimesh(trimesh.creation.cylinder(radius=radius, height=height, sections=16), name)
 
 
 @dataclasses.dataclass(frozen=True)

@@ -1,0 +1,173 @@
+"""Rigid objects: one mesh type for sensors, physics and interaction energies.
+
+Frame convention: the object frame is the mesh's own coordinates (the bundled box, ball
+and cylinder are centred at the origin). A pose (R, t) maps object points x to world
+points R x + t, in simulation (`sensors.objects.ObjectTrajectory`), in the MJX checker
+(`physics.check(..., object_rotations, object_positions)`) and in the SDF penalties
+(`physics.energies.object_penetration`) alike.
+
+Derived geometry is built lazily and kept: the convex parts MJX collides
+(`RigidObject.parts`) and signed distance grids (`RigidObject.sdf`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+from jax import Array
+from jax.scipy.ndimage import map_coordinates
+
+__all__ = ["ObjectSDF", "RigidObject"]
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class RigidObject:
+    """A rigid mesh in its own frame: vertices (N, 3), faces (F, 3), a name.
+
+    Attributes:
+        vertices, faces, name: the mesh.
+        decompose: how `parts` splits a non-convex mesh: "hull" (one convex hull),
+            "decompose" (trimesh's convex decomposition; needs the optional `coacd`),
+            or "auto" (the mesh itself if convex, else decompose).
+        given_parts: convex parts given by the user (overrides `decompose`).
+    """
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    name: str = "object"
+    decompose: str = "auto"
+    given_parts: tuple | None = None
+
+    def __post_init__(self):
+        if self.decompose not in ("auto", "hull", "decompose"):
+            raise ValueError(f"decompose must be 'auto', 'hull' or 'decompose', got {self.decompose!r}.")
+        v, f = np.asarray(self.vertices), np.asarray(self.faces)
+        if v.ndim != 2 or v.shape[1] != 3 or f.ndim != 2 or f.shape[1] != 3 or len(v) == 0:
+            raise ValueError(f"object {self.name!r}: vertices must be (N, 3) and faces (F, 3); got {v.shape} and {f.shape}.")
+
+    @classmethod
+    def from_trimesh(cls, mesh, name: str = "object", decompose: str = "auto") -> RigidObject:
+        """From a `trimesh.Trimesh`, or a list of them taken as the convex parts."""
+        import trimesh
+
+        if isinstance(mesh, (list, tuple)):
+            hulls = [m.convex_hull for m in mesh]
+            whole = trimesh.util.concatenate(list(mesh))
+            parts = tuple((np.asarray(h.vertices, np.float64), np.asarray(h.faces, np.int64)) for h in hulls)
+            return cls(np.asarray(whole.vertices, np.float64), np.asarray(whole.faces, np.int64), name, decompose, parts)
+        return cls(np.asarray(mesh.vertices, np.float64), np.asarray(mesh.faces, np.int64), name, decompose)
+
+    @classmethod
+    def box(cls, extents=(0.3, 0.2, 0.2), name: str = "box") -> RigidObject:
+        import trimesh
+
+        return cls.from_trimesh(trimesh.creation.box(extents=extents), name)
+
+    @classmethod
+    def ball(cls, radius: float = 0.11, name: str = "ball") -> RigidObject:
+        import trimesh
+
+        return cls.from_trimesh(trimesh.creation.icosphere(subdivisions=2, radius=radius), name)
+
+    @classmethod
+    def cylinder(cls, radius: float = 0.04, height: float = 0.2, name: str = "bottle") -> RigidObject:
+        import trimesh
+
+        return cls.from_trimesh(trimesh.creation.cylinder(radius=radius, height=height, sections=16), name)
+
+    @functools.cached_property
+    def mesh(self):
+        """The `trimesh.Trimesh` (built once)."""
+        import trimesh
+
+        return trimesh.Trimesh(self.vertices, self.faces, process=False)
+
+    @functools.cached_property
+    def parts(self) -> tuple[tuple[np.ndarray, np.ndarray], ...]:
+        """Convex parts (vertices, faces) in the object frame, as MJX collides them."""
+        import trimesh
+
+        if self.given_parts is not None:
+            return self.given_parts
+        mesh = self.mesh
+        if self.decompose == "hull" or (self.decompose == "auto" and mesh.is_convex):
+            hulls = [mesh.convex_hull]
+        else:
+            try:
+                pieces = mesh.convex_decomposition()
+            except Exception as e:  # missing optional dependency or failed decomposition
+                raise ValueError(
+                    f"object {self.name!r} is not convex and convex decomposition failed ({e}); "
+                    "install `coacd`, pass decompose='hull', or give a list of convex parts."
+                ) from None
+            pieces = pieces if isinstance(pieces, list) else [pieces]
+            hulls = [trimesh.Trimesh(**p).convex_hull if isinstance(p, dict) else p.convex_hull for p in pieces]
+        return tuple((np.asarray(h.vertices, np.float64), np.asarray(h.faces, np.int64)) for h in hulls)
+
+    def sdf(self, resolution: int = 32, padding: float = 0.05) -> ObjectSDF:
+        """Its signed distance field on a grid (built once per setting; see `ObjectSDF`)."""
+        return _sdf(self, int(resolution), float(padding))
+
+
+@functools.lru_cache(maxsize=32)
+def _sdf(obj: RigidObject, resolution: int, padding: float) -> ObjectSDF:
+    return ObjectSDF.from_trimesh(obj.mesh, resolution, padding)
+
+
+class ObjectSDF(eqx.Module):
+    """Signed distance field of a rigid object on a regular grid (m; < 0 inside).
+
+    Attributes:
+        values: (Nx, Ny, Nz) signed distances at the grid points.
+        origin: (3,) position of grid point (0, 0, 0) in the object frame.
+        spacing: (3,) grid step.
+    """
+
+    values: Array
+    origin: Array
+    spacing: Array
+
+    @classmethod
+    def from_trimesh(cls, mesh, resolution: int = 32, padding: float = 0.05) -> ObjectSDF:
+        """Sample the mesh's signed distance on a grid covering its bounds + `padding`.
+
+        Distances and inside/outside from trimesh (`proximity.signed_distance`: exact
+        closest points, ray-parity inside test), so the mesh must be watertight.
+        """
+        import trimesh
+
+        if not mesh.is_watertight:
+            raise ValueError(
+                "the object mesh is not watertight, so inside and outside are undefined for its "
+                "signed distance; repair it (trimesh: mesh.fill_holes(), or use mesh.convex_hull)."
+            )
+        lo, hi = np.asarray(mesh.bounds[0]) - padding, np.asarray(mesh.bounds[1]) + padding
+        axes = [np.linspace(lo[i], hi[i], resolution) for i in range(3)]
+        grid = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
+        values = -trimesh.proximity.signed_distance(mesh, grid)  # trimesh: positive inside
+        return cls(
+            values=jnp.asarray(values.reshape(resolution, resolution, resolution)),
+            origin=jnp.asarray(lo),
+            spacing=jnp.asarray((hi - lo) / (resolution - 1)),
+        )
+
+    def __call__(self, points: Array) -> Array:
+        """Signed distance at points (..., 3) in the object frame, trilinear.
+
+        Outside the grid the value at the clamped point plus the distance to the grid
+        box (an upper bound that keeps the sign and a useful gradient).
+        """
+        dtype = points.dtype
+        spacing, origin = self.spacing.astype(dtype), self.origin.astype(dtype)
+        shape = jnp.asarray(self.values.shape, dtype)
+        u = (points - origin) / spacing
+        uc = jnp.clip(u, 0.0, shape - 1.0)
+        d2 = jnp.sum(((u - uc) * spacing) ** 2, -1)
+        # Zero inside the grid, where a plain norm would have a NaN gradient.
+        outside = jnp.where(d2 > 0, jnp.sqrt(jnp.where(d2 > 0, d2, 1.0)), 0.0)
+        inside = map_coordinates(self.values.astype(dtype), list(jnp.moveaxis(uc, -1, 0)), order=1, mode="nearest")
+        return inside + outside
