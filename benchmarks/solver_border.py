@@ -70,7 +70,8 @@ from _common import machine, peak_memory_bytes, write_json  # noqa: E402
 import jaxmocap  # noqa: E402
 from jaxmocap.body import forward_kinematics, shaped_joints  # noqa: E402
 from jaxmocap.rotation import axis_angle_to_matrix, matrix_to_axis_angle  # noqa: E402
-from jaxmocap.solve import Problem, Term, Windows, frame, second_difference, sequence, solve, window  # noqa: E402
+from jaxmocap.solve import Problem, Term, Windows, frame, sequence, solve, window  # noqa: E402
+from jaxmocap.timeseries import second_difference  # noqa: E402
 
 SENSOR_JOINTS = (0, 15, 18, 19, 4, 5)  # pelvis, head, left/right elbow (lower arm), knees (lower leg)
 DT = 1.0 / 60.0

@@ -7,11 +7,15 @@ series behind a double `where`, so values *and gradients* stay finite at the ide
 
 Conventions: quaternions are (w, x, y, z) with w >= 0 after `quaternion_from_matrix`;
 axis-angle vectors are ω = θ·axis with θ in [0, π]; matrices act on column vectors.
+
+Host twins (NumPy in, NumPy out, float64, through SciPy) sit at the end for code that runs
+once per sequence outside JAX (sensor error models, file readers): `host_exp`, `host_log`.
 """
 
 from __future__ import annotations
 
 import jax.numpy as jnp
+import numpy as np
 from jax import Array
 
 __all__ = [
@@ -30,6 +34,9 @@ __all__ = [
     "rotation_about_axis",
     "left_jacobian",
     "left_jacobian_inverse",
+    "log_small",
+    "host_exp",
+    "host_log",
 ]
 
 # Below this θ² the Taylor branch is used; its truncation error (θ⁶ terms) is far below
@@ -247,3 +254,39 @@ def sixd_to_matrix(sixd: Array) -> Array:
 def geodesic_angle(r1: Array, r2: Array) -> Array:
     """Angle ‖log(R₁ R₂ᵀ)‖ in radians (MPJAE, von Marcard eq. 2.74).  -> (...,)."""
     return jnp.linalg.norm(matrix_to_axis_angle(r1 @ jnp.swapaxes(r2, -1, -2)), axis=-1)
+
+
+def log_small(R: Array) -> Array:
+    """log(R)^∨ for rotations with angle θ < π - 0.05, cheap and AD-safe: (..., 3, 3) -> (..., 3).
+
+    θ = atan2(sin θ, cos θ), ω = θ / (2 sin θ) (R - Rᵀ)^∨ (von Marcard eq. 2.15-2.16), with
+    its Taylor series near θ = 0. For joint angles (limited to < 170°) and small residual
+    rotations, where it is several times cheaper than `matrix_to_axis_angle` (the general one).
+    """
+    v = jnp.stack([R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]], -1)
+    c = jnp.clip(0.5 * (R[..., 0, 0] + R[..., 1, 1] + R[..., 2, 2] - 1.0), -1.0 + 1e-6, 1.0)
+    s2 = 0.25 * jnp.sum(v * v, -1)  # sin² θ
+    small = s2 < 1e-6
+    s = jnp.sqrt(jnp.where(small, 1.0, s2))
+    theta = jnp.arctan2(s, c)
+    factor = jnp.where(small, 0.5 + s2 / 12.0, theta / (2.0 * s))
+    return factor[..., None] * v
+
+
+# --- host twins ---------------------------------------------------------------------------
+
+
+def host_exp(omega) -> np.ndarray:
+    """exp(ω^) on the host: (..., 3) -> (..., 3, 3), float64 (SciPy)."""
+    from scipy.spatial.transform import Rotation
+
+    v = np.asarray(omega, np.float64)
+    return Rotation.from_rotvec(v.reshape(-1, 3)).as_matrix().reshape(*v.shape, 3)
+
+
+def host_log(matrix) -> np.ndarray:
+    """log(R)^∨ on the host: (..., 3, 3) -> (..., 3), float64 (SciPy)."""
+    from scipy.spatial.transform import Rotation
+
+    R = np.asarray(matrix, np.float64)
+    return Rotation.from_matrix(R.reshape(-1, 3, 3)).as_rotvec().reshape(*R.shape[:-1])

@@ -25,12 +25,12 @@ from jaxmocap.solve import (
     Term,
     nan_mask,
     pad_sequences,
-    second_difference,
     result_message,
     solve,
     solve_batch,
 )
 from jaxmocap.solve import frame, linear_solver, sequence, window
+from jaxmocap.timeseries import second_difference
 from jaxmocap.solve.solver import residuals
 from jaxmocap.solve.unknowns import to_manifold
 

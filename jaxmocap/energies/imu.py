@@ -47,9 +47,9 @@ from jax import Array
 from ..body.kinematics import chain_transforms, mat3_apply, mat3_mul
 from ..body.model import SMPL_PARENTS
 from ..priors.pose_prior import PosePrior
-from ..rotation import hat, left_jacobian_inverse, matrix_to_axis_angle
-from ..solve import Term, nan_mask, second_difference
-from ..timeseries import shift_frames
+from ..rotation import hat, left_jacobian_inverse, log_small, matrix_to_axis_angle
+from ..solve import Term, nan_mask
+from ..timeseries import second_difference, shift_frames
 
 __all__ = [
     "GRAVITY_REACTION",
@@ -101,23 +101,6 @@ def global_acceleration(orientation: Array, acceleration: Array) -> Array:
     """a^g = R_s^g a^s - g^g (eq. 3.9): (..., 3, 3), (..., 3) -> (..., 3)."""
     g = jnp.asarray(GRAVITY_REACTION, acceleration.dtype)
     return jnp.einsum("...ab,...b->...a", orientation, acceleration) - g
-
-
-def log_rotation(R: Array) -> Array:
-    """log(R)^∨ for rotations with angle θ < π - 0.05, cheap and AD-safe: (..., 3, 3) -> (..., 3).
-
-    θ = acos((tr R - 1)/2), ω = θ / (2 sin θ) (R - Rᵀ)^∨ (von Marcard eq. 2.15-2.16), with
-    its Taylor series near θ = 0. Joint angles (limited to < 170°) and the small residual
-    rotations of E_ori stay clear of π; `rotation.matrix_to_axis_angle` is the general one.
-    """
-    v = jnp.stack([R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]], -1)
-    c = jnp.clip(0.5 * (R[..., 0, 0] + R[..., 1, 1] + R[..., 2, 2] - 1.0), -1.0 + 1e-6, 1.0)
-    s2 = 0.25 * jnp.sum(v * v, -1)  # sin² θ
-    small = s2 < 1e-6
-    s = jnp.sqrt(jnp.where(small, 1.0, s2))
-    theta = jnp.arctan2(s, c)
-    factor = jnp.where(small, 0.5 + s2 / 12.0, theta / (2.0 * s))
-    return factor[..., None] * v
 
 
 class OrientationResidual(eqx.Module):
@@ -225,7 +208,7 @@ def _chain_blocks(parents, bones, R, block, with_joint=False) -> Array:
 
 def _joint_angles(local: Array) -> Array:
     """x_t: the 69 axis-angle coordinates of joints 1..23, (T, 24, 3, 3) -> (T, 69)."""
-    return log_rotation(local[:, 1:]).reshape(local.shape[0], -1)
+    return log_small(local[:, 1:]).reshape(local.shape[0], -1)
 
 
 #: The prior terms read the 23 non-root joints.

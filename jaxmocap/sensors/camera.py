@@ -16,7 +16,7 @@ import numpy as np
 from jax import Array
 from scipy.ndimage import gaussian_filter1d
 
-from .errors import _exp
+from ..rotation import host_exp
 from .imu import IMUReadings, imu_from_trajectory
 
 __all__ = [
@@ -145,7 +145,7 @@ def handheld_trajectory(
     eyes = eyes + _smooth_noise(rng, (T, 3), position_shake, 0.5 * fps)
     R, t = look_at(eyes, aim)
     tremor = _smooth_noise(rng, (T, 3), np.radians(rotation_shake_degrees), 0.1 * fps)
-    R = _exp(tremor) @ R  # about the camera's own axes
+    R = host_exp(tremor) @ R  # about the camera's own axes
     t = -np.einsum("tab,tb->ta", R, eyes)
     return R, t
 

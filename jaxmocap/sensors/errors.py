@@ -26,9 +26,9 @@ import dataclasses
 
 import equinox as eqx
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from ..body.kinematics import forward
+from ..rotation import host_exp, host_log
 from .imu import GRAVITY, IMUPlacement, IMUReadings, imu_from_body_output
 
 __all__ = [
@@ -142,23 +142,12 @@ class MeasuredIMU:
 def random_rotations(rng: np.random.Generator, std: float, shape=()) -> np.ndarray:
     """Rotations exp(n^) with n ~ N(0, std² I): (*shape, 3, 3)."""
     n = rng.normal(scale=std, size=(*shape, 3)) if std > 0 else np.zeros((*shape, 3))
-    return _exp(n)
-
-
-# Host-side (SciPy) rotation maps: error models run once per sequence on NumPy arrays.
-def _exp(v):
-    v = np.asarray(v, np.float64)
-    return Rotation.from_rotvec(v.reshape(-1, 3)).as_matrix().reshape(*v.shape, 3)
-
-
-def _log(R):
-    R = np.asarray(R, np.float64)
-    return Rotation.from_matrix(R.reshape(-1, 3, 3)).as_rotvec().reshape(*R.shape[:-1])
+    return host_exp(n)
 
 
 def _rotation_y(angle):
     angle = np.asarray(angle, np.float64)
-    return _exp(np.stack([np.zeros_like(angle), angle, np.zeros_like(angle)], -1))
+    return host_exp(np.stack([np.zeros_like(angle), angle, np.zeros_like(angle)], -1))
 
 
 def _walk(rng, T, shape, std0, walk, fps):
@@ -226,7 +215,7 @@ def _resample(readings: IMUReadings, shift_frames: np.ndarray) -> tuple[np.ndarr
     k1 = np.minimum(k + 1, T - 1)
     cols = np.arange(R.shape[1])[None, :]
     R0, R1 = R[k, cols], R[k1, cols]
-    R_t = R0 @ _exp(s * _log(np.swapaxes(R0, -1, -2) @ R1))
+    R_t = R0 @ host_exp(s * host_log(np.swapaxes(R0, -1, -2) @ R1))
     lerp = lambda x: (1 - s) * x[k, cols] + s * x[k1, cols]  # noqa: E731
     return R_t, lerp(np.asarray(readings.acceleration)), lerp(np.asarray(readings.angular_velocity))
 

@@ -23,7 +23,6 @@ from .residuals import Problem as Problem
 from .residuals import RobustLoss as RobustLoss
 from .residuals import Term as Term
 from .residuals import nan_mask as nan_mask
-from .residuals import second_difference as second_difference
 from .solver import METHODS as METHODS
 from .solver import NO_OBSERVATIONS as NO_OBSERVATIONS
 from .solver import check_bandwidths as check_bandwidths

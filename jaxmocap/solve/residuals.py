@@ -50,7 +50,6 @@ __all__ = [
     "Term",
     "Params",
     "Problem",
-    "second_difference",
     "nan_mask",
 ]
 
@@ -128,16 +127,6 @@ class Huber(RobustLoss):
         safe = jnp.where(inner, self.delta**2, s)
         outer = 2.0 * self.delta / jnp.sqrt(safe) - self.delta**2 / safe
         return jnp.sqrt(jnp.where(inner, 1.0, outer))
-
-
-def second_difference(x: Array) -> Array:
-    """x[t-1] - 2 x[t] + x[t+1] along axis 0, edge rows from edge padding.  (T, ...) -> (T, ...).
-
-    The numerator of the central finite-difference acceleration (von Marcard eq. 3.10);
-    divide by dt². Rows 0 and T-1 are placeholders that a bandwidth-1 `Term` drops.
-    """
-    padded = jnp.concatenate([x[:1], x, x[-1:]], axis=0)
-    return padded[:-2] - 2.0 * padded[1:-1] + padded[2:]
 
 
 def nan_mask(observation: Array, axis: int | tuple[int, ...] = -1) -> Array:
