@@ -18,7 +18,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxmocap.app.sweep_methods import FailedItem
-from jaxmocap.solve import Problem, Term, second_difference, solve_batch
+from jaxmocap.solve import Problem, Term, solve_batch
+from jaxmocap.timeseries import second_difference
 
 
 @dataclasses.dataclass

@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 
 import jaxmocap
-from jaxmocap import metrics, sensors
+from jaxmocap import formats, metrics, sensors
 from jaxmocap.body.io import BodyFileError
 from jaxmocap.methods import inertial as I
 from jaxmocap.motion import Motion, MotionFileError, load_motion
@@ -154,10 +154,10 @@ CASES = [
     ("motion-resample-negative", lambda c: c.motion.resample(-30), ValueError, r"fps"),
     ("save-amass-layout", lambda c: jaxmocap.motion.save_amass(c.motion, c.dir / "o.npz", layout="smplx"), ValueError, r"layout"),
     ("scenario-file-text", lambda c: sensors.load_scenario(c.file("scen.npz", "text")), MotionFileError, r"scen\.npz"),
-    ("dip-not-pickle", lambda c: sensors.load_dip(c.file("dip.pkl", "hello")), MotionFileError, r"dip\.pkl: not a DIP-IMU pickle"),
-    ("dip-a-list", lambda c: sensors.load_dip(c.pickle("list.pkl", [1, 2])), MotionFileError, r"list\.pkl.*list"),
-    ("dip-missing-keys", lambda c: sensors.load_dip(c.pickle("keys.pkl", {"gt": np.zeros((3, 72))})), MotionFileError, r"keys\.pkl: 'imu_ori'"),
-    ("dip-code-in-pickle", lambda c: sensors.load_dip(c.pickle("evil.pkl", _Evil())), MotionFileError, r"evil\.pkl.*refusing"),
+    ("dip-not-pickle", lambda c: formats.load_dip(c.file("dip.pkl", "hello")), MotionFileError, r"dip\.pkl: not a DIP-IMU pickle"),
+    ("dip-a-list", lambda c: formats.load_dip(c.pickle("list.pkl", [1, 2])), MotionFileError, r"list\.pkl.*list"),
+    ("dip-missing-keys", lambda c: formats.load_dip(c.pickle("keys.pkl", {"gt": np.zeros((3, 72))})), MotionFileError, r"keys\.pkl: 'imu_ori'"),
+    ("dip-code-in-pickle", lambda c: formats.load_dip(c.pickle("evil.pkl", _Evil())), MotionFileError, r"evil\.pkl.*refusing"),
     # --- body models ---------------------------------------------------------------------
     ("body-missing", lambda c: jaxmocap.load_body(c.dir / "SMPL_NEUTRAL.pkl"), BodyFileError, r"SMPL_NEUTRAL\.pkl: no such file"),
     ("body-suffix", lambda c: jaxmocap.load_body(c.file("model.obj", "v 0 0 0")), BodyFileError, r"model\.obj.*unknown model file type"),
@@ -371,7 +371,8 @@ def test_first_complete_frame():
 
 
 def test_bandwidth_check_accepts_honest_terms():
-    from jaxmocap.solve import measure_bandwidths, second_difference
+    from jaxmocap.solve import measure_bandwidths
+    from jaxmocap.timeseries import second_difference
 
     honest = Problem([Term("fit", lambda p, d: p["x"] - 1.0), Term("smooth", lambda p, d: second_difference(p["x"]), bandwidth=1)])
     assert measure_bandwidths(honest, {"x": jnp.zeros((9, 2))}) == {"fit": 0, "smooth": 1}

@@ -29,7 +29,7 @@ from jaxmocap.motion import MotionFileError  # noqa: E402
 from jaxmocap.motion.amass import load_amass  # noqa: E402
 from jaxmocap.motion.asf_amc import load_asf_amc  # noqa: E402
 from jaxmocap.motion.bvh import load_bvh  # noqa: E402
-from jaxmocap.sensors.scenario import load_dip  # noqa: E402
+from jaxmocap.formats.dip import load_dip  # noqa: E402
 
 CMU = Path(__file__).resolve().parents[2] / "shared" / "data" / "cmu"
 # JAXMOCAP_FUZZ_EXAMPLES=2000 explores further with fresh random examples (a long run).

@@ -13,6 +13,7 @@ import jax.numpy as jnp
 
 import jaxmocap
 from jaxmocap.body.model import SMPL_PARENTS
+from jaxmocap.formats.dip import load_dip
 from jaxmocap.objects import RigidObject
 from jaxmocap.sensors import calibration, camera, depth, errors, imu, keypoints, objects, silhouette
 from jaxmocap.sensors import scenario as sc
@@ -316,7 +317,7 @@ def test_scenario_save_load_and_dip_layout(scene, tmp_path):
     for k in s.arrays:
         np.testing.assert_array_equal(loaded[k], s[k])
     paths = sc.save_dip(s, tmp_path / "dip")
-    d = sc.load_dip(paths[0])
+    d = load_dip(paths[0])
     n = int(s["length"][0])
     assert d["imu_ori"].shape == (n, 17, 3, 3) and d["imu_acc"].shape == (n, 17, 3) and d["gt"].shape == (n, 72)
     first = np.flatnonzero(np.isfinite(d["imu_ori"]).all((1, 2, 3)))[0]

@@ -23,7 +23,8 @@ import pytest
 
 from jaxmocap.app import SweepConfigError, run_sweep, validate_config, variants
 from jaxmocap.app.sweep import Store
-from jaxmocap.solve import Problem, Term, length_buckets, plan_batch, second_difference, solve_batch
+from jaxmocap.solve import Problem, Term, length_buckets, plan_batch, solve_batch
+from jaxmocap.timeseries import second_difference
 
 ROOT = Path(__file__).resolve().parent.parent
 ENV = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), str(ROOT / "tests")]), "JAX_PLATFORMS": "cpu"}

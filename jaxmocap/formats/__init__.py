@@ -1,16 +1,18 @@
-"""Real-format input: multi-camera calibrations and OpenPose keypoints (issue 17, item 4).
+"""Real-format input: multi-camera calibrations, OpenPose keypoints, DIP-IMU pickles.
 
 The data layer: readers and writers of the files labs have, checked and converted to one
 convention; nothing here imports from sensors, energies or methods.
 """
 
 from . import calibration as calibration
+from . import dip as dip
 from . import openpose as openpose
 from .calibration import FORMATS as FORMATS
 from .calibration import CalibratedCamera as CalibratedCamera
 from .calibration import CalibrationError as CalibrationError
 from .calibration import load_calibration as load_calibration
 from .calibration import save_calibration as save_calibration
+from .dip import load_dip as load_dip
 from .openpose import KEYPOINT_COUNTS as KEYPOINT_COUNTS
 from .openpose import KeypointFileError as KeypointFileError
 from .openpose import KeypointRecording as KeypointRecording

@@ -233,7 +233,7 @@ def from_dip(path_or_dict, body: Body, bones, vertices, pose0=None, fps: float =
         if missing:
             raise ValueError(f"path_or_dict misses key(s) {missing}; a DIP-IMU dict has imu_ori, imu_acc, gt.")
     else:
-        from ..sensors.scenario import load_dip
+        from ..formats.dip import load_dip
 
         d = load_dip(path_or_dict)
     ori, acc = np.asarray(d["imu_ori"]), np.asarray(d["imu_acc"])

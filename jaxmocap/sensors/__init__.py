@@ -33,7 +33,6 @@ from .keypoints import keypoint_regressor as keypoint_regressor
 from .scenario import CameraConfig as CameraConfig
 from .scenario import Scenario as Scenario
 from .scenario import ScenarioConfig as ScenarioConfig
-from .scenario import load_dip as load_dip
 from .scenario import load_scenario as load_scenario
 from .scenario import make_scenario as make_scenario
 from .scenario import save_dip as save_dip

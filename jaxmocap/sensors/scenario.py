@@ -38,7 +38,6 @@ C views, K keypoints, D detection slots, M depth points; only those configured e
 from __future__ import annotations
 
 import dataclasses
-import io
 import json
 import os
 import pickle
@@ -70,7 +69,6 @@ __all__ = [
     "save_scenario",
     "load_scenario",
     "save_dip",
-    "load_dip",
     "resolve_motion",
 ]
 
@@ -594,42 +592,3 @@ def _global_rotations(poses):
     local = axis_angle_to_matrix(jnp.asarray(poses))
     R, _ = forward_kinematics(SMPL_PARENTS, local, jnp.zeros((*poses.shape[:-2], 24, 3), local.dtype))
     return R
-
-
-class _DipUnpickler(pickle._Unpickler):
-    """Unpickles numpy arrays and containers only: a pickle naming anything else would run code.
-
-    The pure-Python unpickler keeps its memo in a dict; the C one grows an array to the
-    largest memo index in the file, so one damaged byte could ask for gigabytes."""
-
-    def find_class(self, module, name):
-        if module.split(".")[0] == "numpy" or (module, name) in (
-            ("copyreg", "_reconstructor"), ("_codecs", "encode"), ("builtins", "object"),
-        ):
-            return super().find_class(module, name)
-        raise pickle.UnpicklingError(f"refusing to load {module}.{name}")
-
-
-def load_dip(path) -> dict:
-    """Read a DIP-IMU-layout pickle (ours or the original; latin1 for Python-2 pickles).
-
-    Raises:
-        FileNotFoundError, or MotionFileError (a ValueError) naming the file when it is not
-        a DIP pickle. Only numpy arrays and plain containers are unpickled.
-    """
-    from ..motion.skeleton import MotionFileError, check_file
-
-    path = check_file(path)
-    try:
-        data = _DipUnpickler(io.BytesIO(path.read_bytes()), encoding="latin1").load()
-    except Exception as e:  # a non-pickle or a damaged one can raise almost anything
-        raise MotionFileError(
-            f"{path}: not a DIP-IMU pickle ({type(e).__name__}: {e}); expected a pickled dict "
-            "with imu_ori, imu_acc and gt."
-        ) from e
-    if not isinstance(data, dict):
-        raise MotionFileError(f"{path}: the pickle holds a {type(data).__name__}, not a DIP-IMU dict.")
-    for key, shape in (("imu_ori", (17, 3, 3)), ("imu_acc", (17, 3)), ("gt", (72,))):
-        if key not in data or np.shape(data[key])[1:] != shape:
-            raise MotionFileError(f"{path}: '{key}' missing or not (N, {', '.join(map(str, shape))}).")
-    return data
