@@ -28,7 +28,8 @@ jax.config.update("jax_enable_x64", True)
 from jaxmocap.body import default_body, forward  # noqa: E402
 from jaxmocap.motion import load_motion  # noqa: E402
 from jaxmocap.physics import Ground, detect_foot_contact, ground_support, make_scene  # noqa: E402
-from jaxmocap.physics.energies import FOOT_JOINTS, foot_stationarity  # noqa: E402
+from jaxmocap.body.model import SMPL_FEET  # noqa: E402
+from jaxmocap.physics.energies import foot_stationarity  # noqa: E402
 from jaxmocap.physics.report import estimate_ground_height, plausibility_report  # noqa: E402
 
 
@@ -70,7 +71,7 @@ def main(argv=None) -> int:
     trans += drift
     noisy = truth.replace(poses=poses, trans=trans, name="noisy")
 
-    foot_ids = np.asarray([body.joint_index(n) for n in FOOT_JOINTS])
+    foot_ids = np.asarray([body.joint_index(n) for n in SMPL_FEET])
     j_noisy = np.asarray(forward(body, poses, None, trans).joints)[:, foot_ids]
     # Heights relative to the noisy motion's own floor (it sits 3 cm low): detect from the data.
     own_floor = Ground(float(np.percentile(j_noisy[..., 1].min(-1), 5)))

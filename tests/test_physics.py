@@ -34,7 +34,8 @@ from jaxmocap.physics import (
     penetration_summary,
     pose_bones,
 )
-from jaxmocap.physics.metrics import FOOT_POINTS, bone_min_distance, foot_contact
+from jaxmocap.body.model import SMPL_FEET
+from jaxmocap.physics.metrics import bone_min_distance, foot_contact
 from jaxmocap.priors import default_pose_prior
 from jaxmocap.rotation import axis_angle_to_matrix, geodesic_angle, matrix_to_quaternion
 from jaxmocap.solve import Problem, Term, solve
@@ -153,11 +154,11 @@ def test_planted_foot_zero_skating_sliding_foot_measured(scene):
     T, fps = B, 30.0
     poses, still = np.repeat(pose, T, 0), np.repeat(trans, T, 0)
     out = _check(scene, poses, still, np.tile(FAR, (T, 1)))
-    heights = bone_min_distance(scene, out.ground, FOOT_POINTS)
+    heights = bone_min_distance(scene, out.ground, SMPL_FEET)
     contact = foot_contact(heights)
     assert contact.all()
     joints = np.stack([np.asarray(pose_bones(scene, jnp.asarray(p), jnp.asarray(t))[1]) for p, t in zip(poses, still)])
-    feet = joints[:, [scene.joint_names.index(n) for n in FOOT_POINTS]]
+    feet = joints[:, [scene.joint_names.index(n) for n in SMPL_FEET]]
     assert np.nanmax(foot_skating(feet, contact, scene.ground, fps)) == pytest.approx(0.0, abs=1e-9)
     slide = feet + np.arange(T)[:, None, None] * np.array([0.5 / fps, 0, 0])  # 0.5 m/s along x
     assert np.nanmean(foot_skating(slide, contact, scene.ground, fps)) == pytest.approx(0.5, rel=1e-9)

@@ -12,6 +12,7 @@ from .kinematics import forward_kinematics as forward_kinematics
 from .kinematics import forward_rotations as forward_rotations
 from .kinematics import shaped_joints as shaped_joints
 from .mannequin import mannequin_body as mannequin_body
+from .model import SMPL_FEET as SMPL_FEET
 from .model import SMPL_JOINT_NAMES as SMPL_JOINT_NAMES
 from .model import SMPL_PARENTS as SMPL_PARENTS
 from .model import Body as Body

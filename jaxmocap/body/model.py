@@ -15,7 +15,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
-__all__ = ["Body", "SMPL_JOINT_NAMES", "SMPL_PARENTS", "StaticArray"]
+__all__ = ["Body", "SMPL_FEET", "SMPL_JOINT_NAMES", "SMPL_PARENTS", "StaticArray"]
 
 SMPL_JOINT_NAMES: tuple[str, ...] = (
     "pelvis", "left_hip", "right_hip", "spine1", "left_knee", "right_knee", "spine2",
@@ -26,6 +26,8 @@ SMPL_JOINT_NAMES: tuple[str, ...] = (
 SMPL_PARENTS: tuple[int, ...] = (
     -1, 0, 0, 0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 9, 9, 12, 13, 14, 16, 17, 18, 19, 20, 21,
 )  # fmt: skip
+#: The feet: ankles and toe joints (ground contact, skating, soles), one definition for all.
+SMPL_FEET: tuple[str, ...] = ("left_ankle", "right_ankle", "left_foot", "right_foot")
 
 
 class StaticArray:

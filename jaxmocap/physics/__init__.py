@@ -10,7 +10,6 @@ from .checker import contact_distances as contact_distances
 from .checker import contact_distances_posed as contact_distances_posed
 from .checker import make_scene as make_scene
 from .checker import pose_bones as pose_bones
-from .energies import FOOT_JOINTS as FOOT_JOINTS
 from .energies import FootStationarityResidual as FootStationarityResidual
 from .energies import GroundSupportResidual as GroundSupportResidual
 from .energies import MJXGroundResidual as MJXGroundResidual

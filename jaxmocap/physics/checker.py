@@ -26,10 +26,10 @@ from jax import Array
 from .._checks import check_finite
 from .._compat import mjx_contacts
 from ..body.kinematics import forward_kinematics
-from ..body.model import Body
+from ..body.model import SMPL_FEET, Body
 from ..rotation import axis_angle_to_matrix, matrix_to_quaternion
 from ..objects import RigidObject
-from .mjcf import FOOT_BONES, BodyGeometry, Ground, fit_body_geometry, scene_mjcf
+from .mjcf import BodyGeometry, Ground, fit_body_geometry, scene_mjcf
 
 __all__ = [
     "Scene",
@@ -117,7 +117,7 @@ def make_scene(
     betas=None,
     ground: Ground | None = None,
     objects: Sequence[RigidObject] = (),
-    soles: Sequence[str] = FOOT_BONES,
+    soles: Sequence[str] = SMPL_FEET,
     geometry: BodyGeometry | None = None,
 ) -> Scene:
     """Fit the body geometry of shape `betas`, write the MJCF and load it in MJX.

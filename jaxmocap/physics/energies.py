@@ -40,7 +40,7 @@ import numpy as np
 from jax import Array
 
 from ..body.kinematics import forward_kinematics
-from ..body.model import SMPL_JOINT_NAMES, SMPL_PARENTS, Body
+from ..body.model import SMPL_FEET, SMPL_JOINT_NAMES, SMPL_PARENTS, Body
 from ..energies.posed import posed_body
 from ..objects import ObjectSDF
 from ..solve import Term
@@ -60,11 +60,9 @@ __all__ = [
     "object_penetration_term",
     "MJXGroundResidual",
     "mjx_ground_term",
-    "FOOT_JOINTS",
 ]
 
 #: Joints used as heel (ankles) and toe (feet) points for foot contact.
-FOOT_JOINTS = ("left_ankle", "right_ankle", "left_foot", "right_foot")
 
 
 class PhysicsData(eqx.Module):
@@ -186,12 +184,12 @@ class FootStationarityResidual(eqx.Module):
     """`foot_stationarity` of the posed foot joints: (T, F, 3), bandwidth 1 (row t:
     frames t and t+1; the last row is zero padding so there is one row per frame).
 
-    joints: static, the F foot joint indices (default `FOOT_JOINTS`).
+    joints: static, the F foot joint indices (default `SMPL_FEET`).
     Reads data.body, data.betas, data.contact_weights.
     """
 
     joints: tuple[int, ...] = eqx.field(
-        static=True, default=_joint_ids(FOOT_JOINTS), converter=_joint_ids
+        static=True, default=_joint_ids(SMPL_FEET), converter=_joint_ids
     )
 
     def __call__(self, params, data) -> Array:
@@ -203,7 +201,7 @@ class FootStationarityResidual(eqx.Module):
 
 
 def foot_stationarity_term(
-    joints: Sequence[str | int] = FOOT_JOINTS, weight=1.0, loss=None, name: str = "contact"
+    joints: Sequence[str | int] = SMPL_FEET, weight=1.0, loss=None, name: str = "contact"
 ) -> Term:
     """`FootStationarityResidual` as a `Term`, bandwidth 1, reading the foot joints'
     chains and the translation (joint names are SMPL's)."""

@@ -15,13 +15,13 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..body.model import SMPL_FEET
 from .checker import Scene
 from .mjcf import Ground
 
 __all__ = [
     "CONTACT_THRESHOLD",
     "PENETRATION_THRESHOLDS",
-    "FOOT_POINTS",
     "bone_min_distance",
     "foot_contact",
     "foot_skating",
@@ -34,10 +34,9 @@ CONTACT_THRESHOLD = 0.0045
 #: Penetration depths (m) whose exceedance fractions are reported (Huang §5.4).
 PENETRATION_THRESHOLDS = (0.005, 0.007, 0.010, 0.020)
 #: Foot points whose skating is measured: heels (ankle bones) and toes (foot bones).
-FOOT_POINTS = ("left_ankle", "right_ankle", "left_foot", "right_foot")
 
 
-def bone_min_distance(scene: Scene, distances, bones=FOOT_POINTS) -> np.ndarray:
+def bone_min_distance(scene: Scene, distances, bones=SMPL_FEET) -> np.ndarray:
     """Minimum over each bone's capsules of per-capsule distances (..., K) -> (..., len(bones))."""
     distances = np.asarray(distances)
     out = []

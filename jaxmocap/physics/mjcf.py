@@ -40,7 +40,7 @@ import numpy as np
 from jax import Array
 
 from ..body.kinematics import forward
-from ..body.model import Body
+from ..body.model import SMPL_FEET, Body
 from ..objects import RigidObject
 
 __all__ = [
@@ -48,12 +48,10 @@ __all__ = [
     "BodyGeometry",
     "fit_body_geometry",
     "scene_mjcf",
-    "FOOT_BONES",
     "capsule_plane_distance",
 ]
 
 #: Bones that get a flat-bottomed capsule pair by default (SMPL names).
-FOOT_BONES: tuple[str, ...] = ("left_ankle", "right_ankle", "left_foot", "right_foot")
 
 
 class Ground(eqx.Module):
@@ -206,7 +204,7 @@ def _sole_pair(points: np.ndarray) -> tuple[list, float, float, float]:
 def fit_body_geometry(
     body: Body,
     betas=None,
-    soles: Sequence[str] = FOOT_BONES,
+    soles: Sequence[str] = SMPL_FEET,
     min_vertices: int = 8,
 ) -> BodyGeometry:
     """Fit capsules per bone to the rest mesh of shape `betas`.

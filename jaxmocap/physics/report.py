@@ -13,11 +13,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..body.model import Body
+from ..body.model import SMPL_FEET, Body
 from .checker import Scene, check, make_scene
 from .metrics import (
     CONTACT_THRESHOLD,
-    FOOT_POINTS,
     bone_min_distance,
     contact_heatmap,
     foot_contact,
@@ -38,7 +37,7 @@ class PlausibilityReport:
         ground_height: the plane height used (normal +y).
         lowest_mesh: (T,) lowest vertex height above the plane (m; < 0 penetrating).
         lowest_capsules: (T,) lowest capsule height from MJX (m).
-        foot_heights: (T, 4) lowest capsule of heels and toes (`FOOT_POINTS`), m.
+        foot_heights: (T, 4) lowest capsule of heels and toes (`SMPL_FEET`), m.
         foot_contact: (T, 4) bool.
         skating: (T-1, 4) horizontal foot speed in contact (m/s; NaN out of contact).
         heatmap: (V,) fraction of frames each vertex is within 4.5 mm of the floor.
@@ -113,7 +112,7 @@ def plausibility_report(
         scene = make_scene(body, betas if betas.size else None, ground=ground)
     distances = check(scene, np.asarray(motion.poses, np.float32), np.asarray(motion.trans, np.float32), chunk=chunk)
     ground_d = np.asarray(distances.ground, np.float64)
-    foot_h = bone_min_distance(scene, ground_d, FOOT_POINTS)
+    foot_h = bone_min_distance(scene, ground_d, SMPL_FEET)
     contact = foot_contact(foot_h, contact_height)
     from .checker import pose_bones
     import jax
@@ -121,7 +120,7 @@ def plausibility_report(
     _, joints = jax.jit(jax.vmap(lambda p, t: pose_bones(scene, p, t)))(
         np.asarray(motion.poses, np.float32), np.asarray(motion.trans, np.float32)
     )
-    feet_idx = [scene.joint_names.index(name) for name in FOOT_POINTS]
+    feet_idx = [scene.joint_names.index(name) for name in SMPL_FEET]
     skating = foot_skating(np.asarray(joints)[:, feet_idx], contact, ground, motion.fps)
     valid = skating[np.isfinite(skating)]
     feet = {
@@ -172,7 +171,7 @@ def format_report(report: PlausibilityReport) -> str:
             cells.append(fmt.format(*(s[k] for k in key)) if isinstance(key, tuple) else fmt.format(s[key]))
         lines.append(f"{label:40s}" + "".join(f"{x:>18s}" for x in cells))
     f = report.feet
-    contact = " ".join(f"{n.replace('left_', 'L ').replace('right_', 'R ')} {x:.0%}" for n, x in zip(FOOT_POINTS, f["contact_fraction"]))
+    contact = " ".join(f"{n.replace('left_', 'L ').replace('right_', 'R ')} {x:.0%}" for n, x in zip(SMPL_FEET, f["contact_fraction"]))
     lines += [
         "feet",
         f"  in contact (< 2 cm)                  {contact}",
@@ -203,10 +202,10 @@ def plot_report(report: PlausibilityReport, path) -> Path:
     ax0.set_ylabel("height above floor (mm)")
     ax0.set_title(f"plausibility: {report.name or 'motion'}")
     ax0.legend(loc="upper right", fontsize=8)
-    for i in range(len(FOOT_POINTS)):
+    for i in range(len(SMPL_FEET)):
         on = report.foot_contact[:, i]
         ax1.fill_between(t, i, i + 0.8 * on, step="mid", alpha=0.6)
-    ax1.set_yticks(np.arange(4) + 0.4, [n.replace("_", " ") for n in FOOT_POINTS], fontsize=8)
+    ax1.set_yticks(np.arange(4) + 0.4, [n.replace("_", " ") for n in SMPL_FEET], fontsize=8)
     ax1.set_xlabel("time (s)")
     ax1.set_title("foot contact", fontsize=9)
     fig.tight_layout()
