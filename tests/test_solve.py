@@ -452,6 +452,18 @@ def test_batch_of_one_equals_unbatched():
     assert int(batch.num_steps[0]) == int(one.num_steps) and int(batch.result[0]) == int(one.result)
 
 
+def test_long_solves_report_progress(capfd):
+    # One stderr line per LM step (step, cost, s/step, ETA); the same answer as without.
+    params = {"x": jnp.zeros((3, 1))}
+    data = {"target": jnp.full((3, 1), 2.0)}
+    quiet = solve(_exp_problem(), params, data, method="lm", max_steps=8, rtol=0.0, atol=0.0)
+    assert capfd.readouterr().err == ""  # 3 frames: below PROGRESS_FRAMES, silent
+    loud = solve(_exp_problem(), params, data, method="lm", max_steps=8, rtol=0.0, atol=0.0, progress=True)
+    err = capfd.readouterr().err
+    assert "LM step 1/8: cost" in err and "LM step 8/8" in err and "ETA" in err and err.endswith("\n")
+    np.testing.assert_array_equal(np.asarray(loud.value["x"]), np.asarray(quiet.value["x"]))
+
+
 def test_per_sequence_tolerances():
     params = {"x": jnp.zeros((2, 3, 1))}
     data = {"target": jnp.full((2, 3, 1), 2.0)}

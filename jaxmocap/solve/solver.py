@@ -59,7 +59,7 @@ from .unknowns import Layout, from_manifold, retract, to_manifold
 
 __all__ = [
     "Solution", "VonMarcardLM", "solve", "result_message", "METHODS", "linear_solver",
-    "NO_OBSERVATIONS", "measure_bandwidths", "check_bandwidths",
+    "NO_OBSERVATIONS", "PROGRESS_FRAMES", "measure_bandwidths", "check_bandwidths",
 ]  # fmt: skip
 
 METHODS = ("lm", "optx_lm", "optx_gn", "jaxopt")
@@ -67,6 +67,8 @@ METHODS = ("lm", "optx_lm", "optx_gn", "jaxopt")
 #: `Solution.result` when every masked (observation) term masked out all of its rows: the
 #: "solution" is the priors' alone. Beyond optimistix's codes, so `converged` is False.
 NO_OBSERVATIONS = 100
+#: Single solves of this many frames or more report each LM step (`solve(progress=None)`).
+PROGRESS_FRAMES = 2000
 
 
 class Solution(eqx.Module):
@@ -238,6 +240,26 @@ class _LMState(eqx.Module):
     result: Array
 
 
+_STARTED: list[float] = []
+
+
+def _report_step(step, max_steps, cost, accepted, done) -> None:
+    """One stderr line per LM step of a long solve: step, cost, time per step, ETA."""
+    import sys
+    import time
+
+    step, max_steps = int(step), int(max_steps)
+    if step == 1 or not _STARTED:
+        _STARTED[:] = [time.perf_counter()]
+    per = (time.perf_counter() - _STARTED[0]) / max(step - 1, 1) if step > 1 else float("nan")
+    eta = "" if step < 2 else f", ETA {per * (max_steps - step):.0f} s at most"
+    print(
+        f"\rLM step {step}/{max_steps}: cost {float(cost):.6g} ({'accepted' if accepted else 'rejected'})"
+        + ("" if step < 2 else f", {per:.2f} s/step") + eta + ("\n" if done else "   "),
+        end="", file=sys.stderr, flush=True,
+    )
+
+
 class VonMarcardLM(optx.AbstractLeastSquaresSolver):
     """Von Marcard's Levenberg-Marquardt on the structured normal equations (optimistix solver).
 
@@ -257,6 +279,7 @@ class VonMarcardLM(optx.AbstractLeastSquaresSolver):
     max_steps: int | Array = 100
     marquardt: bool = eqx.field(static=True, default=False)
     factor_dtype: Any = eqx.field(static=True, default=None)
+    progress: bool = eqx.field(static=True, default=False)
 
     def _setup(self, y, args):
         if not isinstance(args, Args):
@@ -308,6 +331,8 @@ class VonMarcardLM(optx.AbstractLeastSquaresSolver):
         done = converged | (step >= self.max_steps)
         result = jnp.where(converged, SUCCESSFUL, MAX_STEPS)
         lam = jnp.where(accept, state.lam * 0.1, state.lam * 10.0)
+        if self.progress:
+            jax.debug.callback(_report_step, step, self.max_steps, cost, accept, done)
         new = _LMState(normal, grad, cost, lam, step, done, jnp.where(done, result, state.result))
         return y_next, new, None
 
@@ -375,6 +400,7 @@ def solve(
     damping: str = "levenberg",
     adjoint: optx.AbstractAdjoint | None = None,
     check_bandwidth: bool = False,
+    progress: bool | None = None,
 ) -> Solution:
     """Minimise `problem` from `params0` given `data`; returns a `Solution` of arrays.
 
@@ -399,6 +425,9 @@ def solve(
             (`check_bandwidths`; one Jacobian-vector product per term, best on a short
             sequence) and raise if a term reads further than its declared `bandwidth`,
             which would otherwise give a wrong answer reported as successful.
+        progress: print each LM step (cost, time per step, ETA) on stderr ("lm" only).
+            Default: on for sequences of `PROGRESS_FRAMES` frames or more, whose solves
+            take seconds to minutes; off inside `solve_batch`.
     Returns:
         `Solution(value, result, num_steps, cost, costs)`; `result` is `NO_OBSERVATIONS`
         when every masked term masked out all of its rows.
@@ -414,11 +443,14 @@ def solve(
     if factor_dtype is None:
         factor_dtype = jnp.float64 if jax.config.jax_enable_x64 else dtype
     args = Args(problem, data, frame_mask, layout)
+    if progress is None:
+        progress = layout.T >= PROGRESS_FRAMES
     # "lm" takes max_steps as a traced loop bound: no recompilation per value.
     max_steps = jnp.asarray(max_steps) if method == "lm" and solver is None else int(max_steps)
     return _solve_jit(
         args, params0, jnp.asarray(rtol, dtype), jnp.asarray(atol, dtype), max_steps,
         method=method, solver=solver, factor_dtype=jnp.dtype(factor_dtype), damping=damping, adjoint=adjoint,
+        progress=bool(progress) and method == "lm" and solver is None,
     )  # fmt: skip
 
 
@@ -467,7 +499,7 @@ def check_bandwidths(problem: Problem, params0: dict, data: Any = None, frame_ma
     return measured
 
 
-def _solve_core(args: Args, params0, rtol, atol, max_steps, *, method, solver, factor_dtype, damping, adjoint):
+def _solve_core(args: Args, params0, rtol, atol, max_steps, *, method, solver, factor_dtype, damping, adjoint, progress=False):
     """The unbatched, unjitted solve (vmapped by `solve_batch`)."""
     dtype = jtu.tree_leaves(params0)[0].dtype
     if method == "jaxopt" and solver is None:
@@ -476,7 +508,10 @@ def _solve_core(args: Args, params0, rtol, atol, max_steps, *, method, solver, f
         y0 = params0
         if solver is None:
             if method == "lm":
-                solver = VonMarcardLM(rtol, atol, max_steps=max_steps, marquardt=damping == "marquardt", factor_dtype=factor_dtype)
+                solver = VonMarcardLM(
+                    rtol, atol, max_steps=max_steps, marquardt=damping == "marquardt", factor_dtype=factor_dtype,
+                    progress=progress,
+                )  # fmt: skip
             else:
                 if jax.config.jax_enable_x64:
                     # optimistix 0.1 keeps its damping λ in float64 when x64 is on and then
