@@ -6,6 +6,9 @@
 - MPJAE d_ori = 1/(N_T N_J) Σ_t Σ_j ‖log(R̃_j(t) R_j(t)⁻¹)^∨‖, on *global* joint
   orientations (the orientation of each bone in the world frame).
 
+Beside them, `literature_metrics` gives the learned-poser papers' numbers (DIP, TransPose,
+PIP): SIP error, angular error, root-aligned joint and mesh errors in cm, and jitter.
+
 Joint sets (SMPL joint names): §3.4.3 (TotalCapture) evaluates MPJPE on hips, knees,
 ankles, neck, head, shoulders, elbows and wrists, and MPJAE on hips, knees, neck,
 shoulders and elbows; §3.4.2 (TNT15) MPJPE on 13 virtual markers, the joints of hips,
@@ -33,6 +36,8 @@ __all__ = [
     "mpjpe",
     "mpjae",
     "pose_errors",
+    "literature_metrics",
+    "jitter",
     "summary",
 ]
 
@@ -49,6 +54,8 @@ JOINT_SETS: dict[str, tuple[str, ...]] = {
     # §3.4.2, TNT15 MPJAE: the validation IMUs (thighs, upper arms), i.e. the global
     # orientations of these bones (a fixed sensor-to-bone offset cancels in the geodesic).
     "tnt15_mpjae": _LR("hip", "shoulder"),
+    # DIP's "SIP error": global orientations of the upper legs and upper arms (same bones).
+    "sip_error": _LR("hip", "shoulder"),
     "all": SMPL_JOINT_NAMES,
 }
 
@@ -176,3 +183,47 @@ def pose_errors(body, pred_poses, true_poses, betas=None, pred_trans=None, true_
 def summary(errors: dict) -> dict:
     """Per-sequence mean ± std (over frames and joints) of each per-frame error array."""
     return {k: {"mean": float(np.mean(v)), "std": float(np.std(v))} for k, v in errors.items()}
+
+
+def jitter(positions, fps: float) -> Array:
+    """Mean jerk magnitude ‖d³p/dt³‖ of (..., T, N, 3) positions in m, km/s³ (third differences).
+
+    As the learned-poser papers report smoothness (TransPose, PIP): the mean over frames
+    t = 0..T-4 and points of ‖p(t+3) - 3p(t+2) + 3p(t+1) - p(t)‖ · fps³ / 1000.
+    """
+    p = jnp.asarray(positions)
+    if p.ndim < 3 or p.shape[-1] != 3 or p.shape[-3] < 4:
+        raise ValueError(f"positions has shape {p.shape}; expected (..., T >= 4, N, 3).")
+    d3 = p[..., 3:, :, :] - 3 * p[..., 2:-1, :, :] + 3 * p[..., 1:-2, :, :] - p[..., :-3, :, :]
+    return jnp.linalg.norm(d3, axis=-1).mean(axis=(-2, -1)) * float(fps) ** 3 / 1000.0
+
+
+def literature_metrics(body, pred_poses, true_poses, fps: float, betas=None, pred_trans=None, true_trans=None) -> dict:
+    """The learned-poser papers' metrics of a (T, 24, 3) pose trajectory against the truth.
+
+    Returns floats: "sip_error_deg" (global rotation error of upper arms and upper legs),
+    "angular_error_deg" (global rotation error over all 24 joints), "position_error_cm"
+    (joints, root-aligned: pelvis positions subtracted), "mesh_error_cm" (vertices,
+    root-aligned), "jitter_root_km_s3" (of root-relative joints) and "jitter_global_km_s3"
+    (of world joints; needs the translations to mean anything). Both sides use `betas`,
+    so the numbers measure pose, not body size.
+    """
+    from .body.kinematics import forward
+
+    if jnp.shape(pred_poses) != jnp.shape(true_poses):
+        raise ValueError(
+            f"pred_poses has shape {jnp.shape(pred_poses)} but true_poses has {jnp.shape(true_poses)}; "
+            "both must be (T, 24, 3) with the same T."
+        )
+    pred = forward(body, pred_poses, betas, pred_trans)
+    true = forward(body, true_poses, betas, true_trans)
+    root = lambda o, x: x - o.joints[..., :1, :]  # noqa: E731
+    rel = root(pred, pred.joints)
+    return {
+        "sip_error_deg": float(angle_errors(pred.joint_rotations, true.joint_rotations, "sip_error").mean()),
+        "angular_error_deg": float(angle_errors(pred.joint_rotations, true.joint_rotations, "all").mean()),
+        "position_error_cm": float(jnp.linalg.norm(rel - root(true, true.joints), axis=-1).mean() * 100),
+        "mesh_error_cm": float(jnp.linalg.norm(root(pred, pred.vertices) - root(true, true.vertices), axis=-1).mean() * 100),
+        "jitter_root_km_s3": float(jitter(rel, fps)),
+        "jitter_global_km_s3": float(jitter(pred.joints, fps)),
+    }

@@ -7,7 +7,7 @@ import pytest
 from conftest import assert_picture
 
 from jaxmocap import metrics
-from jaxmocap.rotation import axis_angle_to_matrix
+from jaxmocap.rotation import axis_angle_to_matrix, matrix_to_axis_angle
 from jaxmocap.viz.plot import plot_error_curves, plot_per_joint
 
 
@@ -70,3 +70,34 @@ def test_pose_errors_and_plots(tmp_path, random_body):
     b = plot_per_joint({"SOP": err["mpjae"] + 1}, metrics.JOINT_SETS["totalcapture_mpjae"], tmp_path / "j.png")
     assert_picture(a, min_colour_fraction=0.002)  # two coloured lines
     assert_picture(b, min_colour_fraction=0.01)  # nine bars
+
+
+def test_jitter_of_a_cubic_is_its_constant_jerk():
+    fps = 60.0
+    t = np.arange(20) / fps
+    p = np.zeros((20, 2, 3))
+    p[:, 0, 1] = 2.0 * t**3  # jerk 12 m/s³
+    p[:, 1, 0] = 5.0 * t**2 - t  # jerk 0
+    np.testing.assert_allclose(float(metrics.jitter(p, fps)), (12.0 + 0.0) / 2 / 1000, rtol=1e-4)
+    with pytest.raises(ValueError, match="T >= 4"):
+        metrics.jitter(p[:3], fps)
+
+
+def test_literature_metrics_against_a_known_error(random_body):
+    # One bone turned by a known angle, and a global shift: the root-aligned errors ignore
+    # the shift, the angular errors see the bone and its descendants only.
+    rng = np.random.default_rng(5)
+    true = rng.normal(scale=0.2, size=(6, 24, 3))
+    pred = true.copy()
+    j = metrics.SMPL_JOINT_NAMES.index("left_shoulder")
+    R = np.asarray(axis_angle_to_matrix(jnp.asarray(true[:, j])))
+    turn = np.asarray(axis_angle_to_matrix(jnp.asarray([0.0, 0.0, np.radians(10.0)])))
+    pred[:, j] = np.asarray(matrix_to_axis_angle(jnp.asarray(R @ turn)))
+    shift = np.tile([0.3, 0.0, -0.2], (6, 1))
+    m = metrics.literature_metrics(random_body, pred, true, 30.0, pred_trans=shift, true_trans=np.zeros((6, 3)))
+    # Global orientations: the shoulder and its 3 descendants (elbow, wrist, hand) turn by 10°.
+    assert m["sip_error_deg"] == pytest.approx(10.0 / 4, rel=1e-3)  # 1 of the 4 bones
+    assert m["angular_error_deg"] == pytest.approx(10.0 * 4 / 24, rel=1e-3)
+    assert 0 < m["position_error_cm"] < 10 and 0 < m["mesh_error_cm"] < 10
+    same = metrics.literature_metrics(random_body, true, true, 30.0, pred_trans=shift, true_trans=np.zeros((6, 3)))
+    assert same["position_error_cm"] < 1e-4 and same["mesh_error_cm"] < 1e-4 and same["angular_error_deg"] < 1e-2
