@@ -14,7 +14,7 @@ from jaxmocap.energies import camera as ec
 from jaxmocap.methods import multiview as mv
 from jaxmocap.rotation import axis_angle_to_matrix
 from jaxmocap.sensors.camera import intrinsics, project, ring_cameras
-from jaxmocap.sensors.keypoints import keypoint_regressor, person_track, regress_keypoints
+from jaxmocap.sensors.keypoints import KEYPOINT_FORMATS, flip_pairs, keypoint_regressor, person_track, regress_keypoints
 from jaxmocap.sensors.silhouette import rasterize_views
 
 
@@ -120,6 +120,22 @@ def test_stage_one_and_two_recover_a_known_motion(scene):
     blind = mv.camera_data(body, scene["K"], scene["R"], scene["t"], kp, "body25", masks=masks)
     p3, _ = mv.stage_one(blind, p0, w.replace(anneal=(1.0,)), silhouettes=True)
     assert np.all(np.isfinite(p3["pose"])) and _mpjpe(body, p3, p3["betas"], scene["joints"]) < 60.0
+
+
+def test_resolve_left_right_flips_back_a_view_that_swapped_the_legs(scene):
+    body = scene["body"]
+    names = KEYPOINT_FORMATS["body25"]
+    legs = [(a, b) for a, b in flip_pairs(names) if not any(k in names[a] for k in ("eye", "ear", "shoulder", "elbow", "wrist"))]
+    kp = scene["kp"].copy()
+    for a, b in legs:  # view 1 swaps the legs in frames 3-5 (the hip is flexed: legs apart)
+        kp[3:, 1, [a, b]] = kp[3:, 1, [b, a]]
+    clean = mv.camera_data(body, scene["K"], scene["R"], scene["t"], scene["kp"], "body25")
+    swapped = mv.camera_data(body, scene["K"], scene["R"], scene["t"], kp, "body25")
+    fixed = mv.resolve_left_right(swapped)
+    np.testing.assert_allclose(np.asarray(fixed.keypoints), np.asarray(clean.keypoints), atol=1e-4)
+    np.testing.assert_array_equal(np.asarray(mv.resolve_left_right(clean).keypoints), np.asarray(clean.keypoints))
+    one = mv.mask_views(swapped, [1])  # one view cannot say which of its legs is which
+    np.testing.assert_array_equal(np.asarray(mv.resolve_left_right(one).keypoints), np.asarray(one.keypoints))
 
 
 def test_camera_data_refuses_wrong_shapes(scene):

@@ -12,6 +12,9 @@
   adds E_S here too.
 - **Monocular** (Table 4.5): the same code with one view.
 
+Left/right swaps (ours): before stage 1, `resolve_left_right` flips back the leg labels of
+any view that disagrees with the others (2^V assignments triangulated per frame).
+
 Initialisation (ours; MuVS reuses SMPLify's): per frame, the hips and shoulders are
 triangulated from every view that sees them (confidence-weighted DLT) and give the root
 position and orientation, the other joints start at the prior mean, β at 0; frames seen
@@ -49,11 +52,11 @@ from ..energies.camera import (
 )
 from ..priors.pose_prior import PosePrior, default_pose_prior
 from ..rotation import matrix_to_axis_angle
-from ..sensors.keypoints import KEYPOINT_FORMATS, keypoint_regressor
+from ..sensors.keypoints import KEYPOINT_FORMATS, flip_pairs, keypoint_regressor
 from ..sensors.triangulation import triangulate
 from ..solve import Problem, frame, solve, solve_batch, with_weights
 
-__all__ = ["MuVSWeights", "MuVSResult", "camera_data", "initialise", "stage_one", "stage_two", "multiview_smplify", "mask_views", "stack"]
+__all__ = ["MuVSWeights", "MuVSResult", "camera_data", "initialise", "resolve_left_right", "stage_one", "stage_two", "multiview_smplify", "mask_views", "stack"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -200,6 +203,67 @@ def initialise(data: CameraData, num_betas: int = 10) -> dict:
     pose[:, 1:] = np.asarray(data.prior.mean, np.float64).reshape(23, 3)
     pose[:, 0] = np.asarray(matrix_to_axis_angle(jnp.asarray(root)))
     return {"pose": pose, "trans": trans, "betas": np.zeros((T, num_betas))}
+
+
+def resolve_left_right(data: CameraData, truncation: float = 0.05, margin: float = 0.005, max_views: int = 6) -> CameraData:
+    """`data` with each view's leg keypoints swapped back where that view swapped left and right.
+
+    Detectors confuse the legs of a person seen from the side or the back, one view at a
+    time. Per frame, every assignment of the views' leg labels (as detected or swapped,
+    2^V hypotheses; hips, knees, ankles and feet swap together) is triangulated and scored
+    by its reprojection error, truncated at `truncation` × the mean focal length so that
+    one bad point cannot dominate; the best one is kept if it beats the detections as they
+    are by more than `margin` × the mean focal length of RMS error per leg point (legs
+    close together reproject alike either way: no flip then).
+    Our addition (MuVS leaves swaps to the robust ρ and the temporal term of stage 2):
+    with two or more views a swapped view disagrees with the others, so it is cheap to
+    find before any fit. Views beyond `max_views` are left as they are.
+    """
+    if _batched(data):
+        return stack([resolve_left_right(_member(data, i), truncation, margin, max_views) for i in range(data.keypoints.shape[0])])
+    names = KEYPOINT_FORMATS[data.layout]
+    pairs = [(a, b) for a, b in flip_pairs(names) if not any(k in names[a] for k in ("eye", "ear", "shoulder", "elbow", "wrist"))]
+    conf = np.asarray(data.confidence, np.float64)  # (T, V, K)
+    seen = np.flatnonzero((conf > 0).any((0, 2)))[:max_views]
+    if len(seen) < 2 or not pairs:
+        return data
+    K, R, t = (np.asarray(a, np.float64) for a in (data.K, data.R, data.t))
+    P = (K @ np.concatenate([R, t[..., None]], -1))[seen]
+    uv = np.asarray(data.keypoints, np.float64)[:, seen]  # (T, V', K, 2)
+    cf = conf[:, seen]
+    left, right = (np.array(x) for x in zip(*pairs))
+    legs = np.concatenate([left, right])
+    flips = np.array(np.meshgrid(*[[0, 1]] * len(seen), indexing="ij")).reshape(len(seen), -1).T  # (H, V')
+    # uv of the leg points under every hypothesis: (V', H, T, 2L, 2)
+    swapped = np.concatenate([right, left])
+    u = np.stack([np.where(f[None, :, None, None] > 0, uv[:, :, swapped], uv[:, :, legs]).swapaxes(0, 1) for f in flips], 1)
+    c = np.stack([np.where(f[None, :, None] > 0, cf[:, :, swapped], cf[:, :, legs]).swapaxes(0, 1) for f in flips], 1)
+    X, err = triangulate(P, u, c)  # (H, T, 2L, 3), (V', H, T, 2L)
+    tau = truncation * float(np.mean(K[:, 0, 0]))
+    cost = np.where(c > 0, np.minimum(np.nan_to_num(err, nan=tau), tau) ** 2 * c, 0.0).sum((0, 3))  # (H, T)
+    # A hypothesis and its complement (every view flipped) reproject alike: that global
+    # choice of which 3-D leg is "left" is the body fit's. Between such near-ties the
+    # hips on the shoulders' side decide, then fewer flips; neither can make a flip win
+    # against the detections as they are by itself (both stay below the margin).
+    threshold = (margin * float(np.mean(K[:, 0, 0]))) ** 2 * np.maximum((c[:, 0] > 0).sum((0, 2)), 1)  # (T,)
+    sh = [names.index(n) for n in ("left_shoulder", "right_shoulder")]
+    hips = [list(legs).index(names.index(n)) for n in ("left_hip", "right_hip")] if "left_hip" in names else None
+    if hips is not None:
+        S, _ = triangulate(P, np.moveaxis(uv[:, :, sh], 1, 0), np.moveaxis(cf[:, :, sh], 1, 0))  # (T, 2, 3)
+        across = np.einsum("htk,tk->ht", X[:, :, hips[0]] - X[:, :, hips[1]], S[:, 0] - S[:, 1])
+        cost = cost + 0.4 * threshold * (np.nan_to_num(across, nan=1.0) < 0)
+    cost = cost + 0.1 * threshold * flips.sum(1)[:, None] / len(seen)
+    choice = np.argmin(cost, 0)
+    gain = cost[0] - cost[choice, np.arange(cost.shape[1])]  # hypothesis 0: no flip
+    choice = np.where(gain > threshold, choice, 0)
+    best = flips[choice]  # (T, V')
+    kp, cn = np.asarray(data.keypoints), np.asarray(data.confidence)
+    out, out_c = kp.copy(), cn.copy()
+    for j, v in enumerate(seen):
+        ti = np.flatnonzero(best[:, j])[:, None]
+        out[ti, v, legs[None]] = kp[ti, v, swapped[None]]
+        out_c[ti, v, legs[None]] = cn[ti, v, swapped[None]]
+    return dataclasses_replace(data, keypoints=jnp.asarray(out, data.keypoints.dtype), confidence=jnp.asarray(out_c, data.confidence.dtype))
 
 
 def _robust_triangulation(P, uv, conf, max_error: float) -> np.ndarray:
@@ -373,8 +437,13 @@ def multiview_smplify(
     temporal: bool = True,
     temporal_silhouettes: bool = False,
     params0: dict | None = None,
+    resolve_swaps: bool = True,
 ) -> MuVSResult:
-    """MuVS on one sequence: stage 1 (+S if masks are given), then stage 2 (+T, +H)."""
+    """MuVS on one sequence: stage 1 (+S if masks are given), then stage 2 (+T, +H).
+
+    With `resolve_swaps`, views that swapped the legs are flipped back first
+    (`resolve_left_right`; our addition)."""
+    data = resolve_left_right(data) if resolve_swaps else data
     p0 = initialise(data, weights.num_betas) if params0 is None else params0
     p1, costs = stage_one(data, p0, weights, silhouettes)
     stage1 = {"poses": p1["pose"], "trans": p1["trans"], "betas": p1["betas"]}
