@@ -183,14 +183,16 @@ def vip_data(
     )  # fmt: skip
 
 
-def from_scenario(scenario, index: int, body: Body, person: int = 0, x0=None, keypoints=None, **kw):
+def from_scenario(scenario, index: int, body: Body, person: int = 0, x0=None, keypoints=None, sensors=None, **kw):
     """`VIPData` for one IMU wearer of a camera+IMU scenario (`ScenarioConfig` with a moving
     camera, `camera_imu=True`, keypoints "coco18").
 
     x0 defaults to the true pose at frame 0. keypoints (T, 18, 3) replaces the detections
     (VIP-2D passes the true projections); by default the person's detections are taken by
     the simulator's identity labels (association, eq. 4.11-4.18, is not implemented).
-    Returns (data, truth) with truth = {poses, trans, cam_R, cam_t} of that person.
+    sensors: indices of the body sensors to use (default all).
+    Returns (data, truth, bones) with truth = {poses, trans, betas, cam_R, cam_t} of that
+    person and bones the bone of each sensor used.
     """
     seq = scenario.sequence(index)
     missing = [k for k in ("cam_imu_ori", "det_keypoints", "imu_ori") if k not in seq]
@@ -200,14 +202,16 @@ def from_scenario(scenario, index: int, body: Body, person: int = 0, x0=None, ke
         keypoints = person_track(seq["det_keypoints"], seq["det_person"], person)[:, 0]
     x0 = seq["poses"][person][0] if x0 is None else x0
     K = seq["cam_K"][0]
+    idx = np.arange(len(seq["imu_bones"])) if sensors is None else np.asarray(sensors)
+    bones = tuple(int(b) for b in np.asarray(seq["imu_bones"])[idx])
     data = vip_data(
-        body, seq["imu_bones"], seq["imu_vertices"], seq["imu_ori"][person], seq["imu_acc"][person], x0,
+        body, bones, np.asarray(seq["imu_vertices"])[idx], seq["imu_ori"][person][:, idx], seq["imu_acc"][person][:, idx], x0,
         scenario.config.fps, seq["cam_imu_ori"], seq["cam_imu_acc"], K, keypoints,
         scenario.config.cameras.height, betas=seq["betas"][person], **kw,
     )  # fmt: skip
-    truth = {"poses": seq["poses"][person], "trans": seq["trans"][person], "cam_R": seq["cam_R"][0],
-             "cam_t": seq["cam_t"][0]}  # fmt: skip
-    return data, truth
+    truth = {"poses": seq["poses"][person], "trans": seq["trans"][person], "betas": seq["betas"][person],
+             "cam_R": seq["cam_R"][0], "cam_t": seq["cam_t"][0]}  # fmt: skip
+    return data, truth, bones
 
 
 @functools.lru_cache(maxsize=None)
