@@ -32,7 +32,9 @@ def scene():
     sc.arrays["imu_ori"][0, 0] = np.asarray(rotation_y(heading))[None] @ sc.arrays["imu_ori_true"][0, 0]
     data, truth, bones = vip.from_scenario(sc, 0, body)
     it = vip.inertial_tracker(data, bones)
-    res = vip.video_inertial_poser(data, bones, init=it, max_steps=100)
+    # Noise-free data need little prior; at the thesis's w_prior the prior's pull on the
+    # poses leaves a few degrees of heading bias on some limbs (measured: up to 4°).
+    res = vip.video_inertial_poser(data, bones, vip.VIPWeights(prior=0.0006), init=it, max_steps=100)
     return {"body": body, "scenario": sc, "data": data, "truth": truth, "bones": bones, "it": it, "res": res,
             "heading": heading}  # fmt: skip
 
@@ -123,7 +125,7 @@ def test_energy_gradients_are_finite(scene):
     layout_params = {"pose": res.poses, "trans": res.trans, "cam": res.camera, "heading": res.heading, "x0": res.x0}
 
     def energy(p):
-        seen = to_manifold(p, problem.layout)
+        seen = to_manifold(p, problem.layout(p))
         return sum(jnp.sum(t.fn(seen, data) ** 2) for t in problem.terms)
 
     grads = jax.grad(energy)(layout_params)
