@@ -13,6 +13,11 @@ Rows: IT (eq. 4.10), VIP, VIP-vanilla (heading and x₀ fixed), VIP-IT (IT with 
 heading and x₀), VIP-noHeadParam, VIP-2D (true keypoints), VIP-Cam (true camera), SIP
 with zero initial pose (6 IMUs, ch. 3), VIP with 6 IMUs (the SIP set). MPJPE (mm, per-frame
 Procrustes, TotalCapture joints) and MPJAE (°), the mean over clips of per-clip means.
+
+Known problem (found 2026-11-23): `load_motion` gives the held-out BVH clips of cmu_cc
+(e.g. 005_01.bvh, 005_05.bvh) hip and ankle local rotations of ~π (the cmu .amc clips
+stay below 0.6 rad), and the Inertial Tracker fails on them even with error-free IMUs
+and the true x₀ (~300 mm). Check that retargeting before trusting these tables.
 """
 
 from __future__ import annotations
