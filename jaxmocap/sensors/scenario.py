@@ -70,6 +70,7 @@ __all__ = [
     "load_scenario",
     "save_dip",
     "resolve_motion",
+    "vip_config",
 ]
 
 FORMAT_VERSION = 1
@@ -326,6 +327,34 @@ def make_scenario(
         "object": config.object,
     }
     return Scenario(arrays, meta)
+
+
+def vip_config(
+    imu_set: str = "totalcapture13",
+    bystanders: int = 0,
+    max_frames: int = 300,
+    fps: float = 30.0,
+    imu_errors: IMUErrorModel | None = None,
+    detector: DetectorErrorModel | None = None,
+    width: int = 320,
+    height: int = 240,
+) -> ScenarioConfig:
+    """A Video Inertial Poser scene (von Marcard ch. 4, 3DPW-like): person 0 wears the IMUs
+    of `imu_set` ("totalcapture13" or "sip6"), `bystanders` more people walk beside them
+    (the simulator gives everyone IMUs; VIP reads person 0's only), one hand-held camera
+    orbits them with sway and tremor and carries an IMU, COCO-18 detections come through
+    the detector error model (default OpenPose-like: noise, misses, left/right swaps,
+    false detections) and IMU errors default to Xsens-like ones with a 10° heading offset
+    per sensor (1σ) plus drift (§2.4, §4.2.4)."""
+    if not isinstance(bystanders, (int, np.integer)) or not 0 <= bystanders <= 3:
+        raise ValueError(f"bystanders must be an int in 0 .. 3, got {bystanders!r}.")
+    if imu_errors is None:
+        imu_errors = dataclasses.replace(IMUErrorModel.xsens(), heading_offset=float(np.radians(10.0)))
+    return ScenarioConfig(
+        fps=fps, max_frames=max_frames, people=1 + bystanders, betas_std=1.0, imu_set=imu_set, imu_errors=imu_errors,
+        cameras=CameraConfig(num_views=1, moving=True, camera_imu=True, width=width, height=height),
+        keypoints="coco18", detector=DetectorErrorModel.openpose() if detector is None else detector,
+    )  # fmt: skip
 
 
 # Loaded files and generated library motions, keyed by (item, fps): CMU clips take seconds

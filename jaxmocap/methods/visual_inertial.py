@@ -1,0 +1,375 @@
+"""The Video Inertial Poser (VIP, von Marcard ch. 4): body IMUs + one moving hand-held camera.
+
+One person wearing S IMUs is filmed by a hand-held camera that carries an IMU of its own.
+`video_inertial_poser` minimises, over the whole sequence at once (eq. 4.19),
+
+    E = w_ori E_ori + w_acc E_acc + w_img E_img + w_prior E_prior
+
+with E_ori / E_acc over the body sensors and the camera IMU (eq. 4.20-4.26), E_img the
+confidence-weighted reprojection of COCO-18 detections (eq. 4.27-4.28) and E_prior the
+Gaussian pose prior plus joint limits (eq. 4.29-4.30, the limits are SIP's, eq. 3.15).
+Unknowns: every frame's pose, translation and camera pose, one heading angle per body
+sensor and the initial pose x₀ that defines the sensor-to-bone offsets (eq. 4.7-4.9);
+see `energies.visual_inertial` for the sensor model and the choices that are ours.
+
+Initialisation (eq. 4.10): the Inertial Tracker, E_ori + prior per frame, with the
+offsets of the given x₀ and no heading correction. The camera starts at its IMU's
+orientation and, per frame, the translation that best reprojects the tracker's keypoints
+onto the detections (linear least squares with the rotation known; our stand-in for the
+per-hypothesis camera fit of eq. 4.13-4.14). The body translation starts at the given
+one on every frame.
+
+Association (eq. 4.11-4.18) is not implemented yet: `from_scenario` takes the person's
+detections by the simulator's identity labels.
+
+Variants (Tables 4.4-4.9): `free_heading=False` (VIP-noHeadParam), `free_heading=False,
+free_x0=False` (VIP-vanilla), `tracker_with(…)` on a VIP result (VIP-IT), true
+keypoints (VIP-2D) and true camera (`camera=…, free_camera=False`, VIP-Cam) are inputs.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+from jax import Array
+
+from .._checks import check_rate, check_weight
+from ..body.kinematics import forward, shaped_joints
+from ..body.model import Body
+from ..energies.imu import GRAVITY_REACTION, joint_limit_term, mahalanobis_term
+from ..energies.visual_inertial import (
+    REFERENCE_IMAGE_HEIGHT,
+    VIPData,
+    camera_acceleration_term,
+    camera_orientation_term,
+    heading_acceleration_term,
+    heading_orientation_term,
+    image_term,
+    initial_pose_term,
+)
+from ..priors.pose_prior import PosePrior, default_pose_prior
+from ..rotation import axis_angle_to_matrix, matrix_to_axis_angle
+from ..sensors.keypoints import keypoint_regressor, person_track, regress_keypoints
+from ..solve import Problem, Solution, frame, sequence, solve, with_weights
+
+__all__ = ["VIPWeights", "VIPResult", "vip_data", "from_scenario", "inertial_tracker", "initial_camera",
+           "video_inertial_poser"]  # fmt: skip
+
+
+@dataclasses.dataclass(frozen=True)
+class VIPWeights:
+    """Weights of eq. 4.19 (defaults: von Marcard §4.3: w_acc 0.2, w_img 1e-4, w_prior
+    0.006; w_ori 1). Ours: limit (SIP's w_limit, eq. 3.16) and x0, the pull of x₀
+    towards its given value (`energies.visual_inertial.initial_pose_term`)."""
+
+    ori: float = 1.0
+    acc: float = 0.2
+    img: float = 1e-4
+    prior: float = 0.006
+    limit: float = 0.1
+    x0: float = 0.1
+
+    def __post_init__(self):
+        for f in dataclasses.fields(self):
+            check_weight(f"VIPWeights.{f.name}", getattr(self, f.name))
+
+    def replace(self, **changes) -> VIPWeights:
+        return dataclasses.replace(self, **changes)
+
+
+class VIPResult(eqx.Module):
+    """poses (T, 24, 3), trans (T, 3), camera (T, 6) camera-to-world (axis-angle, centre),
+    heading (S,) γ_s, x0 (24, 3), init: the Inertial Tracker's poses, solution: the engine's."""
+
+    poses: Array
+    trans: Array
+    camera: Array
+    heading: Array
+    x0: Array
+    init: Array
+    solution: Solution
+
+
+def _global_acceleration(R, a):
+    return np.einsum("...ab,...b->...a", R, a) - np.asarray(GRAVITY_REACTION)
+
+
+def vip_data(
+    body: Body,
+    bones,
+    vertices,
+    orientation,
+    acceleration,
+    x0,
+    fps: float,
+    cam_orientation,
+    cam_acceleration,
+    K,
+    keypoints,
+    image_height: int,
+    betas=None,
+    prior: PosePrior | None = None,
+    dtype=jnp.float64,
+) -> VIPData:
+    """Check and calibrate one person's readings and detections into `VIPData`.
+
+    Args:
+        orientation (T, S, 3, 3) measured R̃_s^g, acceleration (T, S, 3) sensor frame ã^s
+            (NaN = dropped; frame 0 must be complete: it is the calibration frame).
+        x0: (24, 3) the given initial pose (axis-angle) at frame 0.
+        cam_orientation (T, 3, 3), cam_acceleration (T, 3): the camera IMU (sensor frame
+            = camera frame). Required: without it the camera pose is not observable
+            apart from the images.
+        K (3, 3); keypoints (T, 18, 3) COCO-18 rows (u, v, confidence) in undistorted
+            pixels; a frame without detections has confidence 0 (or NaN) and is fitted
+            from the IMUs alone.
+    """
+    check_rate("fps", fps)
+    orientation = np.asarray(orientation, np.float64)
+    acceleration = np.asarray(acceleration, np.float64)
+    if orientation.ndim != 4 or orientation.shape[-2:] != (3, 3):
+        raise ValueError(f"orientation has shape {orientation.shape}; expected (T, S, 3, 3).")
+    T, S = orientation.shape[:2]
+    if acceleration.shape != (T, S, 3):
+        raise ValueError(f"acceleration has shape {acceleration.shape}; expected (T, S, 3) = ({T}, {S}, 3).")
+    if len(bones) != S or len(vertices) != S:
+        raise ValueError(f"{S} sensors in the readings but {len(bones)} bones and {len(vertices)} vertices.")
+    if not np.isfinite(orientation[0]).all():
+        raise ValueError("orientation: frame 0 has dropped samples; VIP calibrates the sensor-to-bone "
+                         "offsets on frame 0 (eq. 4.9): start the sequence at a complete frame.")  # fmt: skip
+    if cam_orientation is None or cam_acceleration is None:
+        raise ValueError("VIP needs the camera IMU (cam_orientation (T, 3, 3) and cam_acceleration (T, 3)): "
+                         "it fixes the world heading and the camera's motion (eq. 4.20-4.22).")  # fmt: skip
+    cam_orientation = np.asarray(cam_orientation, np.float64)
+    cam_acceleration = np.asarray(cam_acceleration, np.float64)
+    if cam_orientation.shape != (T, 3, 3) or cam_acceleration.shape != (T, 3):
+        raise ValueError(f"camera IMU must be (T, 3, 3) and (T, 3) with T = {T}; got {cam_orientation.shape} "
+                         f"and {cam_acceleration.shape}.")  # fmt: skip
+    keypoints = np.asarray(keypoints, np.float64)
+    if keypoints.shape != (T, 18, 3):
+        raise ValueError(f"keypoints have shape {keypoints.shape}; expected (T, 18, 3) COCO-18 rows (u, v, confidence), T = {T}.")
+    K = np.asarray(K, np.float64)
+    if K.shape != (3, 3):
+        raise ValueError(f"K has shape {K.shape}; expected (3, 3).")
+    finite = np.isfinite(keypoints).all(-1)
+    confidence = np.where(finite, keypoints[..., 2], 0.0).clip(0.0, None)
+    if not (confidence > 0).any():
+        raise ValueError("no frame has a detection (all confidences are 0 or NaN): VIP needs images; "
+                         "use the Inertial Tracker or SIP for IMUs alone.")  # fmt: skip
+    x0 = np.asarray(x0, np.float64)
+    if x0.shape != (24, 3):
+        raise ValueError(f"x0 has shape {x0.shape}; expected (24, 3) axis-angle.")
+    betas = np.zeros(body.num_betas) if betas is None else np.asarray(betas, np.float64)
+    body = body.astype(dtype)
+    out = forward(body, jnp.asarray(x0, dtype), jnp.asarray(betas, dtype), jnp.zeros(3, dtype))
+    b, v = np.asarray(bones), np.asarray(vertices)
+    R_b0 = np.asarray(out.joint_rotations)[b]
+    sensor_point = np.einsum("sba,sb->sa", R_b0, np.asarray(out.vertices)[v] - np.asarray(out.joints)[b])
+    a = lambda x: jnp.asarray(x, dtype)  # noqa: E731
+    return VIPData(
+        orientation=a(orientation), orientation0=a(orientation[0]),
+        acceleration=a(_global_acceleration(orientation, acceleration)), sensor_point=a(sensor_point),
+        rest_joints=shaped_joints(body, a(betas)), prior=prior if prior is not None else default_pose_prior(dtype),
+        body=body, betas=a(betas), cam_orientation=a(cam_orientation),
+        cam_acceleration=a(_global_acceleration(cam_orientation, cam_acceleration)), K=a(K),
+        regressor=a(keypoint_regressor(body, "coco18")), keypoints=a(np.nan_to_num(keypoints[..., :2])),
+        confidence=a(confidence), pixel_scale=a(REFERENCE_IMAGE_HEIGHT / float(image_height)),
+        heading=a(np.zeros(S)), x0=axis_angle_to_matrix(a(x0)), camera=jnp.broadcast_to(jnp.eye(4, dtype=dtype), (T, 4, 4)),
+        fps=float(fps),
+    )  # fmt: skip
+
+
+def from_scenario(scenario, index: int, body: Body, person: int = 0, x0=None, keypoints=None, sensors=None, **kw):
+    """`VIPData` for one IMU wearer of a camera+IMU scenario (`ScenarioConfig` with a moving
+    camera, `camera_imu=True`, keypoints "coco18").
+
+    x0 defaults to the true pose at frame 0. keypoints (T, 18, 3) replaces the detections
+    (VIP-2D passes the true projections); by default the person's detections are taken by
+    the simulator's identity labels (association, eq. 4.11-4.18, is not implemented).
+    sensors: indices of the body sensors to use (default all).
+    Returns (data, truth, bones) with truth = {poses, trans, betas, cam_R, cam_t} of that
+    person and bones the bone of each sensor used.
+    """
+    seq = scenario.sequence(index)
+    missing = [k for k in ("cam_imu_ori", "det_keypoints", "imu_ori") if k not in seq]
+    if missing:
+        raise ValueError(f"scenario has no {missing}: VIP needs body IMUs, a camera IMU and COCO-18 detections.")
+    if keypoints is None:
+        keypoints = person_track(seq["det_keypoints"], seq["det_person"], person)[:, 0]
+    x0 = seq["poses"][person][0] if x0 is None else x0
+    K = seq["cam_K"][0]
+    idx = np.arange(len(seq["imu_bones"])) if sensors is None else np.asarray(sensors)
+    bones = tuple(int(b) for b in np.asarray(seq["imu_bones"])[idx])
+    data = vip_data(
+        body, bones, np.asarray(seq["imu_vertices"])[idx], seq["imu_ori"][person][:, idx], seq["imu_acc"][person][:, idx], x0,
+        scenario.config.fps, seq["cam_imu_ori"], seq["cam_imu_acc"], K, keypoints,
+        scenario.config.cameras.height, betas=seq["betas"][person], **kw,
+    )  # fmt: skip
+    truth = {"poses": seq["poses"][person], "trans": seq["trans"][person], "betas": seq["betas"][person],
+             "cam_R": seq["cam_R"][0], "cam_t": seq["cam_t"][0]}  # fmt: skip
+    return data, truth, bones
+
+
+@functools.lru_cache(maxsize=None)
+def _tracker_problem(bones: tuple[int, ...]) -> Problem:
+    # Cached: the term functions are static, a new closure would mean a new compile.
+    terms = [heading_orientation_term(bones, 1.0, False, False), mahalanobis_term(1.0, 1.0),
+             joint_limit_term(1.0, 1.0)]  # fmt: skip
+    return Problem(terms, {"pose": frame("so3")})
+
+
+def _bones(data: VIPData, bones) -> tuple[int, ...]:
+    bones = tuple(int(b) for b in bones)
+    if len(bones) != data.orientation.shape[1]:
+        raise ValueError(f"{len(bones)} bones for {data.orientation.shape[1]} sensors.")
+    return bones
+
+
+def inertial_tracker(data: VIPData, bones, heading=None, x0=None, mahal: float = 0.003, limit: float = 0.1,
+                     max_steps: int = 20) -> Array:
+    """The Inertial Tracker (eq. 4.10): E_ori + prior per frame (all frames solved at once;
+    the problem is block-diagonal in time). heading (S,) and x0 (24, 3) default to no
+    correction and the given initial pose; with VIP's estimates this is VIP-IT. -> (T, 24, 3)."""
+    bones = _bones(data, bones)
+    if heading is not None:
+        data = eqx.tree_at(lambda d: d.heading, data, jnp.asarray(heading, data.heading.dtype))
+    if x0 is not None:
+        data = eqx.tree_at(lambda d: d.x0, data, axis_angle_to_matrix(jnp.asarray(x0, data.x0.dtype)))
+    S = len(bones)
+    problem = _weighted(_tracker_problem(bones), {"ori": 1.0 / S, "mahal": mahal, "limit": limit}, data.orientation.dtype)
+    T = data.num_frames
+    pose0 = jnp.broadcast_to(matrix_to_axis_angle(data.x0), (T, 24, 3))
+    sol = solve(problem, {"pose": pose0}, data, max_steps=max_steps)
+    return sol.value["pose"]
+
+
+def _weighted(problem: Problem, weights: dict, dtype) -> Problem:
+    """`problem` with traced weights (a new value does not recompile)."""
+    return with_weights(problem, {k: jnp.asarray(v, dtype) for k, v in weights.items()})
+
+
+def initial_camera(data: VIPData, poses, trans) -> np.ndarray:
+    """Camera-to-world poses (T, 6) (axis-angle, centre): rotation from the camera IMU, and
+    per frame the centre whose projection of the posed keypoints best fits the detections
+    (weighted linear least squares, x̂ × (R X + t) = 0); frames with fewer than 3
+    detected keypoints take the centre of the nearest fitted frame."""
+    out = forward(data.body, jnp.asarray(poses, data.body.dtype), data.betas, jnp.asarray(trans, data.body.dtype))
+    X = np.asarray(regress_keypoints(data.regressor, out.vertices), np.float64)  # (T, 18, 3)
+    Rc = np.asarray(data.cam_orientation, np.float64)
+    T = len(X)
+    if not np.isfinite(Rc).all():
+        raise ValueError("the camera IMU has dropped orientation samples; fill them before VIP.")
+    Kinv = np.linalg.inv(np.asarray(data.K, np.float64))
+    uv = np.asarray(data.keypoints, np.float64)
+    conf = np.asarray(data.confidence, np.float64)
+    centres = np.full((T, 3), np.nan)
+    for t in range(T):
+        ok = conf[t] > 0
+        if ok.sum() < 3:
+            continue
+        rays = np.einsum("ab,kb->ka", Kinv, np.concatenate([uv[t, ok], np.ones((ok.sum(), 1))], -1))
+        R = Rc[t].T  # world to camera
+        hat = np.zeros((len(rays), 3, 3))
+        hat[:, 0, 1], hat[:, 0, 2], hat[:, 1, 2] = -rays[:, 2], rays[:, 1], -rays[:, 0]
+        hat = hat - np.swapaxes(hat, 1, 2)
+        w = np.sqrt(conf[t, ok])[:, None, None]
+        A = (w * hat).reshape(-1, 3)
+        b = -(w * np.einsum("kab,kb->ka", hat, X[t, ok] @ R.T)[..., None]).reshape(-1)
+        tt, *_ = np.linalg.lstsq(A, b, rcond=None)
+        centres[t] = -R.T @ tt
+    good = np.flatnonzero(np.isfinite(centres).all(-1))
+    if len(good) == 0:
+        raise ValueError("no frame has 3 or more detected keypoints: the camera cannot be placed.")
+    near = good[np.abs(np.arange(T)[:, None] - good[None]).argmin(1)]
+    centres = centres[near]
+    return np.concatenate([np.asarray(matrix_to_axis_angle(jnp.asarray(Rc))), centres], -1)
+
+
+@functools.lru_cache(maxsize=None)
+def _vip_problem(bones: tuple[int, ...], fps: float, free_heading: bool, free_x0: bool, free_camera: bool,
+                 sigma: float) -> Problem:
+    terms = [
+        heading_orientation_term(bones, 1.0, free_heading, free_x0),
+        heading_acceleration_term(bones, fps, 1.0, free_heading),
+        image_term(1.0, sigma, free_camera),
+        mahalanobis_term(1.0, 1.0),
+        joint_limit_term(1.0, 1.0),
+    ]
+    unknowns = {"pose": frame("so3"), "trans": frame()}
+    if free_camera:
+        terms += [camera_orientation_term(1.0), camera_acceleration_term(fps, 1.0)]
+        unknowns["cam"] = frame("se3")
+    if free_heading:
+        unknowns["heading"] = sequence("angle")
+    if free_x0:
+        terms.append(initial_pose_term(1.0))
+        unknowns["x0"] = sequence("so3")
+    return Problem(terms, unknowns)
+
+
+def _camera_matrices(cam: Array) -> Array:
+    """(T, 6) (axis-angle, centre) -> (T, 4, 4) camera-to-world."""
+    top = jnp.concatenate([axis_angle_to_matrix(cam[:, :3]), cam[:, 3:, None]], -1)
+    bottom = jnp.broadcast_to(jnp.asarray([0.0, 0.0, 0.0, 1.0], cam.dtype), (cam.shape[0], 1, 4))
+    return jnp.concatenate([top, bottom], -2)
+
+
+def video_inertial_poser(
+    data: VIPData,
+    bones,
+    weights: VIPWeights = VIPWeights(),
+    free_heading: bool = True,
+    free_x0: bool = True,
+    camera=None,
+    free_camera: bool = True,
+    init=None,
+    init_trans=None,
+    sigma: float = 100.0,
+    max_steps: int = 30,
+) -> VIPResult:
+    """VIP fusion (eq. 4.19-4.30) from the Inertial Tracker (eq. 4.10).
+
+    Args:
+        data: `vip_data` / `from_scenario`; bones: the bone of each body sensor.
+        weights: `VIPWeights`; free_heading / free_x0: estimate γ_s / x₀ (False keeps
+            them at 0 / the given x₀: VIP-noHeadParam, VIP-vanilla).
+        camera: (T, 6) camera-to-world start (default `initial_camera`); with
+            free_camera=False it is held fixed (VIP-Cam with the true camera).
+        init, init_trans: (T, 24, 3), (T, 3) start (default: IT poses, x₀'s translation 0).
+        sigma: E_img's Geman-McClure σ in reference pixels.
+    """
+    bones = _bones(data, bones)
+    T, S = data.num_frames, len(bones)
+    dtype = data.orientation.dtype
+    poses = inertial_tracker(data, bones) if init is None else jnp.asarray(init, dtype)
+    trans = jnp.zeros((T, 3), dtype) if init_trans is None else jnp.asarray(init_trans, dtype)
+    if poses.shape != (T, 24, 3) or trans.shape != (T, 3):
+        raise ValueError(f"init must be (T, 24, 3) and init_trans (T, 3), T = {T}; got {poses.shape}, {trans.shape}.")
+    cam = initial_camera(data, poses, trans) if camera is None else np.asarray(camera, np.float64)
+    if cam.shape != (T, 6):
+        raise ValueError(f"camera has shape {cam.shape}; expected (T, 6) camera-to-world (axis-angle, centre).")
+    problem = _vip_problem(bones, data.fps, free_heading, free_x0, free_camera, float(sigma))
+    n = S + 1 if free_camera else S  # the camera IMU counts as a sensor in eq. 4.20's mean
+    w = weights
+    problem = _weighted(problem, {k: v for k, v in {
+        "ori": w.ori / n, "acc": w.acc / n, "cam_ori": w.ori / n, "cam_acc": w.acc / n, "img": w.img,
+        "mahal": w.prior, "limit": w.limit, "x0": w.x0}.items() if k in {t.name for t in problem.terms}}, dtype)  # fmt: skip
+    params = {"pose": poses, "trans": trans}
+    if free_camera:
+        params["cam"] = jnp.asarray(cam, dtype)
+    else:
+        data = eqx.tree_at(lambda d: d.camera, data, _camera_matrices(jnp.asarray(cam, dtype)))
+    if free_heading:
+        params["heading"] = jnp.zeros(S, dtype)
+    if free_x0:
+        params["x0"] = matrix_to_axis_angle(data.x0)
+    sol = solve(problem, params, data, max_steps=max_steps)
+    v = sol.value
+    return VIPResult(
+        poses=v["pose"], trans=v["trans"], camera=v.get("cam", jnp.asarray(cam, dtype)),
+        heading=v.get("heading", data.heading), x0=v.get("x0", matrix_to_axis_angle(data.x0)), init=poses, solution=sol,
+    )  # fmt: skip
