@@ -48,7 +48,8 @@ from ..rotation import matrix_to_axis_angle
 from ..sensors.camera import project
 from ..sensors.imu import rotation_y
 from ..sensors.keypoints import regress_keypoints
-from ..solve import GemanMcClure, Term, nan_mask, second_difference
+from ..solve import GemanMcClure, Term, nan_mask
+from ..timeseries import second_difference
 from .imu import _ancestors
 from .posed import posed_body
 
