@@ -140,7 +140,7 @@ def main(argv=None):
     ap.add_argument("--views", type=int, nargs="+", default=[1, 2, 3, 4])
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", type=Path, default=Path("out/muvs_tables"))
-    ap.add_argument("--no-resolve-swaps", action="store_true", help="skip resolve_left_right (the thesis's pipeline)")
+    ap.add_argument("--resolve-swaps", action="store_true", help="flip back swapped views first (resolve_left_right)")
     args = ap.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
     body = default_body("low")
@@ -182,7 +182,7 @@ def main(argv=None):
 
     for n in args.views:
         d = mv.mask_views(data, range(n))
-        d = d if args.no_resolve_swaps else mv.resolve_left_right(d)  # views that swapped the legs
+        d = mv.resolve_left_right(d) if args.resolve_swaps else d  # views that swapped the legs
         t1 = time.perf_counter()
         p0 = mv.initialise(d, w.num_betas)
         pj, _ = mv.stage_one(d, p0, w, silhouettes=False)

@@ -12,8 +12,8 @@
   adds E_S here too.
 - **Monocular** (Table 4.5): the same code with one view.
 
-Left/right swaps (ours): before stage 1, `resolve_left_right` flips back the leg labels of
-any view that disagrees with the others (2^V assignments triangulated per frame).
+Left/right swaps (ours, opt-in): before stage 1, `resolve_left_right` can flip back the leg
+labels of any view that disagrees with the others (2^V assignments triangulated per frame).
 
 Initialisation (ours; MuVS reuses SMPLify's): per frame, the hips and shoulders are
 triangulated from every view that sees them (confidence-weighted DLT) and give the root
@@ -437,12 +437,13 @@ def multiview_smplify(
     temporal: bool = True,
     temporal_silhouettes: bool = False,
     params0: dict | None = None,
-    resolve_swaps: bool = True,
+    resolve_swaps: bool = False,
 ) -> MuVSResult:
     """MuVS on one sequence: stage 1 (+S if masks are given), then stage 2 (+T, +H).
 
     With `resolve_swaps`, views that swapped the legs are flipped back first
-    (`resolve_left_right`; our addition)."""
+    (`resolve_left_right`; our addition, off by default until its effect on the fit is
+    measured: it flips back most swapped views, but also some unswapped ones)."""
     data = resolve_left_right(data) if resolve_swaps else data
     p0 = initialise(data, weights.num_betas) if params0 is None else params0
     p1, costs = stage_one(data, p0, weights, silhouettes)
