@@ -157,13 +157,8 @@ def _mean(e, mask):
     return (e * m).sum(axis=(-2, -1)) / (m.sum(axis=(-2, -1)) * e.shape[-1])
 
 
-def pose_errors(body, pred_poses, true_poses, betas=None, pred_trans=None, true_trans=None,
-                position_joints="totalcapture_mpjpe", angle_joints="totalcapture_mpjae") -> dict:
-    """Per-frame errors of a pose trajectory against the truth on `body` (forward kinematics).
-
-    Returns a dict of NumPy arrays: "mpjpe" (T, N_J) mm after Procrustes, "mpjpe_root"
-    (T, N_J) mm root-aligned without rotation, "mpjae" (T, N_J') degrees.
-    """
+def _posed_pair(body, pred_poses, true_poses, betas, pred_trans, true_trans):
+    """Forward kinematics of a predicted and a true (T, 24, 3) trajectory on one body."""
     from .body.kinematics import forward
 
     if jnp.shape(pred_poses) != jnp.shape(true_poses):
@@ -171,8 +166,17 @@ def pose_errors(body, pred_poses, true_poses, betas=None, pred_trans=None, true_
             f"pred_poses has shape {jnp.shape(pred_poses)} but true_poses has {jnp.shape(true_poses)}; "
             "both must be (T, 24, 3) with the same T (trim or resample one of them)."
         )
-    pred = forward(body, pred_poses, betas, pred_trans)
-    true = forward(body, true_poses, betas, true_trans)
+    return forward(body, pred_poses, betas, pred_trans), forward(body, true_poses, betas, true_trans)
+
+
+def pose_errors(body, pred_poses, true_poses, betas=None, pred_trans=None, true_trans=None,
+                position_joints="totalcapture_mpjpe", angle_joints="totalcapture_mpjae") -> dict:
+    """Per-frame errors of a pose trajectory against the truth on `body` (forward kinematics).
+
+    Returns a dict of NumPy arrays: "mpjpe" (T, N_J) mm after Procrustes, "mpjpe_root"
+    (T, N_J) mm root-aligned without rotation, "mpjae" (T, N_J') degrees.
+    """
+    pred, true = _posed_pair(body, pred_poses, true_poses, betas, pred_trans, true_trans)
     return {
         "mpjpe": np.asarray(position_errors(pred.joints, true.joints, position_joints, "procrustes")) * 1000.0,
         "mpjpe_root": np.asarray(position_errors(pred.joints, true.joints, position_joints, "root")) * 1000.0,
@@ -208,15 +212,7 @@ def literature_metrics(body, pred_poses, true_poses, fps: float, betas=None, pre
     (of world joints; needs the translations to mean anything). Both sides use `betas`,
     so the numbers measure pose, not body size.
     """
-    from .body.kinematics import forward
-
-    if jnp.shape(pred_poses) != jnp.shape(true_poses):
-        raise ValueError(
-            f"pred_poses has shape {jnp.shape(pred_poses)} but true_poses has {jnp.shape(true_poses)}; "
-            "both must be (T, 24, 3) with the same T."
-        )
-    pred = forward(body, pred_poses, betas, pred_trans)
-    true = forward(body, true_poses, betas, true_trans)
+    pred, true = _posed_pair(body, pred_poses, true_poses, betas, pred_trans, true_trans)
     root = lambda o, x: x - o.joints[..., :1, :]  # noqa: E731
     rel = root(pred, pred.joints)
     return {
