@@ -324,6 +324,22 @@ def _run_sweep(args) -> int:
     return main_args(args)
 
 
+# --- prior --------------------------------------------------------------------------
+
+
+def _configure_prior(p: argparse.ArgumentParser) -> None:
+    from .priors.build import configure
+
+    sub = p.add_subparsers(dest="prior_action", metavar="ACTION", required=True)
+    configure(sub.add_parser("build", help="fit a Gaussian pose prior to motion folders (AMASS .npz, ASF/AMC, BVH)"))
+
+
+def _run_prior(args) -> int:
+    from .priors.build import run
+
+    return run(args)
+
+
 COMMANDS: list[Command] = [
     Command("inspect", "summarise a motion file or a body model file", _configure_inspect, _run_inspect),
     Command("convert", "convert any readable motion to an AMASS-style .npz", _configure_convert, _run_convert),
@@ -331,6 +347,7 @@ COMMANDS: list[Command] = [
     Command("demo", "walk → posed body → meshes and pictures (the `make demo` job)", _configure_demo, _run_demo),
     Command("check", "physical plausibility: ground penetration, floating, foot skating", _configure_check, _run_check),
     Command("multiview", "fit SMPL to multi-camera OpenPose keypoints (Multi-view SMPLify)", _configure_multiview, _run_multiview),
+    Command("prior", "build a pose prior from your own motion (jaxmocap prior build DIR)", _configure_prior, _run_prior),
     Command("sweep", "grid of methods × weights × sensor errors × datasets, resumable", _configure_sweep, _run_sweep),
 ]
 

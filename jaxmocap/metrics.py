@@ -113,7 +113,8 @@ def position_errors(pred_joints, true_joints, joints="totalcapture_mpjpe", align
     """‖p_j(t) - p̃_j(t)‖ per frame and joint of the set, metres: (..., T, J) -> (..., T, N_J).
 
     align: "procrustes" (per-frame rigid alignment on the evaluated joints, §2.5.2),
-    "root" (pelvis positions subtracted) or "none".
+    "procrustes_scaled" (rigid plus one scale: body size drops out), "root" (pelvis
+    positions subtracted) or "none".
     """
     idx = joint_indices(joints)
     pred, true = jnp.asarray(pred_joints), jnp.asarray(true_joints)
@@ -121,10 +122,10 @@ def position_errors(pred_joints, true_joints, joints="totalcapture_mpjpe", align
     if align == "root":
         pred, true = pred - pred[..., :1, :], true - true[..., :1, :]
     pred, true = pred[..., idx, :], true[..., idx, :]
-    if align == "procrustes":
-        pred = procrustes_align(pred, true)
+    if align in ("procrustes", "procrustes_scaled"):
+        pred = procrustes_align(pred, true, scale=align == "procrustes_scaled")
     elif align not in ("root", "none"):
-        raise ValueError(f"align must be 'procrustes', 'root' or 'none', got {align!r}.")
+        raise ValueError(f"align must be 'procrustes', 'procrustes_scaled', 'root' or 'none', got {align!r}.")
     return jnp.linalg.norm(pred - true, axis=-1)
 
 

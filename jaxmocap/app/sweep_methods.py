@@ -250,14 +250,19 @@ class InertialMethod:
                     ok[i].init = poses[j, : ok[i].length]
         return out
 
-    def solve(self, items, weights, options):
+    def fit(self, items, weights, options):
+        """Solve `items` (padded to the longest) with per-item `weights` ({name: (B,) array}).
+
+        Returns (poses (B, T, 24, 3), result codes (B,), steps (B,), costs (B,), frame mask
+        (B, T)); the solve runs in the setups' dtype (float64 setups: a float64 solve).
+        """
         from ..methods import inertial as I
         from ..solve import solve_batch
 
         T = max(it.length for it in items)
-        lengths = np.asarray([it.length for it in items])
         stacked, mask = I.pad_setups([it.setup for it in items], T)
-        w = {k: jnp.asarray(weights.get(k, np.full(len(items), v)), jnp.float32) for k, v in self.defaults.items()}
+        dtype = stacked.pose0.dtype
+        w = {k: jnp.asarray(weights.get(k, np.full(len(items), v)), dtype) for k, v in self.defaults.items()}
         S = len(stacked.bones)
         term_w = {"ori": w["ori"] / S, "mahal": w["anthro"] * w["mahal"], "limit": w["anthro"] * w["limit"]}
         steps = int(options.get("max_steps", 20))
@@ -265,25 +270,29 @@ class InertialMethod:
         if self.name == "sip":
             term_w["acc"] = w["acc"] / S
             problem = I.inertial_problem(stacked, acceleration=True)
-            init = jnp.asarray(np.stack([pad(it.init) for it in items]), jnp.float32)
+            init = jnp.asarray(np.stack([pad(it.init) for it in items]), dtype)
             trans = jnp.broadcast_to(stacked.trans0[:, None], (len(items), T, 3))
             sol = solve_batch(problem, {"pose": init, "trans": trans}, stacked.data, mask, weights=term_w,
                               max_steps=steps, rtol=options.get("rtol", 1e-6), atol=options.get("atol", 1e-10),
                               memory_fraction=options.get("memory_fraction", 0.6))  # fmt: skip
-            poses, result, nsteps, cost = sol.value["pose"], sol.result, sol.num_steps, sol.cost
-        else:
-            poses, codes = _sop_batch(stacked, term_w, steps)
-            ok = np.asarray(codes) == 0
-            result = np.where(np.asarray(mask) & ~ok, 1, 0).max(1)
-            nsteps, cost = np.full(len(items), steps), np.full(len(items), np.nan)
+            return sol.value["pose"], np.asarray(sol.result), np.asarray(sol.num_steps), np.asarray(sol.cost), mask
+        poses, codes = _sop_batch(stacked, term_w, steps)
+        ok = np.asarray(codes) == 0
+        result = np.where(np.asarray(mask) & ~ok, 1, 0).max(1)
+        return poses, result, np.full(len(items), steps), np.full(len(items), np.nan), mask
+
+    def solve(self, items, weights, options):
+        poses, result, nsteps, cost, mask = self.fit(items, weights, options)
+        T = mask.shape[1]
+        pad = lambda x: np.concatenate([x, np.repeat(x[-1:], T - len(x), 0)]) if len(x) < T else x  # noqa: E731
         truth = jnp.asarray(np.stack([pad(it.truth) for it in items]), jnp.float32)
         betas = jnp.asarray(np.stack([it.betas for it in items]), jnp.float32)
         mpjpe, mpjae = _errors(self.body, jnp.asarray(poses, jnp.float32), truth, betas, mask)
         out = []
-        for i in range(len(items)):
+        for i, it in enumerate(items):
             out.append({
                 "mpjpe": float(mpjpe[i]), "mpjae": float(mpjae[i]), "cost": float(cost[i]),
-                "result": int(result[i]), "steps": int(nsteps[i]), "frames": int(lengths[i]),
+                "result": int(result[i]), "steps": int(nsteps[i]), "frames": it.length,
             })  # fmt: skip
         return out
 

@@ -1,13 +1,18 @@
-"""Rebuild `pose_prior.npz`: learn μ, Σ of the 69 non-root joint angles from motion data.
+"""Build pose priors from motion files: the bundled one, a user's own, and held-out folds.
 
-    python -m jaxmocap.priors.build [--cmu DIR] [--out PATH]
+    jaxmocap prior build DIR [DIR ...] [--out prior.npz] [--no-library]
+    python -m jaxmocap.priors.build            # rebuild the bundled pose_prior.npz
 
-Sources: every motion of `jaxmocap.motion.library` (procedural, 8 s each at 30 fps) and
-every CMU clip found in the CMU folder (`find_cmu_dir()`), resampled to 30 fps and
-retargeted to the default body. Frames are pooled with equal weight per clip (clips are
-subsampled to at most 600 frames) so that no long clip dominates. The covariance gets an
-isotropic floor of (5°)² added: directions the training clips never move (retargeted
-CMU knees have no twist) would otherwise get a near-infinite precision and lock the fit.
+A prior is μ, Σ of the 69 non-root joint angles (von Marcard eq. 3.14) over every frame
+of the given clips (AMASS .npz, ASF/AMC, BVH, read by `jaxmocap.motion.load_motion`),
+resampled to 30 fps and retargeted to the default body, plus the procedural motions of
+`jaxmocap.motion.library` unless `include_library=False`. Frames are pooled with equal
+weight per clip (clips subsampled to at most 600 frames) so no long clip dominates. Σ gets
+an isotropic floor of (5°)²: directions the clips never move (retargeted knees do not
+twist) would otherwise get a near-infinite precision and lock the fit.
+
+`held_out_prior(exclude=...)` is the prior of an evaluation fold: built from every clip of
+`jaxmocap.motion.corpus()` except the excluded subjects' (clips are read once per process).
 """
 
 from __future__ import annotations
@@ -16,73 +21,147 @@ import argparse
 import datetime
 import json
 from pathlib import Path
+from typing import Iterable, Sequence
 
 import numpy as np
 
-from .pose_prior import DEFAULT_PRIOR_PATH, joint_limits
+from .pose_prior import DEFAULT_PRIOR_PATH, PosePrior, joint_limits
+
+__all__ = ["FLOOR_DEG", "MAX_FRAMES_PER_CLIP", "clip_poses", "fit_prior", "build_prior", "held_out_prior", "motion_files"]
 
 FLOOR_DEG = 5.0
 MAX_FRAMES_PER_CLIP = 600
+_FPS = 30.0
+_POSES: dict[str, np.ndarray] = {}  # source -> (N, 69): clips are read once per process
 
 
-def collect_poses(cmu_dir=None, fps: float = 30.0) -> tuple[np.ndarray, list[dict]]:
-    """(N, 69) joint angles and a list of {source, frames} records."""
-    from ..body.io import default_body
-    from ..motion import library
-    from ..motion.io import load_motion
-    from ..motion.io import find_cmu_dir
+def motion_files(paths: Iterable) -> list[Path]:
+    """Motion files from files and folders (searched recursively for .npz, .amc, .bvh)."""
+    from ..motion.corpus import MOTION_SUFFIXES
 
-    body = default_body("low")
-    chunks, records = [], []
+    out = []
+    for p in map(Path, paths):
+        if p.is_dir():
+            found = sorted(f for f in p.rglob("*") if f.suffix.lower() in MOTION_SUFFIXES)
+            if not found:
+                raise FileNotFoundError(f"{p} holds no motion files ({', '.join(MOTION_SUFFIXES)}).")
+            out += found
+        elif p.is_file():
+            out.append(p)
+        else:
+            raise FileNotFoundError(f"motion file or folder {p} does not exist.")
+    return out
 
-    def add(poses, source):
+
+def _subsample(x: np.ndarray) -> np.ndarray:
+    if len(x) > MAX_FRAMES_PER_CLIP:
+        x = x[np.linspace(0, len(x) - 1, MAX_FRAMES_PER_CLIP).astype(int)]
+    return x
+
+
+def clip_poses(source) -> np.ndarray:
+    """(N, 69) non-root joint angles of one clip (a path, or a `motion.library` name), cached."""
+    key = str(source)
+    if key not in _POSES:
+        from ..body.io import default_body
+        from ..motion import library
+        from ..motion.io import load_motion
+
+        body = default_body("low")
+        if key in library.MOTIONS:
+            poses = library.MOTIONS[key](num_frames=int(8 * _FPS), fps=_FPS, body=body).poses
+        else:
+            poses = load_motion(key, fps=_FPS, body=body).poses
         x = np.asarray(poses, np.float64)[:, 1:, :].reshape(len(poses), -1)
-        if len(x) > MAX_FRAMES_PER_CLIP:
-            x = x[np.linspace(0, len(x) - 1, MAX_FRAMES_PER_CLIP).astype(int)]
-        chunks.append(x)
-        records.append({"source": source, "frames": int(len(x))})
-
-    for name, make in sorted(library.MOTIONS.items()):
-        add(make(num_frames=int(8 * fps), fps=fps, body=body).poses, f"jaxmocap.motion.library.{name}")
-    cmu_dir = find_cmu_dir() if cmu_dir is None else Path(cmu_dir)
-    if cmu_dir is not None:
-        for path in sorted(cmu_dir.glob("*.amc")) + sorted(cmu_dir.glob("*.bvh")):
-            add(load_motion(path, fps=fps, body=body).poses, f"CMU {path.name}")
-    return np.concatenate(chunks), records
+        _POSES[key] = _subsample(x)
+    return _POSES[key]
 
 
-def build(out=DEFAULT_PRIOR_PATH, cmu_dir=None) -> Path:
-    x, records = collect_poses(cmu_dir)
-    # Pool clips with equal weight: weight each frame by 1 / (its clip's frame count).
-    w = np.concatenate([np.full(r["frames"], 1.0 / r["frames"]) for r in records])
+def fit_prior(sources: Sequence, include_library: bool = True) -> tuple[np.ndarray, np.ndarray, dict]:
+    """μ (69,), Σ (69, 69) and provenance of the clips `sources` (paths or library names)."""
+    from ..motion import library
+
+    sources = [str(s) for s in sources] + (sorted(library.MOTIONS) if include_library else [])
+    if not sources:
+        raise ValueError("fit_prior needs at least one clip (or include_library=True).")
+    chunks = [clip_poses(s) for s in sources]
+    x = np.concatenate(chunks)
+    # Equal weight per clip: each frame weighs 1 / (its clip's frame count).
+    w = np.concatenate([np.full(len(c), 1.0 / len(c)) for c in chunks])
     w /= w.sum()
     mean = w @ x
     centred = x - mean
     cov = (centred * w[:, None]).T @ centred + np.eye(69) * np.radians(FLOOR_DEG) ** 2
     lower, upper = joint_limits()
-    outside = float(np.mean((x < lower) | (x > upper)))
     meta = {
         "built": datetime.date.today().isoformat(),
-        "sources": records,
+        "sources": [
+            {"source": s if s in library.MOTIONS else Path(s).name, "frames": int(len(c))}
+            for s, c in zip(sources, chunks)
+        ],
         "floor_deg": FLOOR_DEG,
-        "fraction_of_training_values_outside_limits": outside,
+        "fps": _FPS,
+        "fraction_of_training_values_outside_limits": float(np.mean((x < lower) | (x > upper))),
     }
+    return mean, cov, meta
+
+
+def build_prior(sources: Sequence, out=DEFAULT_PRIOR_PATH, include_library: bool = True) -> Path:
+    """Fit a prior to `sources` (motion files) and write it as a `PosePrior.load`-able .npz."""
+    mean, cov, meta = fit_prior(sources, include_library)
+    lower, upper = joint_limits()
     out = Path(out)
-    np.savez(out, mean=mean, covariance=cov, lower=lower, upper=upper, meta=json.dumps(meta))
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_name(out.name + ".tmp.npz")
+    np.savez(tmp, mean=mean, covariance=cov, lower=lower, upper=upper, meta=json.dumps(meta))
+    tmp.replace(out)  # atomic: a reader never sees half a file
     return out
 
 
-def main(argv=None) -> int:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--cmu", help="CMU clip folder (default: find_cmu_dir())")
-    p.add_argument("--out", default=str(DEFAULT_PRIOR_PATH))
-    args = p.parse_args(argv)
-    path = build(args.out, args.cmu)
+def held_out_prior(exclude: Iterable[str], clips=None, dtype=None) -> PosePrior:
+    """The prior of every clip of `clips` (default `corpus()`) but the `exclude` subjects'."""
+    import jax.numpy as jnp
+
+    from ..motion.corpus import corpus, training_clips
+
+    clips = corpus() if clips is None else clips
+    mean, cov, _ = fit_prior([c.path for c in training_clips(clips, exclude)])
+    return PosePrior.from_moments(mean, cov, dtype=jnp.float32 if dtype is None else dtype)
+
+
+def configure(p: argparse.ArgumentParser) -> None:
+    p.add_argument("paths", nargs="*", metavar="DIR",
+                   help="motion files or folders (AMASS .npz, ASF/AMC, BVH); default: every CMU clip found")
+    p.add_argument("--out", default=None, help="output .npz (default: out/pose_prior.npz, or the bundled prior "
+                   "with --bundled)")  # fmt: skip
+    p.add_argument("--bundled", action="store_true", help="rebuild the bundled jaxmocap/priors/pose_prior.npz")
+    p.add_argument("--no-library", action="store_true", help="leave out the procedural motions")
+
+
+def run(args) -> int:
+    from ..motion.corpus import corpus
+
+    files = motion_files(args.paths) if args.paths else [c.path for c in corpus()]
+    if not files:
+        raise SystemExit("no motion clips found: pass folders of AMASS .npz, ASF/AMC or BVH files.")
+    out = Path(args.out) if args.out else DEFAULT_PRIOR_PATH if args.bundled else Path("out/pose_prior.npz")
+    print(f"reading {len(files)} clips ...", flush=True)
+    path = build_prior(files, out, include_library=not args.no_library)
     with np.load(path) as f:
         meta = json.loads(str(f["meta"]))
     print(f"wrote {path}: {sum(r['frames'] for r in meta['sources'])} frames from {len(meta['sources'])} clips; "
-          f"{100 * meta['fraction_of_training_values_outside_limits']:.2f} % of training values outside the limits")
+          f"{100 * meta['fraction_of_training_values_outside_limits']:.2f} % of training values outside the joint "
+          f"limits. Use it with PosePrior.load({str(path)!r}).")  # fmt: skip
     return 0
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description="Rebuild the bundled pose prior from every CMU clip found.")
+    configure(p)
+    args = p.parse_args(argv)
+    if args.out is None and not args.paths:
+        args.bundled = True
+    return run(args)
 
 
 if __name__ == "__main__":

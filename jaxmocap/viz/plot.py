@@ -508,3 +508,21 @@ def plot_per_joint(errors: dict, joint_names: Sequence[str], path, ylabel: str =
     fig.set_dpi(120)
     fig.tight_layout()
     return save_figure(fig, path)
+
+
+def plot_lines(series: dict, path, xlabel: str, ylabel: str, title: str = "", logx: bool = False) -> Path:
+    """One line per entry of `series` ({label: (x, y)}), markers on the points."""
+    fig = Figure(figsize=(6, 3.4))
+    ax = fig.subplots()
+    for label, (x, y) in series.items():
+        ax.plot(np.asarray(x), np.asarray(y), "o-", lw=1.4, ms=4, label=label)
+    if logx:
+        ax.set_xscale("symlog", linthresh=min(v for x, _ in series.values() for v in np.asarray(x) if v > 0))
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.set_title(title, fontsize=10)
+    ax.grid(alpha=0.3)
+    ax.legend(frameon=False, fontsize=8)
+    fig.set_dpi(120)
+    fig.tight_layout()
+    return save_figure(fig, path)
