@@ -184,17 +184,22 @@ def test_calibration_absorbs_mounting_rotation(body, clean13):
 def test_it_recovers_noise_free_poses(body):
     """Must-show: noise-free IMU-13, IT recovers the true poses (MPJAE < 1°).
 
-    The prior only fills the null space of 13 orientations (spine and neck/head split),
-    so its weight is made small (w_mahal = 1e-5): with the thesis's 0.003 and our learnt
-    covariance it biases every sensed bone by ~3° (reported in experiments/).
+    13 orientations leave two splits unobserved: spine1/2/3 between the pelvis and sternum
+    sensors, and neck/head between the sternum and head sensors. The prior alone chooses
+    them, so the neck's global rotation (TotalCapture's MPJAE set) is the prior's guess,
+    not a measurement (15-25° off on this jump with the prior of every CMU clip). The head's
+    global rotation, which the head sensor measures, stands in for it. The prior's weight is
+    small (w_mahal = 1e-5): with the thesis's 0.003 and our learnt covariance it biases every
+    sensed bone by ~3° (reported in experiments/).
     """
     sc = _scenario(body, "totalcapture13", IMUErrorModel.off(), 30)
     setup = I.from_scenario(sc, 0, body)
     poses, results = I.inertial_tracker(setup, I.SIPWeights(mahal=1e-5), sequential=False)
     assert poses.shape == (30, 24, 3)
-    err = metrics.pose_errors(body, poses, sc.sequence(0)["poses"][0])
+    observed = tuple("head" if n == "neck" else n for n in metrics.JOINT_SETS["totalcapture_mpjae"])
+    err = metrics.pose_errors(body, poses, sc.sequence(0)["poses"][0], angle_joints=observed)
     assert err["mpjae"].mean() < 1.0, err["mpjae"].mean(0)
-    sensed = [i for i, n in enumerate(metrics.JOINT_SETS["totalcapture_mpjae"]) if n != "neck"]
+    sensed = [i for i, n in enumerate(observed) if n != "head"]
     assert err["mpjae"][:, sensed].mean() < 0.2
 
 
