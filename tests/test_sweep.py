@@ -174,6 +174,7 @@ def test_variants_collapse_switched_off_terms():
         (lambda c: c["sweep"].update(methods=["nope"]), "unknown method 'nope'"),
         (lambda c: c["sweep"].update(metric="mpjpe"), "metric 'mpjpe' is not reported"),
         (lambda c: c["sensor_errors"]["low"].update(acc_nois=1.0), "unknown IMU error field"),
+        (lambda c: c["datasets"]["tracks"].update(prior="heldout"), "prior must be 'bundled', 'held_out'"),
     ],
 )
 def test_bad_config_is_refused_naming_the_problem(edit, message):

@@ -49,7 +49,7 @@ _SWEEP_KEYS = {
     "name", "methods", "datasets", "sensor_errors", "metric", "batch_size", "max_steps", "rtol", "atol",
     "memory_fraction", "out", "baseline",
 }  # fmt: skip
-_DATASET_KEYS = {"motions", "scenario", "sequences", "frames", "fps", "imu_set", "seed", "betas_std", "vary"}
+_DATASET_KEYS = {"motions", "scenario", "sequences", "frames", "fps", "imu_set", "seed", "betas_std", "vary", "prior"}
 
 
 class SweepConfigError(ValueError):
@@ -128,6 +128,10 @@ def validate_config(raw: dict, source: str = "config") -> dict:
             _fail(source, f"unknown key(s) {bad} in [datasets.{d}]; allowed: {sorted(_DATASET_KEYS)}.")
         if ("scenario" in spec) == ("motions" in spec):
             _fail(source, f"[datasets.{d}] needs exactly one of 'scenario' (a saved .npz) or 'motions'.")
+        prior = spec.get("prior", "bundled")
+        if prior not in ("bundled", "held_out") and not Path(str(prior)).is_file():
+            _fail(source, f"[datasets.{d}] prior must be 'bundled', 'held_out' (leave-subject-out, for corpus "
+                          f"clips) or a prior .npz file; {prior!r} is none of these.")  # fmt: skip
         if "scenario" in spec and not Path(spec["scenario"]).is_file():
             _fail(source, f"[datasets.{d}] scenario file {spec['scenario']!r} does not exist.")
         if "motions" in spec:

@@ -163,6 +163,18 @@ def scenario_for(dataset: dict, errors: dict | None, cache: Path, body=None):
 # --- the inertial posers ------------------------------------------------------------------
 
 
+def _prior(spec: str, name: str):
+    """A dataset's pose prior: the bundled one (None), the clip's leave-subject-out fold, or a file."""
+    from ..priors import PosePrior
+    from ..priors.build import evaluation_prior
+
+    if spec == "bundled":
+        return None
+    if spec == "held_out":
+        return evaluation_prior(name)
+    return PosePrior.load(spec)
+
+
 @dataclasses.dataclass
 class FailedItem:
     """A sequence that could not be prepared: its cells record `error` and are not solved."""
@@ -231,7 +243,7 @@ class InertialMethod:
         for i in range(sc.num_sequences):
             seq = sc.sequence(i)
             try:
-                setup = I.from_scenario(sc, i, self.body)
+                setup = I.from_scenario(sc, i, self.body, prior=_prior(dataset.get("prior", "bundled"), sc.meta["names"][i]))
             except ValueError as e:  # e.g. a dropout at frame 0: no calibration, this sequence only
                 out.append(FailedItem(f"{type(e).__name__}: {e}", int(sc["length"][i])))
                 continue

@@ -27,7 +27,8 @@ import numpy as np
 
 from .pose_prior import DEFAULT_PRIOR_PATH, PosePrior, joint_limits
 
-__all__ = ["FLOOR_DEG", "MAX_FRAMES_PER_CLIP", "clip_poses", "fit_prior", "build_prior", "held_out_prior", "motion_files"]
+__all__ = ["FLOOR_DEG", "MAX_FRAMES_PER_CLIP", "clip_poses", "fit_prior", "build_prior", "held_out_prior",
+           "evaluation_prior", "motion_files"]
 
 FLOOR_DEG = 5.0
 MAX_FRAMES_PER_CLIP = 600
@@ -127,6 +128,26 @@ def held_out_prior(exclude: Iterable[str], clips=None, dtype=None) -> PosePrior:
     clips = corpus() if clips is None else clips
     mean, cov, _ = fit_prior([c.path for c in training_clips(clips, exclude)])
     return PosePrior.from_moments(mean, cov, dtype=jnp.float32 if dtype is None else dtype)
+
+
+_FOLDS: dict = {}
+
+
+def evaluation_prior(clip, dtype=None) -> PosePrior:
+    """The prior to evaluate on `clip` (a path or a CMU name like '005_02.bvh'): built without its subject.
+
+    Folds are built once per process. Use it wherever a number is measured on a corpus clip:
+    the bundled prior has seen every clip of the corpus.
+    """
+    from ..motion.corpus import subject_of
+
+    import jax.numpy as jnp
+
+    dtype = jnp.float32 if dtype is None else dtype
+    key = (subject_of(clip), jnp.dtype(dtype).name)
+    if key not in _FOLDS:
+        _FOLDS[key] = held_out_prior([key[0]], dtype=dtype)
+    return _FOLDS[key]
 
 
 def configure(p: argparse.ArgumentParser) -> None:
