@@ -28,12 +28,15 @@ rtol = atol = 1e-4 (cost change below 0.01 %, every unknown below 1e-4 rad / 0.1
 20, 50, 100 steps and at convergence.
 
 Writes `sip_tables.json`, `sip_tables.md` and plots to `--out` (default `out/sip_tables`).
-Stages are cached in `--out/cache/` (a killed run resumes where it stopped).
+Stages are cached in `--out/cache/` (scenarios, held-out priors, the weight grid, the table
+solves): a killed run resumes where it stopped, and `--prepare` does the CPU-bound part
+(reading clips, synthesis, priors) alone.
 """
 
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import os
 import pickle
@@ -53,10 +56,10 @@ from jaxmocap import metrics  # noqa: E402
 from jaxmocap.app.sweep_methods import InertialItem, InertialMethod  # noqa: E402
 from jaxmocap.body import default_body, forward  # noqa: E402
 from jaxmocap.methods import inertial as I  # noqa: E402
-from jaxmocap.motion.corpus import GROUPS, corpus  # noqa: E402
-from jaxmocap.priors import default_pose_prior  # noqa: E402
-from jaxmocap.priors.build import held_out_prior  # noqa: E402
-from jaxmocap.sensors import IMUErrorModel, ScenarioConfig, make_scenario  # noqa: E402
+from jaxmocap.motion.corpus import GROUPS, corpus, training_clips  # noqa: E402
+from jaxmocap.priors import PosePrior, default_pose_prior  # noqa: E402
+from jaxmocap.priors.build import fit_prior  # noqa: E402
+from jaxmocap.sensors import IMUErrorModel, ScenarioConfig, load_scenario, make_scenario, save_scenario  # noqa: E402
 from jaxmocap.solve import length_buckets  # noqa: E402
 from jaxmocap.viz.plot import plot_error_curves, plot_lines, plot_per_joint  # noqa: E402
 
@@ -91,16 +94,24 @@ OLD_PROTOCOL = {"SOP": {"mpjpe": 62.8, "mpjae": 10.6}, "SIP": {"mpjpe": 38.0, "m
 
 
 class Fold:
-    """Priors by excluded subjects, built once each."""
+    """Priors by excluded subjects, built once each and kept in the cache folder."""
 
-    def __init__(self, clips):
-        self.clips, self.cache = clips, {}
+    def __init__(self, clips, cache: Path):
+        self.clips, self.cache, self.made = clips, cache, {}
 
     def prior(self, exclude):
         key = tuple(sorted(exclude)) if exclude is not None else None
-        if key not in self.cache:
-            self.cache[key] = default_pose_prior(DTYPE) if key is None else held_out_prior(key, self.clips, DTYPE)
-        return self.cache[key]
+        if key not in self.made:
+            if key is None:
+                self.made[key] = default_pose_prior(DTYPE)
+            else:
+                path = self.cache / f"prior_without_{'_'.join(key)}.npz"
+                if not path.is_file():
+                    mean, cov, _ = fit_prior([c.path for c in training_clips(self.clips, key)])
+                    np.savez(path.with_suffix(".tmp.npz"), mean=mean, covariance=cov)
+                    path.with_suffix(".tmp.npz").replace(path)
+                self.made[key] = PosePrior.load(path, DTYPE)
+        return self.made[key]
 
 
 def scaled_body(body, s: float):
@@ -109,12 +120,20 @@ def scaled_body(body, s: float):
                        (body.v_template * s, body.shapedirs * s, body.posedirs * s))  # fmt: skip
 
 
-def scenarios(clips, frames: int, seed: int, body, fps: float = 30.0):
+def scenarios(clips, frames: int, seed: int, body, cache: Path, fps: float = 30.0):
+    """IMU-6 and IMU-13 scenarios of `clips` (cached: synthesis is minutes of CPU) and calibration frames."""
     paths = [str(c.path) for c in clips]
-    cfg = lambda imu: ScenarioConfig(fps=fps, max_frames=frames, imu_set=imu, imu_errors=IMUErrorModel.xsens(),  # noqa: E731
-                                     betas_std=0.0)  # fmt: skip
-    sc6 = make_scenario(paths, cfg("sip6"), seed=seed, body=body)
-    sc13 = make_scenario(paths, cfg("totalcapture13"), seed=seed, body=body)
+    key = hashlib.sha1(json.dumps([[c.name for c in clips], frames, seed, fps]).encode()).hexdigest()[:12]
+    out = []
+    for imu in ("sip6", "totalcapture13"):
+        path = cache / f"scenario_{imu}_{key}.npz"
+        if path.is_file():
+            out.append(load_scenario(path))
+            continue
+        cfg = ScenarioConfig(fps=fps, max_frames=frames, imu_set=imu, imu_errors=IMUErrorModel.xsens(), betas_std=0.0)
+        out.append(make_scenario(paths, cfg, seed=seed, body=body))
+        save_scenario(out[-1], path)
+    sc6, sc13 = out
     starts = []
     for i in range(len(clips)):
         ks = [I.first_complete_frame(sc.sequence(i)["imu_ori"][0]) for sc in (sc6, sc13)]
@@ -171,13 +190,20 @@ def run(args) -> dict:
         clips = [clips[i] for i in np.linspace(0, len(clips) - 1, args.clips).astype(int)]
     subjects = sorted({c.subject for c in clips})
     body = default_body("low")
-    folds = Fold(corpus())  # priors always from the whole corpus minus the excluded subjects
-    sc6, sc13, starts = scenarios(clips, args.frames, args.seed, body)
+    folds = Fold(corpus(), cache)  # priors always from the whole corpus minus the excluded subjects
+    sc6, sc13, starts = scenarios(clips, args.frames, args.seed, body, cache)
     keep = [i for i, k in enumerate(starts) if k is not None]
     for i in set(range(len(clips))) - set(keep):
         print(f"{clips[i].name}: skipped, no frame where every sensor reports", flush=True)
     print(f"{len(keep)} clips, {len(subjects)} subjects ({', '.join(subjects)}), "
           f"{sum(int(sc6['length'][i]) - starts[i] for i in keep)} frames ({time.perf_counter() - t0:.0f} s)", flush=True)  # fmt: skip
+    if args.prepare:  # the CPU-bound part (clips, synthesis, priors), to carry to a GPU machine
+        for s in subjects:
+            folds.prior((s,))
+        if not args.clips:
+            scenarios([c for c in corpus() if c.path.stem in LONG_CLIPS], 100000, args.seed, body, cache, fps=60.0)
+        print(f"prepared {cache} ({time.perf_counter() - t0:.0f} s)", flush=True)
+        return None
     sip, sop, it_ = InertialMethod("sip"), InertialMethod("sop"), InertialMethod("it")
     tol = dict(rtol=TOL, atol=TOL)
 
@@ -238,7 +264,6 @@ def run(args) -> dict:
         runs_file.with_suffix(".tmp").write_bytes(pickle.dumps(small))
         runs_file.with_suffix(".tmp").replace(runs_file)
     it13 = [held(sc13, i) for i in keep]
-    print(f"tables: {sum(len(v) for v in runs.values())} solves ({time.perf_counter() - t1:.0f} s)", flush=True)
     print(f"tables: {sum(len(v) for v in runs.values())} solves ({time.perf_counter() - t1:.0f} s)", flush=True)
 
     # 3. Errors.
@@ -339,7 +364,7 @@ def long_windows(args, body, folds, chosen, sop, sip, tol) -> dict:
     clips = [c for c in corpus() if c.path.stem in LONG_CLIPS]
     if not clips:
         return {}
-    sc6, _, starts = scenarios(clips, 100000, args.seed, body, fps=60.0)
+    sc6, _, starts = scenarios(clips, 100000, args.seed, body, folds.cache, fps=60.0)
     out = {}
     for i, c in enumerate(clips):
         if starts[i] is None:
@@ -541,11 +566,15 @@ def main(argv=None) -> int:
     p.add_argument("--steps", type=int, default=200, help="LM step limit of the table solves")
     p.add_argument("--grid-steps", type=int, default=50, help="LM step limit of the weight-grid solves")
     p.add_argument("--clips", type=int, help="use N clips spread over the subjects (smoke runs)")
+    p.add_argument("--prepare", action="store_true", help="only read the clips, synthesise the IMUs and build the "
+                   "held-out priors into --out/cache (CPU work), e.g. before carrying the cache to a GPU machine")
     p.add_argument("--out", default=str(Path(__file__).resolve().parents[1] / "out" / "sip_tables"),
                    help="output folder (default: out/sip_tables; the committed tables: experiments/results)")
     args = p.parse_args(argv)
     out = Path(args.out)
     res = run(args)
+    if res is None:
+        return 0
     tmp = out / "sip_tables.json.tmp"
     tmp.write_text(json.dumps(res, indent=1, default=float) + "\n")
     os.replace(tmp, out / "sip_tables.json")
