@@ -256,13 +256,20 @@ def run(args) -> dict:
     w_star = np.asarray([chosen[clips[i].subject] for i in keep])
     n = len(keep)
     runs_file = cache / f"runs_{args.steps}.pkl"
-    runs = pickle.loads(runs_file.read_bytes()) if runs_file.is_file() else None
-    if runs is None:
-        runs = table_solves(args, base, held, keep, starts, clips, body, folds, sc6, w_star, sop, sip, tol)
-        runs["IT"] = fit(it_, [held(sc13, i) for i in keep], max_steps=20)
-        small = {k: [(np.asarray(r[0], np.float32), *r[1:]) for r in v] for k, v in runs.items()}
-        runs_file.with_suffix(".tmp").write_bytes(pickle.dumps(small))
-        runs_file.with_suffix(".tmp").replace(runs_file)
+    runs = pickle.loads(runs_file.read_bytes()) if runs_file.is_file() else {}
+
+    def row(name, compute):
+        """One table row's solves, cached as soon as they finish (a killed run keeps finished rows)."""
+        if name not in runs:
+            t = time.perf_counter()
+            runs[name] = [(np.asarray(r[0], np.float32), *r[1:]) for r in compute()]
+            runs_file.with_suffix(".tmp").write_bytes(pickle.dumps(runs))
+            runs_file.with_suffix(".tmp").replace(runs_file)
+            print(f"  {name}: {time.perf_counter() - t:.0f} s", flush=True)
+        return runs[name]
+
+    table_solves(row, args, base, held, keep, starts, clips, body, folds, sc6, w_star, sop, sip, tol)
+    row("IT", lambda: fit(it_, [held(sc13, i) for i in keep], max_steps=20))
     it13 = [held(sc13, i) for i in keep]
     print(f"tables: {sum(len(v) for v in runs.values())} solves ({time.perf_counter() - t1:.0f} s)", flush=True)
 
@@ -336,27 +343,31 @@ def run(args) -> dict:
     return res
 
 
-def table_solves(args, base, held, keep, starts, clips, body, folds, sc6, w_star, sop, sip, tol) -> dict:
-    """Every SIP/SOP solve of the tables: {row name: per clip (poses, result, steps, cost)}."""
+def table_solves(row, args, base, held, keep, starts, clips, body, folds, sc6, w_star, sop, sip, tol) -> None:
+    """Every SIP/SOP solve of the tables through `row(name, compute)`: per clip (poses, result, steps, cost)."""
     n = len(keep)
-    runs = {}
-    runs["SIP"] = fit(sip, base, {"mahal": w_star}, max_steps=args.steps, **tol)
+    sip_fit = lambda items, w: fit(sip, items, w, max_steps=args.steps, **tol)  # noqa: E731
+    row("SIP", lambda: sip_fit(base, {"mahal": w_star}))
     for steps in STEP_STUDY:
-        runs[f"SIP@{steps}"] = fit(sip, base, {"mahal": w_star}, max_steps=steps, **tol)
-    runs["SIP no-prior"] = fit(sip, base, {"mahal": np.zeros(n)}, max_steps=args.steps, **tol)
-    runs["SIP thesis w_mahal"] = fit(sip, base, {"mahal": np.full(n, 0.003)}, max_steps=args.steps, **tol)
-    runs["SIP no-limits"] = fit(sip, base, {"mahal": w_star, "limit": np.zeros(n)}, max_steps=args.steps, **tol)
-    runs["SIP no-acc"] = fit(sip, base, {"mahal": w_star, "acc": np.zeros(n)}, max_steps=args.steps, **tol)
-    runs["SOP"] = [(it.init, 0, 20, float("nan")) for it in base]
-    in_sample = with_starts([item(sc6, i, starts[i], body, folds.prior(None), clips[i].name) for i in keep], sop)
-    runs["SIP in-sample prior"] = fit(sip, in_sample, max_steps=args.steps, **tol)
-    runs["SOP in-sample prior"] = [(it.init, 0, 20, float("nan")) for it in in_sample]
-    runs["SIP in-sample prior, chosen w_mahal"] = fit(sip, in_sample, {"mahal": w_star}, max_steps=args.steps, **tol)
+        row(f"SIP@{steps}", lambda steps=steps: fit(sip, base, {"mahal": w_star}, max_steps=steps, **tol))
+    row("SIP no-prior", lambda: sip_fit(base, {"mahal": np.zeros(n)}))
+    row("SIP thesis w_mahal", lambda: sip_fit(base, {"mahal": np.full(n, THESIS_W_MAHAL)}))
+    row("SIP no-limits", lambda: sip_fit(base, {"mahal": w_star, "limit": np.zeros(n)}))
+    row("SIP no-acc", lambda: sip_fit(base, {"mahal": w_star, "acc": np.zeros(n)}))
+    row("SOP", lambda: [(it.init, 0, 20, float("nan")) for it in base])
+    in_sample = []
+
+    def in_sample_items():
+        if not in_sample:
+            in_sample.extend(with_starts([item(sc6, i, starts[i], body, folds.prior(None), clips[i].name) for i in keep], sop))
+        return in_sample
+
+    row("SIP in-sample prior", lambda: sip_fit(in_sample_items(), {}))
+    row("SOP in-sample prior", lambda: [(it.init, 0, 20, float("nan")) for it in in_sample_items()])
+    row("SIP in-sample prior, chosen w_mahal", lambda: sip_fit(in_sample_items(), {"mahal": w_star}))
     for s in (1.1, 1.2):
         b = scaled_body(body, s)
-        starts_s = with_starts([held(sc6, i, b) for i in keep], sop)
-        runs[f"SIP-{round(s * 100)}"] = fit(sip, starts_s, {"mahal": w_star}, max_steps=args.steps, **tol)
-    return runs
+        row(f"SIP-{round(s * 100)}", lambda b=b: sip_fit(with_starts([held(sc6, i, b) for i in keep], sop), {"mahal": w_star}))
 
 
 def long_windows(args, body, folds, chosen, sop, sip, tol) -> dict:
