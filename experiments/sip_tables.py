@@ -174,9 +174,18 @@ def with_starts(items, sop):
     return items
 
 
-def mean_errors(body, poses, it) -> dict:
-    e = metrics.pose_errors(body, poses, it.truth, it.betas)
-    return {"mpjpe": e["mpjpe"], "mpjae": e["mpjae"]}
+def padded(x, length: int | None):
+    """x (T, ...) with its last frame repeated up to `length` frames: every clip padded to one
+    length shares one compilation of the metrics (55 lengths took ~45 s of compiling per clip)."""
+    x = np.asarray(x)
+    return x if length is None else np.concatenate([x, np.repeat(x[-1:], length - len(x), 0)])
+
+
+def mean_errors(body, poses, it, sets=(), length=None) -> dict:
+    """Per-frame MPJPE and MPJAE of `poses` against the item's truth (sets: position and angle joint sets)."""
+    T = len(poses)
+    e = metrics.pose_errors(body, padded(poses, length), padded(it.truth, length), it.betas, None, None, *sets)
+    return {"mpjpe": np.asarray(e["mpjpe"])[:T], "mpjae": np.asarray(e["mpjae"])[:T]}
 
 
 def run(args) -> dict:
@@ -191,6 +200,11 @@ def run(args) -> dict:
     subjects = sorted({c.subject for c in clips})
     body = default_body("low")
     folds = Fold(corpus(), cache)  # priors always from the whole corpus minus the excluded subjects
+    if args.long_only:  # SIP on the long clips alone (GPU), cached for the main run
+        chosen = {s: w for s, w in json.loads(args.long_only).items()}
+        long = long_windows(args, body, folds, chosen, InertialMethod("sop"), InertialMethod("sip"), dict(rtol=TOL, atol=TOL))
+        (cache / f"long_windows_{args.steps}.json").write_text(json.dumps(long))
+        return None
     sc6, sc13, starts = scenarios(clips, args.frames, args.seed, body, cache)
     keep = [i for i, k in enumerate(starts) if k is not None]
     for i in set(range(len(clips))) - set(keep):
@@ -252,11 +266,13 @@ def run(args) -> dict:
     # 2. The tables: held-out priors, chosen weights, converged float64 solves.
     t1 = time.perf_counter()
     held = lambda sc, i, b=body: item(sc, i, starts[i], b, folds.prior((clips[i].subject,)), clips[i].name)  # noqa: E731
-    base = with_starts([held(sc6, i) for i in keep], sop)
     w_star = np.asarray([chosen[clips[i].subject] for i in keep])
     n = len(keep)
     runs_file = cache / f"runs_{args.steps}.pkl"
     runs = pickle.loads(runs_file.read_bytes()) if runs_file.is_file() else {}
+    base = [held(sc6, i) for i in keep]
+    if "SIP" not in runs or "SOP" not in runs:  # the shared SOP start of every SIP row
+        with_starts(base, sop)
 
     def row(name, compute):
         """One table row's solves, cached as soon as they finish (a killed run keeps finished rows)."""
@@ -275,6 +291,7 @@ def run(args) -> dict:
 
     # 3. Errors.
     per_clip, frames_err = [], {}
+    L = max(b.length for b in base)
     for j, i in enumerate(keep):
         c = clips[i]
         rec = {"clip": c.name, "subject": c.subject, "activity": c.activity, "group": c.group,
@@ -284,35 +301,36 @@ def run(args) -> dict:
                 continue
             r = rs[j]
             ref = it13[j] if name == "IT" else base[j]
-            e = mean_errors(body, r[0], ref)
+            e = mean_errors(body, r[0], ref, length=L)
             frames_err.setdefault(name, []).append(e)
             rec["methods"][name] = {"mpjpe": float(e["mpjpe"].mean()), "mpjae": float(e["mpjae"].mean()),
                                     "result": r[1], "steps": r[2], "cost": r[3]}  # fmt: skip
         for name in ("SOP", "SIP"):
-            e = metrics.pose_errors(body, runs[name][j][0], base[j].truth, base[j].betas, None, None, *TNT15_SETS)
-            frames_err.setdefault(f"{name} (TNT15 protocol)", []).append({"mpjpe": e["mpjpe"], "mpjae": e["mpjae"]})
+            e = mean_errors(body, runs[name][j][0], base[j], TNT15_SETS, length=L)
+            frames_err.setdefault(f"{name} (TNT15 protocol)", []).append(e)
         # Global jitter needs the fitted translation, which SOP and IT do not estimate: root-relative only.
         rec["literature_metrics"] = {
-            name: {k: v for k, v in metrics.literature_metrics(body, runs[name][j][0], ref.truth, 30.0, ref.betas).items()
+            name: {k: v for k, v in metrics.literature_metrics(body, padded(runs[name][j][0], L), padded(ref.truth, L), 30.0,
+                                                               ref.betas, mask=np.arange(L) < ref.length).items()
                    if k != "jitter_global_km_s3"}
             for name, ref in (("SOP", base[j]), ("SIP", base[j]), ("IT", it13[j]))
         }  # fmt: skip
         rec["table_3_2"] = {}
-        tj = forward(body, base[j].truth).joints
+        T = base[j].length
+        tj = forward(body, padded(base[j].truth, L)).joints
+        mm = lambda pj, align="procrustes", tj=tj, T=T: float(np.asarray(metrics.position_errors(pj, tj, align=align))[:T].mean() * 1000)  # noqa: E731
         for s in (1.1, 1.2):
             name, poses = f"SIP-{round(s * 100)}", runs[f"SIP-{round(s * 100)}"][j][0]
-            pj = forward(scaled_body(body, s), poses).joints
+            pj = forward(scaled_body(body, s), padded(poses, L)).joints
+            on_true = mean_errors(body, poses, base[j], length=L)
             rec["table_3_2"][name] = {
-                "mpjpe_rigid": float(metrics.position_errors(pj, tj).mean() * 1000),
-                "mpjpe_scaled_procrustes": float(metrics.position_errors(pj, tj, align="procrustes_scaled").mean() * 1000),
-                "mpjpe_pose_on_true_body": float(mean_errors(body, poses, base[j])["mpjpe"].mean()),
-                "mpjae": float(mean_errors(body, poses, base[j])["mpjae"].mean()),
+                "mpjpe_rigid": mm(pj), "mpjpe_scaled_procrustes": mm(pj, "procrustes_scaled"),
+                "mpjpe_pose_on_true_body": float(on_true["mpjpe"].mean()), "mpjae": float(on_true["mpjae"].mean()),
                 "result": runs[name][j][1],
             }
         rec["table_3_2"]["SIP"] = {
             "mpjpe_rigid": rec["methods"]["SIP"]["mpjpe"],
-            "mpjpe_scaled_procrustes": float(metrics.position_errors(forward(body, runs["SIP"][j][0]).joints, tj,
-                                                                     align="procrustes_scaled").mean() * 1000),
+            "mpjpe_scaled_procrustes": mm(forward(body, padded(runs["SIP"][j][0], L)).joints, "procrustes_scaled"),
             "mpjpe_pose_on_true_body": rec["methods"]["SIP"]["mpjpe"], "mpjae": rec["methods"]["SIP"]["mpjae"],
         }  # fmt: skip
         per_clip.append(rec)
@@ -321,7 +339,14 @@ def run(args) -> dict:
               f"SIP {m['SIP']['mpjpe']:5.1f}/{m['SIP']['mpjae']:4.1f} ({m['SIP']['steps']} steps, code {m['SIP']['result']})  "
               f"IT {m['IT']['mpjpe']:5.1f}/{m['IT']['mpjae']:4.1f}", flush=True)  # fmt: skip
 
-    long = long_windows(args, body, folds, chosen, sop, sip, tol) if not args.clips else {}
+    long_file = cache / f"long_windows_{args.steps}.json"
+    if long_file.is_file():
+        long = json.loads(long_file.read_text())
+    elif args.no_long or args.clips:
+        long = {}
+    else:
+        long = long_windows(args, body, folds, chosen, sop, sip, tol)
+        long_file.write_text(json.dumps(long))
     res = tables(per_clip, frames_err, runs, selection, held_out_curve)
     res["long_windows"] = long
     res["protocol"] = {
@@ -577,6 +602,9 @@ def main(argv=None) -> int:
     p.add_argument("--steps", type=int, default=200, help="LM step limit of the table solves")
     p.add_argument("--grid-steps", type=int, default=50, help="LM step limit of the weight-grid solves")
     p.add_argument("--clips", type=int, help="use N clips spread over the subjects (smoke runs)")
+    p.add_argument("--no-long", action="store_true", help="leave out the long windows (unless cached)")
+    p.add_argument("--long-only", metavar="JSON", help="only the long windows, with w_mahal per subject as JSON "
+                   "(e.g. '{\"02\": 0.0001}'); cached in --out/cache for the main run")
     p.add_argument("--prepare", action="store_true", help="only read the clips, synthesise the IMUs and build the "
                    "held-out priors into --out/cache (CPU work), e.g. before carrying the cache to a GPU machine")
     p.add_argument("--out", default=str(Path(__file__).resolve().parents[1] / "out" / "sip_tables"),

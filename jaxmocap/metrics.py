@@ -190,20 +190,36 @@ def summary(errors: dict) -> dict:
     return {k: {"mean": float(np.mean(v)), "std": float(np.std(v))} for k, v in errors.items()}
 
 
-def jitter(positions, fps: float) -> Array:
+def jitter(positions, fps: float, mask=None) -> Array:
     """Mean jerk magnitude ‖d³p/dt³‖ of (..., T, N, 3) positions in m, km/s³ (third differences).
 
     As the learned-poser papers report smoothness (TransPose, PIP): the mean over frames
-    t = 0..T-4 and points of ‖p(t+3) - 3p(t+2) + 3p(t+1) - p(t)‖ · fps³ / 1000.
+    t = 0..T-4 and points of ‖p(t+3) - 3p(t+2) + 3p(t+1) - p(t)‖ · fps³ / 1000. With a
+    frame mask (..., T) (padded batches), only differences of four real frames count.
     """
     p = jnp.asarray(positions)
     if p.ndim < 3 or p.shape[-1] != 3 or p.shape[-3] < 4:
         raise ValueError(f"positions has shape {p.shape}; expected (..., T >= 4, N, 3).")
     d3 = p[..., 3:, :, :] - 3 * p[..., 2:-1, :, :] + 3 * p[..., 1:-2, :, :] - p[..., :-3, :, :]
-    return jnp.linalg.norm(d3, axis=-1).mean(axis=(-2, -1)) * float(fps) ** 3 / 1000.0
+    per_frame = jnp.linalg.norm(d3, axis=-1).mean(axis=-1)
+    if mask is not None:
+        m = jnp.asarray(mask, bool)
+        mask = m[..., 3:] & m[..., 2:-1] & m[..., 1:-2] & m[..., :-3]
+    return _frame_mean(per_frame, mask) * float(fps) ** 3 / 1000.0
 
 
-def literature_metrics(body, pred_poses, true_poses, fps: float, betas=None, pred_trans=None, true_trans=None) -> dict:
+def _frame_mean(per_frame, mask):
+    """Mean over the last (frame) axis, over the frames of `mask` only where given."""
+    if mask is None:
+        return per_frame.mean(axis=-1)
+    if jnp.shape(mask) != per_frame.shape:
+        raise ValueError(f"mask has shape {jnp.shape(mask)}; expected the frames' shape {per_frame.shape}.")
+    m = jnp.asarray(mask, per_frame.dtype)
+    return (per_frame * m).sum(axis=-1) / m.sum(axis=-1)
+
+
+def literature_metrics(body, pred_poses, true_poses, fps: float, betas=None, pred_trans=None, true_trans=None,
+                       mask=None) -> dict:
     """The learned-poser papers' metrics of a (T, 24, 3) pose trajectory against the truth.
 
     Returns floats: "sip_error_deg" (global rotation error of upper arms and upper legs),
@@ -211,16 +227,18 @@ def literature_metrics(body, pred_poses, true_poses, fps: float, betas=None, pre
     (joints, root-aligned: pelvis positions subtracted), "mesh_error_cm" (vertices,
     root-aligned), "jitter_root_km_s3" (of root-relative joints) and "jitter_global_km_s3"
     (of world joints; needs the translations to mean anything). Both sides use `betas`,
-    so the numbers measure pose, not body size.
+    so the numbers measure pose, not body size. `mask` (T,) bool keeps the real frames of
+    a padded trajectory (padding to a few lengths spares a compilation per length).
     """
     pred, true = _posed_pair(body, pred_poses, true_poses, betas, pred_trans, true_trans)
     root = lambda o, x: x - o.joints[..., :1, :]  # noqa: E731
     rel = root(pred, pred.joints)
+    mean = lambda e: float(_frame_mean(e.mean(axis=-1), mask))  # noqa: E731  (..., T, N) -> over N, then real frames
     return {
-        "sip_error_deg": float(angle_errors(pred.joint_rotations, true.joint_rotations, "sip_error").mean()),
-        "angular_error_deg": float(angle_errors(pred.joint_rotations, true.joint_rotations, "all").mean()),
-        "position_error_cm": float(jnp.linalg.norm(rel - root(true, true.joints), axis=-1).mean() * 100),
-        "mesh_error_cm": float(jnp.linalg.norm(root(pred, pred.vertices) - root(true, true.vertices), axis=-1).mean() * 100),
-        "jitter_root_km_s3": float(jitter(rel, fps)),
-        "jitter_global_km_s3": float(jitter(pred.joints, fps)),
+        "sip_error_deg": mean(angle_errors(pred.joint_rotations, true.joint_rotations, "sip_error")),
+        "angular_error_deg": mean(angle_errors(pred.joint_rotations, true.joint_rotations, "all")),
+        "position_error_cm": mean(jnp.linalg.norm(rel - root(true, true.joints), axis=-1)) * 100,
+        "mesh_error_cm": mean(jnp.linalg.norm(root(pred, pred.vertices) - root(true, true.vertices), axis=-1)) * 100,
+        "jitter_root_km_s3": float(jitter(rel, fps, mask)),
+        "jitter_global_km_s3": float(jitter(pred.joints, fps, mask)),
     }

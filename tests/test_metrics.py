@@ -101,3 +101,18 @@ def test_literature_metrics_against_a_known_error(random_body):
     assert 0 < m["position_error_cm"] < 10 and 0 < m["mesh_error_cm"] < 10
     same = metrics.literature_metrics(random_body, true, true, 30.0, pred_trans=shift, true_trans=np.zeros((6, 3)))
     assert same["position_error_cm"] < 1e-4 and same["mesh_error_cm"] < 1e-4 and same["angular_error_deg"] < 1e-2
+
+
+def test_literature_metrics_of_a_padded_trajectory_with_its_mask(random_body):
+    """Padding to a common length (any values) with a frame mask gives the unpadded numbers."""
+    rng = np.random.default_rng(6)
+    true, pred = rng.normal(scale=0.2, size=(2, 9, 24, 3))
+    trans = np.cumsum(rng.normal(scale=0.01, size=(2, 9, 3)), axis=1)
+    plain = metrics.literature_metrics(random_body, pred, true, 30.0, pred_trans=trans[0], true_trans=trans[1])
+    pad = lambda x: np.concatenate([x, rng.normal(size=(5,) + x.shape[1:])])  # noqa: E731
+    mask = np.arange(14) < 9
+    padded = metrics.literature_metrics(random_body, pad(pred), pad(true), 30.0, pred_trans=pad(trans[0]),
+                                        true_trans=pad(trans[1]), mask=mask)  # fmt: skip
+    assert padded == pytest.approx(plain, rel=1e-5)
+    with pytest.raises(ValueError, match="mask has shape"):
+        metrics.literature_metrics(random_body, pred, true, 30.0, mask=np.ones(4, bool))
