@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import csv
 import dataclasses
-import os
 import re
 from pathlib import Path
 from typing import Iterable, Sequence
@@ -86,14 +85,9 @@ def _cc_activities(folder: Path) -> dict[str, str]:
 
 def find_cmu_cc_dir() -> Path | None:
     """The CMU clips on the CC rig: $JAXMOCAP_CMU_CC, else `shared/data/cmu_cc` beside the repository."""
-    env = os.environ.get("JAXMOCAP_CMU_CC")
-    if env:
-        return Path(env) if Path(env).is_dir() else None
-    repo = Path(__file__).resolve().parents[2]
-    for candidate in (repo.parent / "shared" / "data" / "cmu_cc", repo / "shared" / "data" / "cmu_cc"):
-        if candidate.is_dir():
-            return candidate
-    return None
+    from .io import find_data_dir
+
+    return find_data_dir("JAXMOCAP_CMU_CC", "cmu_cc")
 
 
 def corpus(folders: Iterable | None = None) -> list[Clip]:

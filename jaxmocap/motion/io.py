@@ -102,11 +102,16 @@ def load_motion(path, fps: float | None = None, body=None, asf=None, **retarget_
 
 def find_cmu_dir() -> Path | None:
     """The CMU clip folder: $JAXMOCAP_CMU, else `shared/data/cmu` beside the repository."""
-    env = os.environ.get("JAXMOCAP_CMU")
+    return find_data_dir("JAXMOCAP_CMU", "cmu")
+
+
+def find_data_dir(variable: str, name: str) -> Path | None:
+    """$`variable` if set (None if it is not a folder), else `shared/data/<name>` beside or in the repository."""
+    env = os.environ.get(variable)
     if env:
         return Path(env) if Path(env).is_dir() else None
     repo = Path(__file__).resolve().parents[2]
-    for candidate in (repo.parent / "shared" / "data" / "cmu", repo / "shared" / "data" / "cmu"):
+    for candidate in (repo.parent / "shared" / "data" / name, repo / "shared" / "data" / name):
         if candidate.is_dir():
             return candidate
     return None
