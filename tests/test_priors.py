@@ -105,6 +105,8 @@ def test_bundled_prior_lists_every_corpus_clip():
     with np.load(DEFAULT_PRIOR_PATH) as f:
         sources = {s["source"] for s in json.loads(str(f["meta"]))["sources"]}
     assert {c.name for c in clips} <= sources
+    readme = (DEFAULT_PRIOR_PATH.parent / "README.md").read_text()  # its table of training clips is current
+    assert all(f" {name.rsplit('.', 1)[0]} " in readme for name in sources)
     assert {c.subject for c in clips} >= {"02", "05", "06", "07"}
     assert all(isinstance(c, Clip) and c.activity != "unknown" for c in clips)
 
