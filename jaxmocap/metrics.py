@@ -39,6 +39,8 @@ __all__ = [
     "literature_metrics",
     "jitter",
     "summary",
+    "object_pose_errors",
+    "interaction_metrics",
 ]
 
 _LR = lambda *names: tuple(f"{s}_{n}" for n in names for s in ("left", "right"))  # noqa: E731
@@ -242,3 +244,80 @@ def literature_metrics(body, pred_poses, true_poses, fps: float, betas=None, pre
         "jitter_root_km_s3": float(jitter(rel, fps, mask)),
         "jitter_global_km_s3": float(jitter(pred.joints, fps, mask)),
     }
+
+
+# --- a person and an object (InterCap, Huang §5.4) ---------------------------------------------
+
+
+def object_pose_errors(pred_R, pred_t, true_R, true_t, vertices, mask=None) -> dict:
+    """Rigid object pose errors per sequence (mm, °): `add_s_mm`, the mean distance of each
+    predicted vertex to the closest true one (ADD-S: a symmetric object's equivalent poses
+    count as right), `centre_mm` (the vertex centroid) and `rotation_deg` (geodesic; large
+    for a symmetric object posed in an equivalent way). Frames where `mask` is False are
+    left out."""
+    from scipy.spatial import cKDTree
+
+    v = np.asarray(vertices, np.float64)
+    pred = np.einsum("tab,nb->tna", np.asarray(pred_R, np.float64), v) + np.asarray(pred_t, np.float64)[:, None]
+    true = np.einsum("tab,nb->tna", np.asarray(true_R, np.float64), v) + np.asarray(true_t, np.float64)[:, None]
+    keep = np.ones(len(pred), bool) if mask is None else np.asarray(mask, bool)
+    add_s = np.array([cKDTree(true[t]).query(pred[t])[0].mean() for t in np.flatnonzero(keep)])
+    centre = np.linalg.norm(pred.mean(1) - true.mean(1), axis=-1)[keep]
+    rel = np.einsum("tba,tbc->tac", np.asarray(pred_R, np.float64), np.asarray(true_R, np.float64))[keep]
+    angle = np.degrees(np.arccos(np.clip((np.trace(rel, axis1=-2, axis2=-1) - 1) / 2, -1.0, 1.0)))
+    return {"add_s_mm": 1e3 * float(add_s.mean()), "centre_mm": 1e3 * float(centre.mean()),
+            "rotation_deg": float(angle.mean())}  # fmt: skip
+
+
+def interaction_metrics(body_vertices, joints, true_joints, object_R, object_t, sdf, contact, body_points=None,
+                        body_valid=None, object_points=None, object_valid=None, contact_vertices=None,
+                        object_vertices=None, floor: float = 0.0, thresholds=(0.005, 0.007, 0.020)) -> dict:
+    """The InterCap numbers of one fitted sequence (Huang §5.4; lengths in mm).
+
+    Args:
+        body_vertices (T, N, 3), joints (T, J, 3): the fitted body; true_joints (T, J, 3).
+        object_R (T, 3, 3), object_t (T, 3): the fitted object; sdf: its `ObjectSDF`.
+        contact (T,) bool: the true contact frames (penetration and contact statistics).
+        body_points/object_points (T, V, M, 3) with *_valid (T, V, M): observed point
+            clouds (mean vertex-to-point-cloud distance; the object's by its SDF).
+        contact_vertices: body vertices that should touch the object in contact frames.
+        object_vertices: (No, 3) the object mesh's vertices (object ground depth).
+    Returns:
+        mpjpe_mm (no alignment: calibrated views see absolute positions);
+        penetration_mean_mm and penetration_le_{5,7,20}mm: in contact frames, the deepest
+        body vertex inside the object, its mean and the fraction of frames at most that deep;
+        contact_gap_mm: in contact frames, mean distance of the closest contact vertex to
+        the object surface (0 when touching or inside);
+        body_ground_mm, object_ground_mm: mean depth of the lowest point below the floor;
+        body_to_points_mm, object_to_points_mm: mean distance of observed points to the fit.
+    """
+    from scipy.spatial import cKDTree
+
+    verts = np.asarray(body_vertices, np.float64)
+    R, t = np.asarray(object_R, np.float64), np.asarray(object_t, np.float64)
+    contact = np.asarray(contact, bool)
+    local = lambda x: np.einsum("tba,tnb->tna", R, x - t[:, None])  # noqa: E731
+    sdf_of = lambda x: np.asarray(sdf(jnp.asarray(x, jnp.float32)), np.float64)  # noqa: E731
+    d_body = sdf_of(local(verts))  # (T, N)
+    depth = np.maximum(-d_body.min(1), 0.0)[contact]
+    out = {"mpjpe_mm": 1e3 * float(np.linalg.norm(np.asarray(joints) - np.asarray(true_joints), axis=-1).mean())}
+    out["penetration_mean_mm"] = 1e3 * float(depth.mean()) if depth.size else 0.0
+    for th in thresholds:
+        out[f"penetration_le_{1e3 * th:g}mm"] = float((depth <= th).mean()) if depth.size else 1.0
+    if contact_vertices is not None and contact.any():
+        gap = np.maximum(d_body[:, np.asarray(contact_vertices)].min(1), 0.0)[contact]
+        out["contact_gap_mm"] = 1e3 * float(gap.mean())
+    out["body_ground_mm"] = 1e3 * float(np.maximum(floor - verts[..., 1].min(1), 0.0).mean())
+    if object_vertices is not None:
+        low = (np.einsum("tab,nb->tna", R, np.asarray(object_vertices, np.float64)) + t[:, None])[..., 1].min(1)
+        out["object_ground_mm"] = 1e3 * float(np.maximum(floor - low, 0.0).mean())
+    if object_points is not None:
+        pts, ok = np.asarray(object_points, np.float64), np.asarray(object_valid, bool)
+        T, V, M, _ = pts.shape
+        d = np.abs(sdf_of(local(pts.reshape(T, V * M, 3)))).reshape(T, V, M)
+        out["object_to_points_mm"] = 1e3 * float(d[ok].mean()) if ok.any() else float("nan")
+    if body_points is not None:
+        pts, ok = np.asarray(body_points, np.float64), np.asarray(body_valid, bool)
+        d = [cKDTree(verts[i]).query(pts[i][ok[i]])[0] for i in range(len(verts)) if ok[i].any()]
+        out["body_to_points_mm"] = 1e3 * float(np.concatenate(d).mean()) if d else float("nan")
+    return out

@@ -79,6 +79,54 @@ class RigidObject:
 
         return cls.from_trimesh(trimesh.creation.cylinder(radius=radius, height=height, sections=16), name)
 
+    @classmethod
+    def chair(
+        cls,
+        width: float = 0.40,
+        depth: float = 0.40,
+        seat_height: float = 0.45,
+        height: float = 0.80,
+        thickness: float = 0.04,
+        gap: float = 0.004,
+        name: str = "chair",
+    ) -> RigidObject:
+        """A non-convex chair of six disjoint boxes (seat, backrest, four legs), its own parts.
+
+        Seat `width` (x) by `depth` (z) with its top at `seat_height`, backrest at -z up to
+        `height`; seat, backrest and legs `thickness` thick. Neighbouring boxes are `gap`
+        apart (>= 2 mm): overlapping or touching boxes would make the concatenated mesh's
+        inside test (ray parity) wrong. Centred on its bounding box like the other shapes.
+        """
+        import trimesh
+
+        for k, v in (("width", width), ("depth", depth), ("seat_height", seat_height),
+                     ("height", height), ("thickness", thickness)):  # fmt: skip
+            if not (np.isfinite(v) and v > 0):
+                raise ValueError(f"chair: {k} must be a positive length (m), got {v!r}.")
+        if not (np.isfinite(gap) and gap >= 0.002):
+            raise ValueError(f"chair: gap must be >= 0.002 m so that the parts do not touch, got {gap!r}.")
+        if not (2 * thickness + gap < min(width, depth) and 2 * thickness + gap < seat_height
+                and seat_height + gap + thickness < height):  # fmt: skip
+            raise ValueError(
+                f"chair: thickness {thickness} and gap {gap} do not fit a {width} x {depth} m seat at "
+                f"{seat_height} m with a {height} m backrest."
+            )
+
+        def block(lo, hi):
+            lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+            return trimesh.creation.box(extents=hi - lo, transform=trimesh.transformations.translation_matrix((lo + hi) / 2))
+
+        w, d, s, c = width / 2, depth / 2, seat_height, height / 2
+        leg_top = s - thickness - gap
+        boxes = [block((-w, s - thickness, -d), (w, s, d)),  # seat
+                 block((-w, s + gap, -d), (w, height, -d + thickness))]  # backrest on the seat's back edge
+        for x in (-w, w - thickness):
+            for z in (-d, d - thickness):
+                boxes.append(block((x, 0.0, z), (x + thickness, leg_top, z + thickness)))
+        for b in boxes:
+            b.apply_translation((0.0, -c, 0.0))
+        return cls.from_trimesh(boxes, name)
+
     @functools.cached_property
     def mesh(self):
         """The `trimesh.Trimesh` (built once)."""

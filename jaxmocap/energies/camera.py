@@ -51,6 +51,7 @@ __all__ = [
     "dct_basis",
     "keypoint_term",
     "silhouette_terms",
+    "mask_to_model",
     "shape_term",
     "pose_prior_term",
     "dct_window",
@@ -170,6 +171,26 @@ def _bilinear(image: Array, uv: Array) -> Array:
     return inner + jnp.abs(x - xc) + jnp.abs(y - yc)
 
 
+def mask_to_model(uv: Array, silhouettes: Silhouettes, slack: float = 2.0, loss=Huber(1.0)) -> Array:
+    """The second sum of eq. 4.5, Σ_{x∈U} l(x, Ŝ): each mask point against the nearest of
+    the projected model points uv (T, V, N, 2) -> residuals (T, V, M, 2).
+
+    The argmin is taken without gradient (the derivative of a minimum is that of its
+    minimiser almost everywhere); a point within `slack` px of a model point is covered
+    (l = 0); each point stands for area/M pixels. Shared by the body (E_S) and rigid
+    objects (InterCap's E_O, eq. 5.1).
+    """
+    x = silhouettes.points  # (T, V, M, 2)
+    d2 = jnp.sum((x[..., :, None, :] - jax.lax.stop_gradient(uv)[..., None, :, :]) ** 2, -1)
+    nearest = jnp.argmin(d2, -1)  # (T, V, M)
+    closest = jnp.take_along_axis(uv, nearest[..., None], axis=-2)
+    e = x - closest
+    d = jnp.sqrt(jnp.sum(e * e, -1, keepdims=True) + 1e-12)
+    count = jnp.maximum(jnp.sum(silhouettes.valid, -1), 1)  # (T, V)
+    per_point = jnp.sqrt(silhouettes.area / count)[..., None, None]  # each point: area/M px
+    return per_point * loss(e * (jnp.maximum(d - slack, 0.0) / d))  # (T, V, M, 2)
+
+
 def silhouette_terms(w_model: float = 1.0, w_mask: float = 1.0, stride: int = 1, slack: float = 2.0) -> list[Term]:
     """E_S (eq. 4.5) as two terms: model→mask (squared) and mask→model (L1 tails).
 
@@ -191,15 +212,7 @@ def silhouette_terms(w_model: float = 1.0, w_mask: float = 1.0, stride: int = 1,
     def mask_points(params, data: CameraData):
         verts = _posed(params, data).vertices[:, ::stride]
         uv, _ = _views(data, verts)  # (T, V, N, 2)
-        x = data.silhouettes.points  # (T, V, M, 2)
-        d2 = jnp.sum((x[..., :, None, :] - jax.lax.stop_gradient(uv)[..., None, :, :]) ** 2, -1)
-        nearest = jnp.argmin(d2, -1)  # (T, V, M)
-        closest = jnp.take_along_axis(uv, nearest[..., None], axis=-2)
-        e = x - closest
-        d = jnp.sqrt(jnp.sum(e * e, -1, keepdims=True) + 1e-12)
-        count = jnp.maximum(jnp.sum(data.silhouettes.valid, -1), 1)  # (T, V)
-        per_point = jnp.sqrt(data.silhouettes.area / count)[..., None, None]  # each point: area/M px
-        return per_point * huber(e * (jnp.maximum(d - slack, 0.0) / d))  # (T, V, M, 2)
+        return mask_to_model(uv, data.silhouettes, slack, huber)
 
     def has_mask(data: CameraData):
         return jnp.any(data.silhouettes.valid, -1)[..., None]  # (T, V, 1)

@@ -13,7 +13,7 @@ R_o v + t_o. `contact_trajectory` makes the object physically tied to the body:
   - at every frame it is lifted if needed so that nothing is below the ground plane.
 
 Contact parts, their joints and contact normals in the joint's rest frame (T-pose: palms
-down, feet flat facing +z) are in `CONTACT_PARTS`; the body contact vertices are those
+down, feet flat facing +z; the grips along the fingers) are in `CONTACT_PARTS`; the body contact vertices are those
 skinned mostly to the part's bones (InterCap's annotated contact vertices).
 """
 
@@ -34,6 +34,10 @@ _J = {n: i for i, n in enumerate(SMPL_JOINT_NAMES)}
 CONTACT_PARTS = {
     "left_hand": ("left_wrist", ("left_wrist", "left_hand"), (0.0, -1.0, 0.0)),
     "right_hand": ("right_wrist", ("right_wrist", "right_hand"), (0.0, -1.0, 0.0)),
+    # Carrying by the fingers (a bag, a box by its handle): the object hangs beyond the
+    # fingertips, so a hanging arm carries it beside the thigh, not into it.
+    "left_grip": ("left_wrist", ("left_wrist", "left_hand"), (1.0, 0.0, 0.0)),
+    "right_grip": ("right_wrist", ("right_wrist", "right_hand"), (-1.0, 0.0, 0.0)),
     "left_foot": ("left_ankle", ("left_ankle", "left_foot"), (0.0, 0.0, 1.0)),
     "right_foot": ("right_ankle", ("right_ankle", "right_foot"), (0.0, 0.0, 1.0)),
 }
@@ -90,8 +94,8 @@ def contact_trajectory(
     n = R_j[start] @ np.asarray(normal_rest)
     pts = np.asarray(vertices[start, region], np.float64)
     c = pts[np.argmax((pts - p_j[start]) @ n)]
-    # Object at identity rotation; its extreme point along -n touches c.
-    t0 = c - n * np.min(obj.vertices @ n)
+    # Object at identity rotation; its extreme point along -n (a vertex) touches c.
+    t0 = c - obj.vertices[np.argmin(obj.vertices @ n)]
     Rs = np.broadcast_to(np.eye(3), (T, 3, 3)).copy()
     ts = np.broadcast_to(t0, (T, 3)).copy()
     rel_R = R_j[start].T  # G_j(s)⁻¹ applied to X_o(s) = (I, t0)

@@ -9,6 +9,12 @@ the shortest length). Shapes β ~ N(0, betas_std²) on the first `num_betas` com
 People after the first are placed `spacing` m apart along x with a random heading. Every
 body is lifted so that its lowest vertex over the sequence touches the ground y = 0.
 
+Presets: `vip_config` (Video Inertial Poser, von Marcard ch. 4: IMUs, one hand-held
+camera, COCO-18 detections) and `interaction_config` (InterCap, Huang ch. 5: one person
+handling a rigid object, "box", "ball", "bottle" or the non-convex "chair", seen by a ring
+of static RGB-D cameras: label images, noisy depth points with holes, BODY_25 detections;
+`segmentation.object_candidates` turns its label images into instance-segmenter masks).
+
 Randomness: `numpy.random.SeedSequence(seed)` spawns one child per sequence and that one
 child per component (shape, placement, IMU, camera, detector, depth), so a sequence does
 not change when other sequences or components are added or switched off.
@@ -58,7 +64,7 @@ from .depth import DepthNoiseModel, depth_point_cloud, visible_vertices
 from .errors import IMUErrorModel, global_free_acceleration, simulate_imu
 from .imu import imu_placement
 from .keypoints import KEYPOINT_FORMATS, DetectorErrorModel, detect, keypoint_regressor, regress_keypoints
-from .objects import ObjectTrajectory, RigidObject, contact_trajectory, contact_vertices
+from .objects import CONTACT_PARTS, ObjectTrajectory, RigidObject, contact_trajectory, contact_vertices
 from .silhouette import rasterize_views, window_for
 
 __all__ = [
@@ -71,6 +77,7 @@ __all__ = [
     "save_dip",
     "resolve_motion",
     "vip_config",
+    "interaction_config",
 ]
 
 FORMAT_VERSION = 1
@@ -357,16 +364,67 @@ def vip_config(
     )  # fmt: skip
 
 
+def interaction_config(
+    object: str = "box",
+    num_views: int = 4,
+    max_frames: int = 60,
+    fps: float = 30.0,
+    depth_points: int = 768,
+    width: int = 256,
+    height: int = 192,
+    contact_part: str = "right_grip",
+    detector: DetectorErrorModel | None = None,
+    depth_noise: DepthNoiseModel | None = None,
+) -> ScenarioConfig:
+    """An InterCap scene (Huang ch. 5): one person handles `object` ("box", "ball",
+    "bottle" or "chair"; it rests, moves with `contact_part` over the middle half of the
+    frames, then rests again), seen by `num_views` static RGB-D cameras on a ring 3.5 m
+    plus the walked distance out (Kinect-like depth: σ_z ≈ 2 cm at 4 m, 5 % holes), with
+    label images (person 0, object 1; `segmentation.object_candidates` turns them into
+    instance-segmenter output), `depth_points` points per view and frame (0: no depth),
+    and BODY_25 detections with a moderate error model (OpenPose's misses and outliers,
+    2 px noise, no left/right swaps and no false detections: Huang ch. 5 fits one
+    person). No IMUs; shapes β ~ N(0, 0.5²)."""
+    if object not in _OBJECTS:
+        raise ValueError(f"Unknown object {object!r}; choose from {sorted(_OBJECTS)}.")
+    if contact_part not in CONTACT_PARTS:
+        raise ValueError(f"Unknown contact part {contact_part!r}; choose from {sorted(CONTACT_PARTS)}.")
+    for name, v, low in (("num_views", num_views, 1), ("max_frames", max_frames, 1), ("width", width, 1),
+                         ("height", height, 1), ("depth_points", depth_points, 0)):  # fmt: skip
+        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < low:
+            raise ValueError(f"interaction_config: {name} must be an int >= {low}, got {v!r}.")
+    check_rate("interaction_config: fps", fps)
+    if detector is None:
+        detector = dataclasses.replace(
+            DetectorErrorModel.openpose(), pixel_noise=2.0, swap_rate=0.0, distractor_rate=0.0, max_distractors=0
+        )
+    elif not isinstance(detector, DetectorErrorModel):
+        raise ValueError(f"interaction_config: detector must be a DetectorErrorModel or None, got {detector!r}.")
+    if depth_noise is None:
+        depth_noise = DepthNoiseModel(missing_rate=0.05)
+    elif not isinstance(depth_noise, DepthNoiseModel):
+        raise ValueError(f"interaction_config: depth_noise must be a DepthNoiseModel or None, got {depth_noise!r}.")
+    return ScenarioConfig(
+        fps=fps, max_frames=max_frames, people=1, betas_std=0.5, imu_set=None,
+        cameras=CameraConfig(num_views=num_views, width=width, height=height, distance=3.5),
+        keypoints="body25", detector=detector, silhouettes=True, depth_points=depth_points,
+        depth_noise=depth_noise, object=object, contact_part=contact_part,
+    )  # fmt: skip
+
+
 # Loaded files and generated library motions, keyed by (item, fps): CMU clips take seconds
 # to parse and retarget, and several sets reuse them.
 _MOTION_CACHE: dict = {}
 
 
+_OBJECTS = {"box": RigidObject.box, "ball": RigidObject.ball, "bottle": RigidObject.cylinder,
+            "chair": RigidObject.chair}  # fmt: skip
+
+
 def _make_object(name: str) -> RigidObject:
-    makers = {"box": RigidObject.box, "ball": RigidObject.ball, "bottle": RigidObject.cylinder}
-    if name not in makers:
-        raise ValueError(f"Unknown object {name!r}; choose from {sorted(makers)}.")
-    return makers[name]()
+    if name not in _OBJECTS:
+        raise ValueError(f"Unknown object {name!r}; choose from {sorted(_OBJECTS)}.")
+    return _OBJECTS[name]()
 
 
 def _make_sequence(body, items, config, rngs, cache, placement, regressor, obj) -> dict:
