@@ -55,7 +55,7 @@ from jaxmocap.methods.interaction import (
     track_object,
 )
 from jaxmocap.metrics import interaction_metrics, object_pose_errors
-from jaxmocap.motion.corpus import corpus
+from jaxmocap.motion.corpus import corpus, interleave
 from jaxmocap.priors.build import evaluation_prior
 from jaxmocap.sensors.scenario import interaction_config, make_scenario
 
@@ -75,17 +75,9 @@ KEYS = ("penetration_le_5mm", "penetration_le_7mm", "penetration_le_20mm", "pene
         "object_ground_mm")  # fmt: skip
 
 
-def pick_clips(n: int, frames: int) -> list:
-    """`n` corpus clips with at least `frames` frames at 30 fps, subjects interleaved."""
-    by_subject: dict = {}
-    for c in corpus():
-        by_subject.setdefault(c.subject, []).append(c)
-    order = []
-    while len(order) < n and any(by_subject.values()):
-        for s in sorted(by_subject):
-            if by_subject[s] and len(order) < n:
-                order.append(by_subject[s].pop(0))
-    return order
+def pick_clips(n: int) -> list:
+    """`n` corpus clips, subjects interleaved."""
+    return interleave(corpus(), n)
 
 
 def _save(path: Path, obj) -> None:
@@ -219,7 +211,7 @@ def main(argv=None):
     args = ap.parse_args(argv)
     cache = args.out / "cache" / "intercap"
     cache.mkdir(parents=True, exist_ok=True)
-    clips = pick_clips(args.scenes, args.frames)
+    clips = pick_clips(args.scenes)
     if len(clips) < args.scenes:
         raise SystemExit(f"found {len(clips)} CMU clips, need {args.scenes}: ../shared/data/cmu and cmu_cc must be "
                          "beside the checkout (or JAXMOCAP_CMU / JAXMOCAP_CMU_CC set).")  # fmt: skip

@@ -36,6 +36,7 @@ import numpy as np
 from jaxmocap.body import default_body, forward
 from jaxmocap.methods import multiview as mv
 from jaxmocap.metrics import procrustes_align
+from jaxmocap.motion.corpus import interleave
 from jaxmocap.priors.build import evaluation_prior
 from jaxmocap.sensors.keypoints import KEYPOINT_FORMATS, person_track
 from jaxmocap.sensors import CameraConfig, DetectorErrorModel, ScenarioConfig, make_scenario
@@ -58,15 +59,8 @@ def pick_clips(n: int, frames: int) -> list[Path]:
     """The first `n` cmu_cc clips with at least `frames` frames at 30 fps, subjects interleaved."""
     rows = list(csv.DictReader(open(CC / "index.csv")))
     ok = [r for r in rows if int(r["Frames 60fps"]) >= 2 * frames and (CC / f"{int(r['Subject']):03d}_{int(r['Trial #']):02d}.bvh").exists()]
-    by_subject: dict = {}
-    for r in ok:
-        by_subject.setdefault(r["Subject"], []).append(CC / f"{int(r['Subject']):03d}_{int(r['Trial #']):02d}.bvh")
-    order = []
-    while len(order) < n and any(by_subject.values()):
-        for s in sorted(by_subject):
-            if by_subject[s] and len(order) < n:
-                order.append(by_subject[s].pop(0))
-    return order
+    paths = [CC / f"{int(r['Subject']):03d}_{int(r['Trial #']):02d}.bvh" for r in ok]
+    return interleave(paths, n, key=lambda p: p.name.split("_")[0])
 
 
 def segmentation_errors(masks, rng):

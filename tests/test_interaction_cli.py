@@ -63,7 +63,9 @@ def test_interaction_demo_writes_scored_results(tmp_path, capsys, truth_as_fit):
     report = json.loads((out / "metrics.json").read_text())
     assert _finite(report)
     assert report["outputs"] == ["result.npz", "metrics.json", "contact_heatmap.ply", "contact_heatmap.png",
-                                 "penetration.png", "scene_frame_0004.glb"]  # fmt: skip
+                                 "penetration.png", "scene_frame_0004.glb", "plausibility.txt"]  # fmt: skip
+    assert "penetration mean (mm)" in (out / "plausibility.txt").read_text()
+    assert report["plausibility"]["mesh"]["penetration_max_mm"] >= 0.0
     for name in report["outputs"]:
         assert (out / name).stat().st_size > 0, name
     truth = truth_as_fit["truth"]

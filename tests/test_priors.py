@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -124,3 +125,11 @@ def test_sweep_datasets_take_the_held_out_prior(two_subjects, monkeypatch):
     fold = sweep_methods._prior("held_out", "10_02.npz")
     np.testing.assert_allclose(fold.mean, held_out_prior(["10"], clips=corpus([d])).mean, atol=1e-6)
     assert sweep_methods._prior("held_out", "10_01.npz") is fold  # one fold per subject and dtype
+
+
+def test_interleave_spreads_over_subjects():
+    from jaxmocap.motion.corpus import interleave
+
+    clips = [Clip(Path(f"{s}_{k:02d}.bvh"), s) for s, n in (("07", 3), ("02", 1), ("05", 2)) for k in range(1, n + 1)]
+    assert [c.path.stem for c in interleave(clips, 5)] == ["02_01", "05_01", "07_01", "05_02", "07_02"]
+    assert len(interleave(clips, 99)) == len(clips)

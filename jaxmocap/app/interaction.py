@@ -32,6 +32,9 @@ Outputs (`out_dir`):
     penetration.png     histogram over the contact frames of the deepest body vertex inside
                         the object (mm; 0 = no penetration), with the thesis' 5/7/20 mm marks.
     scene_frame_XXXX.glb the fitted body (clay) and object (blue) of the middle frame, y up.
+    plausibility.txt    the MJX plausibility report of the fitted body (`physics.report`:
+                        ground penetration, floating, foot contact and skating); its
+                        summary is also in metrics.json under "plausibility".
 """
 
 from __future__ import annotations
@@ -280,13 +283,24 @@ def write_outputs(out_dir, body, obs, truth: dict, true_part: str, fit: dict, se
                       np.concatenate([np.asarray(body.faces), np.asarray(obs.obj.faces) + nb]),
                       out_dir / f"scene_frame_{mid:04d}.glb", colors=colors)  # fmt: skip
 
+    from ..motion.sequence import Motion
+    from ..physics.mjcf import Ground
+    from ..physics.report import format_report, plausibility_report
+
+    plaus = plausibility_report(body, Motion(np.asarray(fit["pose"], np.float64), np.asarray(fit["trans"], np.float64),
+                                             obs.fps, betas=betas, name="InterCap fit"), ground=Ground(obs.floor))  # fmt: skip
+    phys = out_dir / "plausibility.txt"
+    phys.write_text(format_report(plaus) + "\n")
+    report["plausibility"] = {"mesh": plaus.summary["mesh"], "feet": plaus.feet}
+    clock.done("physics", "MJX plausibility report of the fitted body")
+
     report["contact_part"] = part
     report["contact_frames"] = [int(i) for i in np.flatnonzero(contact)]
     report["true_contact_part"] = true_part
     report["true_contact_frames"] = [int(i) for i in np.flatnonzero(true_contact)]
     report["max_contact_heat"] = float(heat.max())
     report["settings"] = dict(settings or {})
-    report["outputs"] = [p.name for p in (out_dir / "result.npz", out_dir / "metrics.json", ply, png, hist, glb)]
+    report["outputs"] = [p.name for p in (out_dir / "result.npz", out_dir / "metrics.json", ply, png, hist, glb, phys)]
     clock.done("write", f"{len(report['outputs'])} files in {out_dir}")
     report["timings_s"] = {k: round(float(v), 3) for k, v in {**fit.get("timings_s", {}), **clock.timings}.items()}
     report = _strict(report)

@@ -24,7 +24,7 @@ import re
 from pathlib import Path
 from typing import Iterable, Sequence
 
-__all__ = ["Clip", "corpus", "subject_of", "training_clips", "find_cmu_cc_dir", "GROUPS", "MOTION_SUFFIXES"]
+__all__ = ["Clip", "corpus", "subject_of", "training_clips", "interleave", "find_cmu_cc_dir", "GROUPS", "MOTION_SUFFIXES"]
 
 MOTION_SUFFIXES = (".amc", ".bvh", ".npz")
 GROUPS = ("walking", "freestyle", "acting")
@@ -120,3 +120,18 @@ def training_clips(clips: Sequence[Clip], exclude: Iterable[str] = ()) -> list[C
     """The clips whose subject is not in `exclude` (subject ids as `subject_of` gives them)."""
     exclude = {f"{int(s):02d}" if str(s).isdigit() else str(s) for s in exclude}
     return [c for c in clips if c.subject not in exclude]
+
+
+def interleave(items: Iterable, n: int, key=lambda c: c.subject) -> list:
+    """The first `n` items taking one per group in turn (groups by `key`, sorted; order kept
+    within a group): an evaluation set that spreads over subjects before repeating one."""
+    groups: dict = {}
+    for item in items:
+        groups.setdefault(key(item), []).append(item)
+    queues = [groups[k] for k in sorted(groups)]
+    order = []
+    while len(order) < n and any(queues):
+        for q in queues:
+            if q and len(order) < n:
+                order.append(q.pop(0))
+    return order
