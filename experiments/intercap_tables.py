@@ -52,6 +52,7 @@ from jaxmocap.methods.interaction import (
     detect_contact,
     fit_human,
     fit_joint,
+    object_sdf,
     track_object,
 )
 from jaxmocap.metrics import interaction_metrics, object_pose_errors
@@ -106,7 +107,7 @@ def evaluate(body, obs, seq, fit) -> dict:
     out = forward(body, jnp.asarray(fit["pose"], jnp.float32), jnp.asarray(fit["betas"], jnp.float32),
                   jnp.asarray(fit["trans"], jnp.float32))  # fmt: skip
     m = interaction_metrics(
-        out.vertices, out.joints, seq["joints"][0], fit["object_R"], fit["object_t"], obs.obj.sdf(48, 0.1),
+        out.vertices, out.joints, seq["joints"][0], fit["object_R"], fit["object_t"], object_sdf(obs.obj),
         seq["contact"], obs.body_points, obs.body_valid, obs.object_points, obs.object_valid,
         contact_region(body, PART), obs.obj.vertices,
     )  # fmt: skip

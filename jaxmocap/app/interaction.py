@@ -223,12 +223,12 @@ def score_fit(body, obs, truth: dict, true_part: str, fit: dict) -> tuple[dict, 
     """`metrics.interaction_metrics` (true contact frames, contact region of the true part)
     and `metrics.object_pose_errors` of a fit (keys of `fit_scene`'s result) against the
     scene's truth (`Scenario.sequence`); returns (metrics, posed vertices (T, N, 3))."""
-    from ..methods.interaction import contact_region
+    from ..methods.interaction import contact_region, object_sdf
     from ..metrics import interaction_metrics, object_pose_errors
 
     verts, joints = _posed(body, fit["pose"], fit["betas"], fit["trans"])
     R, t = np.asarray(fit["object_R"], np.float64), np.asarray(fit["object_t"], np.float64)
-    m = interaction_metrics(verts, joints, truth["joints"][0], R, t, obs.obj.sdf(48, 0.1), truth["contact"],
+    m = interaction_metrics(verts, joints, truth["joints"][0], R, t, object_sdf(obs.obj), truth["contact"],
                             obs.body_points, obs.body_valid, obs.object_points, obs.object_valid,
                             contact_region(body, true_part), obs.obj.vertices)  # fmt: skip
     m.update(object_pose_errors(R, t, truth["obj_R"], truth["obj_t"], obs.obj.vertices))

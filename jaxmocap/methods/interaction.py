@@ -33,7 +33,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from scipy.spatial import cKDTree
-from scipy.spatial.transform import Rotation
 
 from ..body.kinematics import forward
 from ..body.model import Body
@@ -56,6 +55,7 @@ from ..energies.interaction import (
 from ..energies.posed import CombinedData
 from ..objects import RigidObject
 from ..priors.pose_prior import PosePrior
+from ..rotation import host_exp, host_log
 from ..sensors.depth import visible_vertices
 from ..sensors.objects import CONTACT_PARTS, contact_vertices
 from ..sensors.segmentation import select_candidate
@@ -68,6 +68,7 @@ __all__ = [
     "InteractionObservations",
     "InterCapResult",
     "contact_region",
+    "object_sdf",
     "track_object",
     "fit_human",
     "detect_contact",
@@ -218,12 +219,12 @@ def contact_region(body: Body, part: str, depth: float = 0.015) -> np.ndarray:
 
 
 def _pose6(R, t) -> np.ndarray:
-    return np.concatenate([Rotation.from_matrix(np.asarray(R, np.float64)).as_rotvec(), np.asarray(t, np.float64)], -1)
+    return np.concatenate([host_log(R), np.asarray(t, np.float64)], -1)
 
 
 def _matrices(pose6) -> tuple[np.ndarray, np.ndarray]:
     pose6 = np.asarray(pose6, np.float64)
-    return Rotation.from_rotvec(pose6[..., :3].reshape(-1, 3)).as_matrix().reshape(pose6.shape[:-1] + (3, 3)), pose6[..., 3:]
+    return host_exp(pose6[..., :3]), pose6[..., 3:]
 
 
 def _cube_rotations() -> np.ndarray:
@@ -273,8 +274,15 @@ def _weighted(names, weights: InterCapWeights, dtype, off=(), depth_sigma: float
 # --- data --------------------------------------------------------------------------------------
 
 
+def object_sdf(obj: RigidObject):
+    """The object's SDF as every InterCap term and metric reads it (48³ grid, 10 cm margin:
+    the hand's contact vertices stay inside the grid while they approach)."""
+    return obj.sdf(48, 0.1)
+
+
+@functools.lru_cache(maxsize=32)
 def _surface(obj: RigidObject, count: int = 400, seed: int = 0) -> np.ndarray:
-    """Evenly spread surface samples of the object (its frame)."""
+    """Evenly spread surface samples of the object (its frame; built once per object)."""
     import trimesh
 
     pts, _ = trimesh.sample.sample_surface_even(obj.mesh, count, seed=seed)
@@ -308,7 +316,7 @@ def _interaction_data(obs: InteractionObservations, body: Body, masks, weights: 
     spheres = body_spheres(body, betas)
     a = lambda x: jnp.asarray(x, dtype)  # noqa: E731
     return InteractionData(
-        surface=a(surface), corners=a(corners), sdf=obj.sdf(48, 0.1), object_masks=sil,
+        surface=a(surface), corners=a(corners), sdf=object_sdf(obj), object_masks=sil,
         object_points=a(op), object_valid=jnp.asarray(ov), body_points=a(bp), body_valid=jnp.asarray(bv),
         body_match=jnp.asarray(np.zeros((T, V, bp.shape[2]), np.int32) if body_match is None else body_match, jnp.int32),
         contact=a(np.zeros(T) if contact is None else contact),
@@ -514,7 +522,7 @@ def detect_contact(body: Body, human: dict, obj: dict, sdf_object: RigidObject, 
     out = forward(body, jnp.asarray(poses, body.dtype), jnp.asarray(betas, body.dtype), jnp.asarray(trans, body.dtype))
     verts = np.asarray(out.vertices, np.float64)
     Ro, to = np.asarray(obj["R"], np.float64), np.asarray(obj["t"], np.float64)
-    sdf = sdf_object.sdf(48, 0.1)
+    sdf = object_sdf(sdf_object)
     T = len(verts)
     smooth = lambda x: _moving_average(x, 5)  # noqa: E731
     centre = smooth(to + np.einsum("tab,b->ta", Ro, sdf_object.vertices.mean(0)))
@@ -610,14 +618,7 @@ def intercap(obs: InteractionObservations, body: Body | None = None, weights: In
         parts = (part,)
     joint = fit_joint(obs, human, obj, contact, body, weights, off, parts=parts, prior=prior)
     return InterCapResult(
-        poses=_axis_angle(joint["pose"]), trans=joint["trans"], betas=joint["betas"], object_R=joint["object_R"],
+        poses=joint["pose"], trans=joint["trans"], betas=joint["betas"], object_R=joint["object_R"],
         object_t=joint["object_t"], contact=np.asarray(contact, bool),
         stages={"object": obj, "human": human, "joint": joint},
     )  # fmt: skip
-
-
-def _axis_angle(pose) -> np.ndarray:
-    pose = np.asarray(pose)
-    if pose.shape[-2:] == (3, 3):
-        return Rotation.from_matrix(pose.reshape(-1, 3, 3)).as_rotvec().reshape(pose.shape[:-2] + (3,))
-    return pose
