@@ -31,6 +31,7 @@ __all__ = [
     "matrix_to_6d",
     "sixd_to_matrix",
     "geodesic_angle",
+    "nearest_rotation",
     "rotation_about_axis",
     "left_jacobian",
     "left_jacobian_inverse",
@@ -249,6 +250,15 @@ def sixd_to_matrix(sixd: Array) -> Array:
     b2 = a2 / jnp.linalg.norm(a2, axis=-1, keepdims=True)
     b3 = jnp.cross(b1, b2)
     return jnp.stack([b1, b2, b3], -1)
+
+
+def nearest_rotation(matrix: Array) -> Array:
+    """The rotation closest to a 3x3 matrix in the Frobenius norm (SVD, det fixed to +1):
+    how a regressed rotation matrix (DIP's outputs) becomes a rotation.  (..., 3, 3)."""
+    u, _, vt = jnp.linalg.svd(matrix)
+    d = jnp.sign(jnp.linalg.det(u @ vt))
+    u = u.at[..., :, 2].multiply(jnp.where(d == 0, 1.0, d)[..., None])
+    return u @ vt
 
 
 def geodesic_angle(r1: Array, r2: Array) -> Array:

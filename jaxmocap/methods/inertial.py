@@ -352,7 +352,7 @@ class SIPResult(eqx.Module):
 def sparse_inertial_poser(
     setup: InertialSetup,
     weights: SIPWeights = SIPWeights(),
-    init: Array | None = None,
+    init: Array | str | None = None,
     init_trans: Array | None = None,
     max_steps: int = 20,
     rtol: float = 1e-6,
@@ -364,7 +364,10 @@ def sparse_inertial_poser(
     Args:
         setup: the calibrated sequence.
         weights: `SIPWeights`; `acc=0` gives a whole-sequence SOP.
-        init: (T, 24, 3) initial poses (default: `sparse_orientation_poser(setup, weights)`).
+        init: (T, 24, 3) initial poses, or how to make them: "sop" (the default, the
+            thesis's `sparse_orientation_poser(setup, weights)`) or "birnn" (the poses of
+            the shipped Deep Inertial Poser network, `jaxmocap.learned.dip.birnn_poses`;
+            6 "sip6" sensors).
         init_trans: (T, 3) initial translation (default: x₀'s translation on every frame).
         max_steps: LM iterations (the thesis reports 20 cost evaluations).
     Returns:
@@ -373,11 +376,18 @@ def sparse_inertial_poser(
     if not isinstance(setup, InertialSetup):
         raise ValueError(f"setup must be an InertialSetup (from calibrate), got {type(setup).__name__}.")
     T = setup.num_frames
-    if init is not None and jnp.shape(init) != (T, 24, 3):
+    if isinstance(init, str):
+        if init not in ("sop", "birnn"):
+            raise ValueError(f"init={init!r}: pass 'sop', 'birnn' or (T, 24, 3) poses.")
+        if init == "birnn":
+            from ..learned.dip import birnn_poses
+
+            init = birnn_poses(setup)
+    if init is not None and not isinstance(init, str) and jnp.shape(init) != (T, 24, 3):
         raise ValueError(f"init has shape {jnp.shape(init)}; expected (T, 24, 3) = ({T}, 24, 3).")
     if init_trans is not None and jnp.shape(init_trans) != (T, 3):
         raise ValueError(f"init_trans has shape {jnp.shape(init_trans)}; expected (T, 3) = ({T}, 3).")
-    if init is None:
+    if init is None or isinstance(init, str):
         init, _ = sparse_orientation_poser(setup, weights, max_steps=sop_steps)
     trans = jnp.broadcast_to(setup.trans0, (T, 3)) if init_trans is None else jnp.asarray(init_trans)
     problem = inertial_problem(setup, weights, acceleration=True)

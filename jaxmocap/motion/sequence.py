@@ -115,3 +115,28 @@ class Motion:
             poses[:, j] = slerp(new_times).as_rotvec()
         trans = interp1d(times, self.trans, axis=0)(new_times)
         return dataclasses.replace(self, poses=poses, trans=trans, fps=fps)
+
+    def mirrored(self) -> Motion:
+        """The motion reflected through the body's sagittal plane (x -> -x): left and right
+        joints swap, each axis-angle (x, y, z) becomes (x, -y, -z), translation x flips.
+
+        Exact for a left-right symmetric skeleton (SMPL's and the default body's are, to
+        their mesh's symmetry); a data augmentation for the learned parts.
+        """
+        from ..body.model import SMPL_JOINT_NAMES
+
+        index = {n: i for i, n in enumerate(SMPL_JOINT_NAMES)}
+        swap = [index[n.replace("left", "@").replace("right", "left").replace("@", "right")] for n in SMPL_JOINT_NAMES]
+        poses = self.poses[:, swap] * np.array([1.0, -1.0, -1.0])
+        trans = self.trans * np.array([-1.0, 1.0, 1.0])
+        return dataclasses.replace(self, poses=poses, trans=trans, name=f"{self.name} (mirrored)")
+
+    def time_scaled(self, speed: float) -> Motion:
+        """The same motion performed `speed` times as fast, at the same frame rate
+        (slerp resampling; speed 1.2 gives 1/1.2 as many frames)."""
+        if not (np.isfinite(speed) and speed > 0):
+            raise ValueError(f"speed must be a finite number > 0, got {speed!r}.")
+        if speed == 1.0:
+            return self
+        fast = dataclasses.replace(self, fps=self.fps * speed).resample(self.fps)
+        return dataclasses.replace(fast, name=f"{self.name} (x{speed:g} speed)")
