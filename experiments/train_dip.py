@@ -71,7 +71,7 @@ def dataset(args, body, cache: Path) -> DIPDataset:
         items += [(v, "procedural") for v in augmented(m, speeds=SPEEDS)]
     print(f"{len(items)} motions ({len(clips)} clips + procedural, augmented), synthesising ...", flush=True)
     data = synthesize(items, body, [IMUErrorModel.off(), IMUErrorModel.xsens()], args.window, args.stride,
-                      seed=args.seed, progress=True)  # fmt: skip
+                      seed=args.seed, progress=sys.stderr.isatty())  # fmt: skip
     data.save(path)
     print(f"{len(data)} windows, {int(data.mask.sum())} frames ({time.perf_counter() - t0:.0f} s)", flush=True)
     return data
