@@ -257,7 +257,7 @@ def network_poses(network: DIPNetwork, inputs: Array, root: Array) -> Array:
     local = matrix_to_axis_angle(nearest_rotation(mu))
     poses = jnp.zeros((inputs.shape[0], 24, 3), local.dtype)
     poses = poses.at[:, np.asarray(MAJOR_JOINTS)].set(local)
-    return poses.at[:, 0].set(matrix_to_axis_angle(root))
+    return poses.at[:, 0].set(matrix_to_axis_angle(root).astype(local.dtype))
 
 
 def birnn_poses(setup, network: DIPNetwork | None = None) -> Array:
