@@ -251,9 +251,10 @@ def dip_loss(network: DIPNetwork, inputs, targets, mask, key=None, acc_weight: f
 
 
 @eqx.filter_jit
-def network_poses(network: DIPNetwork, inputs: Array, root: Array) -> Array:
-    """(T, 24, 3) axis-angle poses from raw inputs (T, 60) and root orientations (T, 3, 3)."""
-    mu = network(inputs)[0].reshape(-1, len(MAJOR_JOINTS), 3, 3)
+def network_poses(network: DIPNetwork, inputs: Array, root: Array, mask: Array | None = None) -> Array:
+    """(T, 24, 3) axis-angle poses from raw inputs (T, 60) and root orientations (T, 3, 3);
+    `mask` (T,) marks real frames of a padded sequence."""
+    mu = network(inputs, mask)[0].reshape(-1, len(MAJOR_JOINTS), 3, 3)
     local = matrix_to_axis_angle(nearest_rotation(mu))
     poses = jnp.zeros((inputs.shape[0], 24, 3), local.dtype)
     poses = poses.at[:, np.asarray(MAJOR_JOINTS)].set(local)
@@ -278,7 +279,13 @@ def birnn_poses(setup, network: DIPNetwork | None = None) -> Array:
     d = setup.data
     x = dip_inputs(d.orientation.astype(jnp.float32), d.acceleration.astype(jnp.float32), d.sensor_to_bone.astype(jnp.float32))
     root = virtual_bone_orientations(_hold_dropped(d.orientation.astype(jnp.float32)), d.sensor_to_bone.astype(jnp.float32))[:, ROOT_SENSOR]
-    return network_poses(network, x, root).astype(setup.pose0.dtype)
+    # Padded to a multiple of 128 frames (masked: padding reaches neither direction), so
+    # sequences of many lengths share a few compilations.
+    T = x.shape[0]
+    pad = -T % 128
+    mask = jnp.arange(T + pad) < T
+    x, root = (jnp.concatenate([a, jnp.repeat(a[-1:], pad, 0)]) for a in (x, root))
+    return network_poses(network, x, root, mask)[:T].astype(setup.pose0.dtype)
 
 
 # --- weights files -----------------------------------------------------------------
