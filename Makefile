@@ -18,9 +18,12 @@ setup: $(STAMP)
 demo: setup
 	$(PY) -m jaxmocap.cli demo --out out/demo
 
-# Names and progress as they run (-v), and the ten slowest tests at the end.
+# Names and progress as they run (-v), and the ten slowest tests at the end. Two processes,
+# each taking whole test files (a file's jitted fixtures compile once); TEST_WORKERS=0 runs
+# in this process alone.
+TEST_WORKERS ?= 2
 test: setup
-	$(PY) -m pytest -v --durations=10
+	$(PY) -m pytest -v --durations=10 -n $(TEST_WORKERS) --dist loadfile
 
 # ruff (pinned in the test extra); the rule set is in pyproject.toml.
 lint: setup

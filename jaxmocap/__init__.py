@@ -15,7 +15,7 @@ from .body import save_body as save_body
 __version__ = "0.1.0"
 
 # Heavier subpackages (MuJoCo, trimesh, matplotlib) load on first use: `jaxmocap.physics`.
-_LAZY = ("energies", "formats", "methods", "metrics", "objects", "physics", "priors", "sensors", "solve", "viz")
+_LAZY = ("energies", "formats", "learned", "methods", "metrics", "objects", "physics", "priors", "sensors", "solve", "viz")
 
 
 def __getattr__(name):

@@ -20,7 +20,7 @@ LAYERS = [
     ("data", {"motion", "formats", "metrics", "objects"}),
     ("drawing", {"viz"}),
     ("observation models", {"energies", "sensors", "priors"}),
-    ("methods", {"methods"}),
+    ("methods", {"methods", "learned"}),
     ("checks", {"physics"}),
     ("application", {"app"}),
     ("entry points", {"cli", "__main__"}),
