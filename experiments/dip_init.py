@@ -83,6 +83,20 @@ def plot(res: dict, path: Path) -> None:
     plt.close(fig)
 
 
+def markdown(res: dict, path: Path) -> None:
+    lines = ["| method | MPJPE mm | MPJAE ° | converged | mean LM steps |", "| --- | --- | --- | --- | --- |"]
+    for name, v in res["table"].items():
+        conv, steps = res["converged"].get(name), res["mean_steps"].get(name)
+        lines.append(f"| {name} | {v['mpjpe']:.1f} | {v['mpjae']:.2f} | {'' if conv is None else f'{100 * conv:.0f} %'} | "
+                     f"{'' if steps is None else f'{steps:.0f}'} |")  # fmt: skip
+    r, clips = res["sip_birnn_vs_sip_it_percent"], res["per_clip"]
+    lines.append(f"\nSIP from the BiRNN vs SIP from SOP: MPJAE {r['mpjae']:+.1f} %, MPJPE {r['mpjpe']:+.1f} % "
+                 f"({len(clips)} clips, {sum(c['frames'] for c in clips)} frames, subjects "
+                 f"{', '.join(sorted({c['subject'] for c in clips}))}).")  # fmt: skip
+    path.write_text("\n".join(lines) + "\n")
+    print("\n".join(lines))
+
+
 def pooled(errs: list[dict], key: str) -> float:
     return float(np.concatenate([e[key].ravel() for e in errs]).mean())
 
@@ -186,17 +200,8 @@ def main(argv=None):
     tmp = out / "dip_init.json.tmp"
     tmp.write_text(json.dumps(res, indent=1))
     tmp.replace(out / "dip_init.json")
-    lines = ["| method | MPJPE mm | MPJAE ° | converged | mean LM steps |", "| --- | --- | --- | --- | --- |"]
-    for name, v in table.items():
-        conv = res["converged"].get(name)
-        lines.append(f"| {name} | {v['mpjpe']:.1f} | {v['mpjae']:.2f} | "
-                     f"{'' if conv is None else f'{100 * conv:.0f} %'} | {res['mean_steps'].get(name, '')} |")  # fmt: skip
-    r = res["sip_birnn_vs_sip_it_percent"]
-    lines.append(f"\nSIP from the BiRNN vs SIP from SOP: MPJAE {r['mpjae']:+.1f} %, MPJPE {r['mpjpe']:+.1f} % "
-                 f"({len(base)} clips, {sum(b.length for b in base)} frames, subjects {', '.join(subjects)}).")  # fmt: skip
-    (out / "dip_init.md").write_text("\n".join(lines) + "\n")
+    markdown(res, out / "dip_init.md")
     plot(res, out / "dip_init.png")
-    print("\n".join(lines))
 
 
 if __name__ == "__main__":
