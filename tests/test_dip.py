@@ -145,10 +145,10 @@ def test_training_lowers_both_losses_and_files_round_trip(tiny_data, tmp_path):
 
 
 def test_bad_weight_files_fail_clearly(tmp_path):
-    with pytest.raises(dip.DIPModelError, match="no DIP weights"):
+    with pytest.raises(dip.DIPModelError, match="no jaxmocap_dip_model file"):
         dip.load_dip_model(tmp_path / "missing.npz")
     (tmp_path / "junk.npz").write_bytes(b"not a zip")
-    with pytest.raises(dip.DIPModelError, match="not a jaxmocap DIP weights file"):
+    with pytest.raises(dip.DIPModelError, match="not a jaxmocap_dip_model file"):
         dip.load_dip_model(tmp_path / "junk.npz")
     net = dip.DIPNetwork(dip.DIPConfig(hidden=4))
     path = dip.save_dip_model(tmp_path / "m.npz", net)

@@ -32,7 +32,6 @@ README says what data, which commit and how long it was trained, and what it has
 from __future__ import annotations
 
 import dataclasses
-import json
 from pathlib import Path
 
 import equinox as eqx
@@ -43,6 +42,7 @@ from jax import Array
 
 from ..rotation import axis_angle_to_matrix, matrix_to_axis_angle, nearest_rotation
 from ..sensors.calibration import normalize_to_root, virtual_bone_orientations
+from ._weights import fill_module, read_header, save_module
 
 __all__ = [
     "MAJOR_JOINTS",
@@ -291,64 +291,21 @@ def birnn_poses(setup, network: DIPNetwork | None = None) -> Array:
 # --- weights files -----------------------------------------------------------------
 
 
-def _leaves(network: DIPNetwork) -> dict[str, Array]:
-    flat, _ = jax.tree_util.tree_flatten_with_path(network)
-    return {jax.tree_util.keystr(path): leaf for path, leaf in flat}
-
-
 def save_dip_model(path, network: DIPNetwork, meta: dict | None = None, dtype=np.float16) -> Path:
     """Write the weights (as `dtype`, float16 by default: half the size, error far below the
     network's own) with the configuration and `meta` (provenance) as JSON; atomic."""
-    path = Path(path)
-    arrays = {f"w{i}": np.asarray(v, dtype) for i, v in enumerate(_leaves(network).values())}
-    header = {
-        "format": FORMAT,
-        "version": FORMAT_VERSION,
-        "config": dataclasses.asdict(network.config),
-        "leaves": {k: [f"w{i}", list(np.shape(v))] for i, (k, v) in enumerate(_leaves(network).items())},
-        "meta": meta or {},
-    }
-    tmp = path.with_name(path.name + ".tmp.npz")
-    np.savez_compressed(tmp, header=np.asarray(json.dumps(header)), **arrays)
-    tmp.replace(path)
-    return path
+    header = {"format": FORMAT, "version": FORMAT_VERSION, "config": dataclasses.asdict(network.config), "meta": meta or {}}
+    return save_module(path, network, header, dtype)
 
 
 def load_dip_model(path) -> tuple[DIPNetwork, dict]:
     """(network, meta) from a file of `save_dip_model`; `DIPModelError` names what does not match."""
-    path = Path(path)
-    if not path.is_file():
-        raise DIPModelError(f"no DIP weights file at {path}.")
+    header, arrays = read_header(path, FORMAT, FORMAT_VERSION, DIPModelError, "jaxmocap.learned.dip.save_dip_model")
     try:
-        with np.load(path, allow_pickle=False) as f:
-            header = json.loads(str(f["header"]))
-            arrays = {k: f[k] for k in f.files if k != "header"}
-    except (OSError, ValueError, KeyError) as e:
-        raise DIPModelError(f"{path} is not a jaxmocap DIP weights file ({e}).") from None
-    if header.get("format") != FORMAT or header.get("version") != FORMAT_VERSION:
-        raise DIPModelError(
-            f"{path}: format {header.get('format')!r} version {header.get('version')!r}; expected "
-            f"{FORMAT!r} version {FORMAT_VERSION} (save it again with jaxmocap.learned.dip.save_dip_model)."
-        )
-    try:
-        network = DIPNetwork(DIPConfig(**header["config"]))
-    except (TypeError, ValueError) as e:
+        skeleton = DIPNetwork(DIPConfig(**header["config"]))
+    except (KeyError, TypeError, ValueError) as e:
         raise DIPModelError(f"{path}: bad network configuration {header.get('config')!r} ({e}).") from None
-    expected = _leaves(network)
-    stored = header.get("leaves", {})
-    if set(stored) != set(expected):
-        raise DIPModelError(
-            f"{path}: its parameters {sorted(set(stored) ^ set(expected))[:4]} do not match this "
-            "version's DIPNetwork; retrain or use the jaxmocap version that wrote it."
-        )
-    values = []
-    for name, leaf in expected.items():
-        key, shape = stored[name]
-        if tuple(shape) != tuple(leaf.shape) or key not in arrays or arrays[key].shape != tuple(leaf.shape):
-            raise DIPModelError(f"{path}: parameter {name} has shape {shape}, the network needs {list(leaf.shape)}.")
-        values.append(jnp.asarray(arrays[key], jnp.float32))
-    flat, treedef = jax.tree_util.tree_flatten(network)
-    return jax.tree_util.tree_unflatten(treedef, values), header.get("meta", {})
+    return fill_module(skeleton, header, arrays, path, DIPModelError), header.get("meta", {})
 
 
 _DEFAULT: list = []
