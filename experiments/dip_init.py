@@ -111,6 +111,8 @@ def main(argv=None):
     p.add_argument("--steps", type=int, default=200)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--clips", type=int, help="use N clips spread over the subjects (smoke runs)")
+    p.add_argument("--birnn-only", action="store_true",
+                   help="only the networks' own errors (e.g. another width), to OUT/dip_init_birnn_only.json")
     args = p.parse_args(argv)
     t0 = time.perf_counter()
     out, cache = Path(args.out), Path(args.cache)
@@ -136,6 +138,18 @@ def main(argv=None):
     t1 = time.perf_counter()
     learned = [np.asarray(birnn_poses(it.setup, nets[clips[i].subject])) for it, i in zip(base, keep)]
     birnn_seconds = time.perf_counter() - t1
+    if args.birnn_only:
+        L = max(b.length for b in base)
+        errs = [mean_errors(body, p, b, length=L) for p, b in zip(learned, base)]
+        res = {"BiRNN": {k: pooled(errs, k) for k in ("mpjpe", "mpjae")},
+               "per_subject": {s: {k: pooled([e for e, i in zip(errs, keep) if clips[i].subject == s], k)
+                                   for k in ("mpjpe", "mpjae")} for s in nets},
+               "networks": {s: {"hidden": m["config"]["hidden"], "best_step": m.get("best_step"),
+                                "steps": m["config"]["steps"], "commit": m.get("commit")} for s, m in metas.items()},
+               "clips": len(base), "frames": sum(b.length for b in base), "device": str(jax.devices()[0])}  # fmt: skip
+        (out / "dip_init_birnn_only.json").write_text(json.dumps(res, indent=1))
+        print(json.dumps({k: res[k] for k in ("BiRNN", "per_subject", "networks")}, indent=1))
+        return
     with_starts(base, sop)
     sop_poses = [it.init for it in base]
     runs = {"BiRNN": [(p, 0, 0, float("nan")) for p in learned], "SOP": [(p, 0, 20, float("nan")) for p in sop_poses]}
