@@ -32,6 +32,7 @@ README says what data, which commit and how long it was trained, and what it has
 from __future__ import annotations
 
 import dataclasses
+import functools
 from pathlib import Path
 
 import equinox as eqx
@@ -119,8 +120,18 @@ def dip_inputs(orientation: Array, acceleration: Array, sensor_to_bone: Array) -
             f"DIP reads the 6 'sip6' sensors: orientation (T, 6, 3, 3), acceleration (T, 6, 3), "
             f"sensor_to_bone (6, 3, 3); got {orientation.shape}, {acceleration.shape}, {jnp.shape(sensor_to_bone)}."
         )
-    R = virtual_bone_orientations(_hold_dropped(orientation), jnp.asarray(sensor_to_bone, orientation.dtype))
-    R_bar, a_bar = normalize_to_root(R, _hold_dropped(acceleration), ROOT_SENSOR)
+    return _inputs(_virtual_bones(orientation, jnp.asarray(sensor_to_bone, orientation.dtype)), acceleration)
+
+
+def _virtual_bones(orientation: Array, sensor_to_bone: Array) -> Array:
+    """Eq. 6.6 with dropped samples held: (T, 6, 3, 3) virtual bone orientations."""
+    return virtual_bone_orientations(_hold_dropped(orientation), sensor_to_bone)
+
+
+def _inputs(bones: Array, acceleration: Array) -> Array:
+    """Eq. 6.7-6.8 and §6.3.4 from virtual bone orientations: (T, 60)."""
+    T = bones.shape[0]
+    R_bar, a_bar = normalize_to_root(bones, _hold_dropped(acceleration), ROOT_SENSOR)
     others = np.array([s for s in range(6) if s != ROOT_SENSOR])
     return jnp.concatenate([R_bar[:, others].reshape(T, -1), a_bar[:, others].reshape(T, -1)], -1)
 
@@ -276,9 +287,10 @@ def birnn_poses(setup, network: DIPNetwork | None = None) -> Array:
             "in that order (for DIP-IMU's 17 sensors: sensors=[7, 8, 11, 12, 0, 2])."
         )
     network = default_dip_model() if network is None else network
+    f32 = lambda a: jnp.asarray(a, jnp.float32)  # noqa: E731
     d = setup.data
-    x = dip_inputs(d.orientation.astype(jnp.float32), d.acceleration.astype(jnp.float32), d.sensor_to_bone.astype(jnp.float32))
-    root = virtual_bone_orientations(_hold_dropped(d.orientation.astype(jnp.float32)), d.sensor_to_bone.astype(jnp.float32))[:, ROOT_SENSOR]
+    bones = _virtual_bones(f32(d.orientation), f32(d.sensor_to_bone))
+    x, root = _inputs(bones, f32(d.acceleration)), bones[:, ROOT_SENSOR]
     # Padded to a multiple of 128 frames (masked: padding reaches neither direction), so
     # sequences of many lengths share a few compilations.
     T = x.shape[0]
@@ -308,11 +320,7 @@ def load_dip_model(path) -> tuple[DIPNetwork, dict]:
     return fill_module(skeleton, header, arrays, path, DIPModelError), header.get("meta", {})
 
 
-_DEFAULT: list = []
-
-
+@functools.cache
 def default_dip_model() -> DIPNetwork:
     """The shipped network (`dip_model.npz`; see the README beside it), loaded once."""
-    if not _DEFAULT:
-        _DEFAULT.append(load_dip_model(DEFAULT_MODEL_PATH)[0])
-    return _DEFAULT[0]
+    return load_dip_model(DEFAULT_MODEL_PATH)[0]

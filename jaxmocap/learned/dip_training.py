@@ -28,7 +28,7 @@ import numpy as np
 import optax
 
 from ..motion.sequence import Motion
-from .dip import NUM_INPUTS, DIPConfig, DIPNetwork, dip_inputs, dip_loss, dip_targets
+from .dip import NUM_INPUTS, DIPConfig, DIPNetwork, dip_loss, dip_targets
 
 __all__ = ["DIPDataset", "TrainConfig", "augmented", "windows", "synthesize", "train_dip"]
 
@@ -93,12 +93,12 @@ def windows(motion: Motion, window: int, stride: int) -> list[tuple[Motion, int]
 def _calibrated_inputs(body, poses0, betas, trans0, orientation, acceleration):
     """Calibrate on the first frame's true pose (eq. 6.5) and build the inputs, one window."""
     from ..body.kinematics import forward
-    from .dip import SIP6_BONES, _hold_dropped
+    from ..sensors.calibration import sensor_to_bone_offsets, virtual_bone_orientations
+    from .dip import SIP6_BONES, _hold_dropped, _inputs
 
+    held = _hold_dropped(orientation)  # a dropout at frame 0 reads the first later sample
     R_b0 = forward(body, poses0, betas, trans0).joint_rotations[np.asarray(SIP6_BONES)]
-    R_s0 = _hold_dropped(orientation)[0]  # a dropout at frame 0 reads the first later sample
-    sensor_to_bone = jnp.swapaxes(R_b0, -1, -2) @ R_s0
-    return dip_inputs(orientation, acceleration, sensor_to_bone)
+    return _inputs(virtual_bone_orientations(held, sensor_to_bone_offsets(R_b0, held[0])), acceleration)
 
 
 def synthesize(

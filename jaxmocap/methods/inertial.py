@@ -383,11 +383,13 @@ def sparse_inertial_poser(
             from ..learned.dip import birnn_poses
 
             init = birnn_poses(setup)
-    if init is not None and not isinstance(init, str) and jnp.shape(init) != (T, 24, 3):
+        else:
+            init = None
+    if init is not None and jnp.shape(init) != (T, 24, 3):
         raise ValueError(f"init has shape {jnp.shape(init)}; expected (T, 24, 3) = ({T}, 24, 3).")
     if init_trans is not None and jnp.shape(init_trans) != (T, 3):
         raise ValueError(f"init_trans has shape {jnp.shape(init_trans)}; expected (T, 3) = ({T}, 3).")
-    if init is None or isinstance(init, str):
+    if init is None:
         init, _ = sparse_orientation_poser(setup, weights, max_steps=sop_steps)
     trans = jnp.broadcast_to(setup.trans0, (T, 3)) if init_trans is None else jnp.asarray(init_trans)
     problem = inertial_problem(setup, weights, acceleration=True)
