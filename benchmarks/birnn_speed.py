@@ -8,12 +8,14 @@ does not depend on them) at the shipped width and the thesis's 512 units:
   one sequence of T = 1000 frames, and a batch of B sequences of 300 frames (vmapped);
 baseline in the same process: SOP (the per-frame orientation poser on 6 IMUs, 20 LM steps,
 frame after frame: SIP's usual start) on one 300-frame walk. `ratio_vs_sop` is BiRNN
-frames/s over SOP frames/s.
+frames/s over SOP frames/s. The CPU file (no suffix) also holds the last GPU run's
+results under "gpu" (copied from `birnn_speed_gpu.json`).
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 
 import equinox as eqx
 import jax
@@ -65,6 +67,12 @@ def main():
         "results": results,
         "machine": machine(),
     }  # fmt: skip
+    if not args.suffix:  # the CPU file also carries the last GPU run, so one file holds both
+        from _common import RESULTS
+
+        gpu = RESULTS / "birnn_speed_gpu.json"
+        if gpu.is_file():
+            payload["gpu"] = json.loads(gpu.read_text())
     print(write_json(f"birnn_speed{'_' + args.suffix if args.suffix else ''}.json", payload))
 
 
