@@ -3,6 +3,19 @@
     python benchmarks/sip_speed.py                   # CPU, writes results/sip_speed.json
     python benchmarks/sip_speed.py --suffix gpu --batches 1,64,1024   # on a GPU
     python benchmarks/sip_speed.py --frames 100 --iters 5 --batches 1 --suffix small   # a quick check
+    python benchmarks/sip_speed.py --no-v1 --no-baseline --batches '' --long 5000,20000   # long sequences
+    python benchmarks/sip_speed.py --suffix gpu --no-v1 --no-baseline --batches '' --big-batch 1000  # issue 20 on a GPU
+
+Issue 20's keys: `sip_single.median_s` (this machine, default factorisation),
+`sip_t5000_s`, `sip_t20000_s` (`--long`: one timed solve each after a compiling one, SOP
+start given, with `linear_scaling`: time / ((T / frames) x the single-sequence time)),
+`gpu_single_s` and `gpu_1000x1000_s` (from a GPU run: the single sequence, and
+`--big-batch` sequences of `--frames` frames through `sparse_inertial_poser_batch`, which
+chunks to fit memory). A GPU run also writes its two keys into results/sip_speed.json and
+a CPU run copies them from results/sip_speed_gpu.json, so that one file holds them all.
+The block-tridiagonal factorisation ("scan" or "cyclic" cyclic reduction, see
+jaxmocap/solve/tridiagonal.py) is timed both ways on the single sequence
+(`tridiagonal`), the other one being the old path on the GPU.
 
 The thesis (von Marcard §3.4.1): 1000 frames, 20 cost evaluations, 7.5 minutes in
 single-core MATLAB. Here "20 iterations" means 20 LM trial steps (each one cost
@@ -52,7 +65,7 @@ import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).parent))
-from _common import machine, peak_memory_bytes, time_call, write_json  # noqa: E402
+from _common import RESULTS, machine, peak_memory_bytes, time_call, write_json  # noqa: E402
 from _v1 import V1_COMMIT, v1_path  # noqa: E402
 
 
@@ -69,14 +82,19 @@ def _setup(frames: int, seed: int = 0):
     return inertial.from_scenario(sc, 0, body)
 
 
-def _time_sip(setup, init, iters: int, min_seconds: float):
+def _time_sip(setup, init, iters: int, min_seconds: float, tridiagonal: str | None = None):
     """The single-sequence measurement (shared by this run and the v1 subprocess)."""
     from jaxmocap.methods import inertial
 
     it = dict(max_steps=iters, rtol=0.0, atol=0.0)
 
     def run_sip():
-        return inertial.sparse_inertial_poser(setup, init=init, **it).solution
+        if tridiagonal is None:  # the method's own entry point (also v1's)
+            return inertial.sparse_inertial_poser(setup, init=init, **it).solution
+        from jaxmocap.solve import solve
+
+        params = {"pose": init, "trans": jnp.broadcast_to(setup.trans0, (setup.num_frames, 3))}
+        return solve(inertial.inertial_problem(setup), params, setup.data, tridiagonal=tridiagonal, **it)
 
     timing = time_call(run_sip, min_seconds=min_seconds, max_repeats=5)
     return timing, run_sip()
@@ -151,6 +169,8 @@ def main(argv=None) -> int:
     p.add_argument("--min-seconds", type=float, default=2.0)
     p.add_argument("--no-baseline", action="store_true", help="skip the AD-Jacobian baseline")
     p.add_argument("--no-v1", action="store_true", help="skip the v1-engine (commit d67d910) baseline")
+    p.add_argument("--long", default="", help="comma-separated long sequence lengths to time once each (e.g. 5000,20000)")
+    p.add_argument("--big-batch", type=int, default=0, help="time this many sequences of --frames frames at once")
     p.add_argument("--engine-only", action="store_true", help="internal: time the single SIP solve only")
     p.add_argument("--init", help="internal (--engine-only): .npz with the setup's arrays and the SOP start")
     p.add_argument("--json-out", help="internal (--engine-only): where to write time and final cost")
@@ -180,6 +200,28 @@ def main(argv=None) -> int:
     print(f"SIP {args.frames} frames x {args.iters} LM steps: {single['median_s']:.3f} s "
           f"(compile + first {single['compile_and_first_call_s']:.1f} s), final cost {final_cost:.9g}; "
           f"SOP {sop_timing['median_s']:.2f} s")
+    from jaxmocap.solve.tridiagonal import TRIDIAGONAL_METHODS, default_tridiagonal_method
+
+    tridiagonal = {"default": default_tridiagonal_method()}
+    for method in TRIDIAGONAL_METHODS:
+        t, s = _time_sip(setup, sop, args.iters, args.min_seconds, tridiagonal=method)
+        tridiagonal[method] = dict(t, final_cost=float(s.cost))
+        print(f"  tridiagonal={method}: {t['median_s']:.3f} s, final cost {float(s.cost):.9g}")
+    other = [m for m in TRIDIAGONAL_METHODS if m != tridiagonal["default"]][0]
+    tridiagonal["default_vs_other_ratio"] = tridiagonal[tridiagonal["default"]]["median_s"] / tridiagonal[other]["median_s"]
+
+    long = {}
+    for T in [int(x) for x in args.long.split(",") if x]:
+        long_setup = _setup(T)
+        t0 = time.perf_counter()
+        long_sop, _ = inertial.sparse_orientation_poser(long_setup)
+        jax.block_until_ready(long_sop)
+        sop_s = time.perf_counter() - t0
+        t, s = _time_sip(long_setup, long_sop, args.iters, 1e-9)  # compile + one timed solve
+        long[T] = dict(t, sop_with_compile_s=sop_s, final_cost=float(s.cost),
+                       linear_scaling=t["median_s"] / (T / args.frames * single["median_s"]))  # fmt: skip
+        print(f"SIP {T} frames x {args.iters} LM steps: {t['median_s']:.2f} s "
+              f"({long[T]['linear_scaling']:.2f} x linear from {args.frames} frames); SOP {sop_s:.1f} s")
 
     v1 = {}
     if not args.no_v1:
@@ -244,6 +286,17 @@ def main(argv=None) -> int:
             print(f"baseline (AD Jacobians, no elimination): {baseline['median_s']:.3f} s, "
                   f"ratio {single['ratio_to_baseline']:.3f}")
 
+    big = None
+    if args.big_batch:
+        stacked = inertial.stack_setups([setup] * args.big_batch)
+        init = jnp.broadcast_to(sop, (args.big_batch,) + sop.shape)
+        big = time_call(lambda: inertial.sparse_inertial_poser_batch(stacked, init, **it).value["pose"],
+                        min_seconds=1e-9, max_repeats=1)  # fmt: skip
+        big.update(sequences=args.big_batch, frames=args.frames, lm_iterations=args.iters,
+                   frames_per_second=args.big_batch * args.frames / big["median_s"])  # fmt: skip
+        print(f"batch {args.big_batch} x {args.frames} frames x {args.iters} steps: {big['median_s']:.2f} s "
+              f"(compile + first {big['compile_and_first_call_s']:.1f} s)")
+
     batches = {}
     if args.batches:
         short = _setup(args.batch_frames, seed=1)
@@ -267,6 +320,10 @@ def main(argv=None) -> int:
         "thesis": {"frames": 1000, "cost_evaluations": 20, "seconds": 450.0, "setup": "single-core MATLAB, i7 3.5 GHz"},
         "sop_init": sop_timing,
         "sip_single": single,
+        "tridiagonal": tridiagonal,
+        **{f"sip_t{T}_s": v["median_s"] for T, v in long.items()},
+        "long": {str(T): v for T, v in long.items()},
+        "big_batch": big,
         **v1,
         "baseline_ad_jacobians": baseline,
         "batch_frames": args.batch_frames,
@@ -275,9 +332,27 @@ def main(argv=None) -> int:
         # The CPU is shared: a load above the core count means these times are inflated.
         "load_average_1_5_15min_at_end": list(os.getloadavg()),
     }
+    gpu = jax.default_backend() == "gpu"
+    if gpu:
+        payload["gpu_single_s"] = single["median_s"]
+        payload["gpu_1000x1000_s"] = big["median_s"] if big and big["sequences"] == 1000 == args.frames else None
+        _merge_gpu_keys(RESULTS / "sip_speed.json", payload)
+    elif (RESULTS / "sip_speed_gpu.json").is_file():
+        _merge_gpu_keys(payload, json.loads((RESULTS / "sip_speed_gpu.json").read_text()))
     name = f"sip_speed{'_' + args.suffix if args.suffix else ''}.json"
     print(f"wrote {write_json(name, payload)}")
     return 0
+
+
+def _merge_gpu_keys(into, gpu_run: dict) -> None:
+    """Copy a GPU run's issue-20 keys (and its machine) into a payload or a results file."""
+    keys = {k: gpu_run.get(k) for k in ("gpu_single_s", "gpu_1000x1000_s")}
+    keys["gpu"] = {"machine": gpu_run["machine"], "tridiagonal": gpu_run.get("tridiagonal"),
+                   "big_batch": gpu_run.get("big_batch")}  # fmt: skip
+    if isinstance(into, dict):
+        into.update(keys)
+    elif into.is_file():
+        write_json(into.name, dict(json.loads(into.read_text()), **keys))
 
 
 if __name__ == "__main__":

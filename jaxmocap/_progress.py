@@ -1,6 +1,9 @@
-"""One progress bar for every long loop (tqdm, only imported when a bar is shown)."""
+"""Progress for long work: a tqdm bar for Python loops, a stderr line for compiled loops."""
 
 from __future__ import annotations
+
+import sys
+import time
 
 
 def progress(items, enabled: bool, desc: str, unit: str = "frame"):
@@ -10,3 +13,27 @@ def progress(items, enabled: bool, desc: str, unit: str = "frame"):
     from tqdm.auto import tqdm
 
     return tqdm(items, desc=desc, unit=unit, leave=False)
+
+
+_STARTED: dict[str, tuple[float, int]] = {}
+
+
+def report(label: str, done, total, detail: str = "", final: bool = False) -> None:
+    """One overwritten stderr line: `label done/total`, `detail`, time per unit and ETA.
+
+    Called from inside jitted loops through `jax.debug.callback` (arguments arrive as
+    arrays). The clock starts at the first report of `label` whose `done` is not
+    larger than the last one seen (a new run), so the rate excludes compilation.
+    """
+    done, total = int(done), int(total)
+    now = time.perf_counter()
+    start = _STARTED.get(label)
+    if start is None or done <= start[1]:
+        _STARTED[label] = start = (now, done)
+    t0, first = start
+    rate = ""
+    if done > first:
+        per = (now - t0) / (done - first)
+        rate = f", {per:.3g} s per {label.split()[-1]}, ETA {per * (total - done):.0f} s at most"
+    print(f"\r{label} {done}/{total}{': ' + detail if detail else ''}{rate}" + ("\n" if final else "   "),
+          end="", file=sys.stderr, flush=True)  # fmt: skip

@@ -18,6 +18,8 @@ the known initial pose x₀, as in the thesis, where initial poses came with the
 
 from __future__ import annotations
 
+from functools import partial
+
 import dataclasses
 from collections.abc import Sequence
 
@@ -39,7 +41,9 @@ from ..energies.imu import (
     orientation_term,
 )
 from ..priors.pose_prior import PosePrior, default_pose_prior
+from .._progress import report
 from ..solve import NO_OBSERVATIONS, Problem, Solution, solve, solve_batch
+from ..solve.solver import PROGRESS_FRAMES
 
 __all__ = [
     "SIPWeights",
@@ -280,6 +284,7 @@ def orientation_poser(
     max_steps: int = 20,
     rtol: float = 1e-6,
     atol: float = 1e-10,
+    progress: bool | None = None,
 ) -> tuple[Array, Array]:
     """E_ori + E_anthro per frame: the pose of every frame (SOP with 6 IMUs, IT with all).
 
@@ -292,6 +297,8 @@ def orientation_poser(
             and all frames are solved at once (`solve_batch`), much faster, and equally
             good when the sensors pin the pose down (IT on 13 or 17 IMUs).
         max_steps: LM iterations per frame.
+        progress: report frames done and the ETA on stderr while the sequential scan runs
+            (default: for `PROGRESS_FRAMES` frames or more).
     Returns:
         (poses (T, 24, 3) axis-angle, per-frame `optx.RESULTS` codes (T,)).
     """
@@ -311,14 +318,24 @@ def orientation_poser(
         params = {"pose": jnp.broadcast_to(x0, (T, 1) + x0.shape)}
         sol = solve_batch(problem, params, batch, **kw)
         return sol.value["pose"][:, 0], sol.result
-    return _sequential(problem, data, x0, **kw)
+    progress = T >= PROGRESS_FRAMES if progress is None else bool(progress)
+    return _sequential(problem, data, x0, progress=progress, **kw)
 
 
 @eqx.filter_jit
-def _sequential(problem, data, x0, **kw):
+def _sequential(problem, data, x0, progress=False, **kw):
+    T = data.num_frames
+    every = max(1, T // 100)
+
     def step(pose, t):
         sol = solve(problem, {"pose": pose[None]}, _frame_data(data, t), **kw)
         new = sol.value["pose"][0]
+        if progress:
+            jax.lax.cond(
+                ((t + 1) % every == 0) | (t == T - 1),
+                lambda: jax.debug.callback(partial(report, "SOP frame"), t + 1, T, final=t == T - 1),  # noqa: B023
+                lambda: None,
+            )
         return new, (new, sol.result)
 
     _, (poses, results) = jax.lax.scan(step, x0, jnp.arange(data.num_frames))

@@ -39,7 +39,7 @@ from jax import Array
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from .._checks import check_weight
-from .solver import METHODS, Args, Solution, _check, _check_max_steps, _solve_core
+from .solver import METHODS, Args, Solution, _check, _check_max_steps, _solve_core, check_tridiagonal
 
 __all__ = [
     "pad_sequences",
@@ -269,6 +269,7 @@ def solve_batch(
     chunk_size: int | str | None = "auto",
     devices: Sequence | None = None,
     memory_fraction: float = 0.6,
+    tridiagonal: str | None = None,
 ) -> Solution:
     """`solve` over a leading batch axis of `params0`, `data` and `frame_mask`.
 
@@ -304,7 +305,8 @@ def solve_batch(
     if bad:
         raise ValueError(f"every leaf of data needs the batch axis B={B} first; got leaves of shapes {bad[:3]}.")
     max_steps = jnp.asarray(max_steps) if method == "lm" else int(max_steps)
-    static = dict(method=method, factor_dtype=jnp.dtype(factor_dtype), damping=damping)
+    static = dict(method=method, factor_dtype=jnp.dtype(factor_dtype), damping=damping,
+                  tridiagonal=check_tridiagonal(tridiagonal))  # fmt: skip
     devices = tuple(jax.local_devices() if devices is None else devices)
     plan = plan_batch(problem, params0, data, frame_mask, chunk_size=chunk_size, devices=devices,
                       memory_fraction=memory_fraction, dtype=dtype, factor_dtype=factor_dtype)  # fmt: skip

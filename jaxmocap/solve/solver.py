@@ -43,6 +43,7 @@ import optimistix as optx
 from jax import Array
 
 from .._checks import concrete
+from .._progress import report
 from .._compat import DIVERGENCE, MAX_STEPS, SUCCESSFUL, result_code
 from .._compat import result_message as optx_message
 from .residuals import Problem, _sanitise
@@ -51,10 +52,12 @@ from .structured import (
     StructuredCholesky,
     TermBlocks,
     factor,
+    full_precision,
     jacobian_blocks,
     normal_equations,
     solve_factored,
 )
+from .tridiagonal import TRIDIAGONAL_METHODS, default_tridiagonal_method
 from .unknowns import Layout, from_manifold, retract, to_manifold
 
 __all__ = [
@@ -146,10 +149,10 @@ def residuals(y: dict, args: Args) -> dict[str, Array]:
     return args.problem.residuals_on_manifold(x, args.data, args.frame_mask, args.layout.T)
 
 
-def linear_solver(args: Args, factor_dtype=None, hessian: bool = False) -> StructuredCholesky:
+def linear_solver(args: Args, factor_dtype=None, hessian: bool = False, tridiagonal: str | None = None) -> StructuredCholesky:
     """The structured lineax solver for `args`' problem (optimistix solvers, adjoints)."""
     bw, cols = args.leaf_structure()
-    return StructuredCholesky(args.layout, bw, cols, hessian, factor_dtype, args.frame_mask)
+    return StructuredCholesky(args.layout, bw, cols, hessian, factor_dtype, args.frame_mask, tridiagonal=tridiagonal)
 
 
 # --- linearisation in the tangent of the manifold (the LM's own) -------------------------
@@ -240,24 +243,9 @@ class _LMState(eqx.Module):
     result: Array
 
 
-_STARTED: list[float] = []
-
-
 def _report_step(step, max_steps, cost, accepted, done) -> None:
     """One stderr line per LM step of a long solve: step, cost, time per step, ETA."""
-    import sys
-    import time
-
-    step, max_steps = int(step), int(max_steps)
-    if step == 1 or not _STARTED:
-        _STARTED[:] = [time.perf_counter()]
-    per = (time.perf_counter() - _STARTED[0]) / max(step - 1, 1) if step > 1 else float("nan")
-    eta = "" if step < 2 else f", ETA {per * (max_steps - step):.0f} s at most"
-    print(
-        f"\rLM step {step}/{max_steps}: cost {float(cost):.6g} ({'accepted' if accepted else 'rejected'})"
-        + ("" if step < 2 else f", {per:.2f} s/step") + eta + ("\n" if done else "   "),
-        end="", file=sys.stderr, flush=True,
-    )
+    report("LM step", step, max_steps, f"cost {float(cost):.6g} ({'accepted' if accepted else 'rejected'})", bool(done))
 
 
 class VonMarcardLM(optx.AbstractLeastSquaresSolver):
@@ -280,6 +268,7 @@ class VonMarcardLM(optx.AbstractLeastSquaresSolver):
     marquardt: bool = eqx.field(static=True, default=False)
     factor_dtype: Any = eqx.field(static=True, default=None)
     progress: bool = eqx.field(static=True, default=False)
+    tridiagonal: str | None = eqx.field(static=True, default=None)
 
     def _setup(self, y, args):
         if not isinstance(args, Args):
@@ -302,7 +291,7 @@ class VonMarcardLM(optx.AbstractLeastSquaresSolver):
     def step(self, fn, y, args, options, state: _LMState, tags):
         st, dtype, fdtype = self._setup(y, args)
         layout = args.layout
-        f = factor(state.normal, st, state.lam, self.marquardt)
+        f = factor(state.normal, st, state.lam, self.marquardt, self.tridiagonal)
         dF, dW, dG = solve_factored(f, *state.grad)
         cast = lambda d: None if d is None else (-d).astype(dtype)  # noqa: E731
         delta = layout.unravel(cast(st.from_solver_order(dF)), cast(dW), cast(dG))
@@ -354,6 +343,15 @@ class VonMarcardLM(optx.AbstractLeastSquaresSolver):
 # --- the front door ------------------------------------------------------------------------
 
 
+def check_tridiagonal(tridiagonal: str | None) -> str:
+    """`tridiagonal` checked, None resolved to the backend's default (static under jit)."""
+    if tridiagonal is None:
+        return default_tridiagonal_method()
+    if tridiagonal not in TRIDIAGONAL_METHODS:
+        raise ValueError(f"tridiagonal must be one of {TRIDIAGONAL_METHODS} or None, got {tridiagonal!r}.")
+    return tridiagonal
+
+
 def _check_max_steps(max_steps) -> None:
     # 0 or a negative cap would still take one step (optimistix checks after stepping).
     steps = concrete(max_steps)
@@ -401,6 +399,7 @@ def solve(
     adjoint: optx.AbstractAdjoint | None = None,
     check_bandwidth: bool = False,
     progress: bool | None = None,
+    tridiagonal: str | None = None,
 ) -> Solution:
     """Minimise `problem` from `params0` given `data`; returns a `Solution` of arrays.
 
@@ -428,6 +427,9 @@ def solve(
         progress: print each LM step (cost, time per step, ETA) on stderr ("lm" only).
             Default: on for sequences of `PROGRESS_FRAMES` frames or more, whose solves
             take seconds to minutes; off inside `solve_batch`.
+        tridiagonal: how the frame band is factorised, "scan" (sequential, fewest flops)
+            or "cyclic" (cyclic reduction, ⌈log₂ T⌉ parallel levels); default: "scan" on
+            the CPU, "cyclic" on accelerators. Speed only: both are exact.
     Returns:
         `Solution(value, result, num_steps, cost, costs)`; `result` is `NO_OBSERVATIONS`
         when every masked term masked out all of its rows.
@@ -451,6 +453,7 @@ def solve(
         args, params0, jnp.asarray(rtol, dtype), jnp.asarray(atol, dtype), max_steps,
         method=method, solver=solver, factor_dtype=jnp.dtype(factor_dtype), damping=damping, adjoint=adjoint,
         progress=bool(progress) and method == "lm" and solver is None,
+        tridiagonal=check_tridiagonal(tridiagonal),
     )  # fmt: skip
 
 
@@ -499,7 +502,9 @@ def check_bandwidths(problem: Problem, params0: dict, data: Any = None, frame_ma
     return measured
 
 
-def _solve_core(args: Args, params0, rtol, atol, max_steps, *, method, solver, factor_dtype, damping, adjoint, progress=False):
+@full_precision
+def _solve_core(args: Args, params0, rtol, atol, max_steps, *, method, solver, factor_dtype, damping, adjoint, progress=False,
+                tridiagonal="scan"):
     """The unbatched, unjitted solve (vmapped by `solve_batch`)."""
     dtype = jtu.tree_leaves(params0)[0].dtype
     if method == "jaxopt" and solver is None:
@@ -510,7 +515,7 @@ def _solve_core(args: Args, params0, rtol, atol, max_steps, *, method, solver, f
             if method == "lm":
                 solver = VonMarcardLM(
                     rtol, atol, max_steps=max_steps, marquardt=damping == "marquardt", factor_dtype=factor_dtype,
-                    progress=progress,
+                    progress=progress, tridiagonal=tridiagonal,
                 )  # fmt: skip
             else:
                 if jax.config.jax_enable_x64:
@@ -518,9 +523,9 @@ def _solve_core(args: Args, params0, rtol, atol, max_steps, *, method, solver, f
                     # fails to match a float32 iterate: iterate in float64 there.
                     y0 = jtu.tree_map(lambda v: v.astype(jnp.float64), y0)
                 cls = optx.LevenbergMarquardt if method == "optx_lm" else optx.GaussNewton
-                solver = cls(rtol=rtol, atol=atol, linear_solver=linear_solver(args, factor_dtype))
+                solver = cls(rtol=rtol, atol=atol, linear_solver=linear_solver(args, factor_dtype, tridiagonal=tridiagonal))
         if adjoint is None:
-            adjoint = optx.ImplicitAdjoint(linear_solver=linear_solver(args, factor_dtype, hessian=True))
+            adjoint = optx.ImplicitAdjoint(linear_solver=linear_solver(args, factor_dtype, True, tridiagonal))
         steps_cap = None if isinstance(solver, VonMarcardLM) else int(max_steps)
         sol = optx.least_squares(residuals, solver, y0, args, max_steps=steps_cap, adjoint=adjoint, throw=False)
         value, result, steps = sol.value, result_code(sol.result), sol.stats["num_steps"]

@@ -24,8 +24,9 @@ This module builds and solves it exactly, at a cost linear in T:
    the frame's coupled unknowns, the windows containing it and the border.
 3. **Block-tridiagonal Cholesky.** The coupled frame unknowns and the windows are
    grouped in super-blocks (G frames and r windows, G = r·s, large enough that every
-   coupling joins a block to itself or the next); `lax.scan` factorises the resulting
-   block-tridiagonal matrix and solves by substitution with the inverse factors.
+   coupling joins a block to itself or the next); the resulting block-tridiagonal
+   matrix is factorised by a `lax.scan` along the sequence (CPU) or by cyclic reduction
+   in ⌈log₂ T⌉ parallel levels (accelerators), see `tridiagonal.py`.
 4. **Border.** The Schur complement on the sequence-wide unknowns,
    S = H_GG - H_GA H_AA⁻¹ H_AG, is formed by banded solves against the g border
    columns (O(T g) work), factorised densely, and the step is recovered by back
@@ -40,6 +41,7 @@ operator is J, or [J; √λ I] for Levenberg-Marquardt) and for `optx.ImplicitAd
 
 from __future__ import annotations
 
+import functools
 from typing import Any
 
 import equinox as eqx
@@ -53,6 +55,7 @@ from jax import Array
 
 from ..timeseries import shift_frames
 
+from .tridiagonal import CyclicFactor, ScanFactor, tridiagonal_factor, tridiagonal_solve
 from .unknowns import Layout, Windows
 
 __all__ = [
@@ -68,6 +71,24 @@ __all__ = [
 ]
 
 _F32_SHIFT = 1e-5
+
+
+def full_precision(fn):
+    """`fn` traced with float32 products in full float32 (`Precision.HIGHEST`).
+
+    GPUs' default float32 matmul is TF32 (10-bit mantissa). In the normal equations and
+    their factors that is not rounding noise but a wrong step: SIP's 1000-frame solve on
+    one H200 ended at cost 48.3 with the default and 19.1 with full float32 (as on the
+    CPU), for 12 % more time (issue 20). Wrapping at trace time covers every product
+    of a solve, the residuals' body model included, and of its implicit adjoint.
+    """
+
+    @functools.wraps(fn)
+    def wrapped(*args, **kwargs):
+        with jax.default_matmul_precision("highest"):
+            return fn(*args, **kwargs)
+
+    return wrapped
 
 
 class Structure(eqx.Module):
@@ -471,8 +492,7 @@ class Factor(eqx.Module):
     sG: Array | None
     L_local: Array | None  # (T, n_l, n_l)
     X: Array | None  # (T, n_l, nc + K m + g): L_ll⁻¹ [H_lc | H_lW | H_lG]
-    L: Array | None  # (Kb, N, N) inverse Cholesky factors
-    U: Array | None  # (Kb, N, N) L_k⁻¹ U_k
+    tri: ScanFactor | CyclicFactor | None  # the coupled block-tridiagonal part
     Y: Array | None  # (Kb, N, g) A⁻¹ C
     S_inv: Array | None  # (g, g) inverse Cholesky factor of the border's Schur complement
     st: Structure = eqx.field(static=True)
@@ -496,43 +516,6 @@ def _damp_scale(H: Array, lam, marquardt: bool):
 
 def _outer(a, b):
     return a[..., :, None] * b[..., None, :]
-
-
-def _tri_factor(D: Array, U: Array):
-    """Block-tridiagonal Cholesky: (L_k⁻¹, L_k⁻¹ U_k) per super-block, by `lax.scan`."""
-    eye = jnp.eye(D.shape[-1], dtype=D.dtype)
-
-    def step(W_prev, DU):
-        Dk, Uk = DU
-        S = Dk - W_prev.T @ W_prev
-        # The inverse factor turns both substitutions into products, which XLA-CPU runs
-        # several times faster than triangular solves in a scan.
-        Lk_inv = jsl.solve_triangular(jnp.linalg.cholesky(S), eye, lower=True)
-        Wk = Lk_inv @ Uk
-        return Wk, (Lk_inv, Wk)
-
-    _, (L, W) = jax.lax.scan(step, jnp.zeros_like(D[0]), (D, U))
-    return L, W
-
-
-def _tri_solve(L: Array, W: Array, b: Array) -> Array:
-    """Solve with `_tri_factor`'s output; b (Kb, N, k) -> (Kb, N, k)."""
-
-    def forward(z_prev, LWb):
-        Lk, Wk_prev, bk = LWb
-        z = Lk @ (bk - Wk_prev.T @ z_prev)
-        return z, z
-
-    W_prev = jnp.concatenate([jnp.zeros_like(W[:1]), W[:-1]], 0)
-    _, z = jax.lax.scan(forward, jnp.zeros(b.shape[1:], b.dtype), (L, W_prev, b))
-
-    def backward(x_next, LWz):
-        Lk, Wk, zk = LWz
-        x = Lk.T @ (zk - Wk @ x_next)
-        return x, x
-
-    _, x = jax.lax.scan(backward, jnp.zeros(b.shape[1:], b.dtype), (L, W, z), reverse=True)
-    return x
 
 
 def _pad_to(x: Array, length: int, fill_eye: bool = False) -> Array:
@@ -628,8 +611,13 @@ def _assemble(FF: list, FW: Array | None, WW: Array | None, st: Structure):
     return jnp.concatenate(D_rows, -2), jnp.concatenate(U_rows, -2)
 
 
-def factor(normal: Normal, st: Structure, damping: Array | float = 0.0, marquardt: bool = False) -> Factor:
-    """Factorise H + λI (or H + λ diag(H), eq. 2.54) in its structure (module docstring)."""
+def factor(
+    normal: Normal, st: Structure, damping: Array | float = 0.0, marquardt: bool = False, tridiagonal: str | None = None
+) -> Factor:
+    """Factorise H + λI (or H + λ diag(H), eq. 2.54) in its structure (module docstring).
+
+    tridiagonal: "scan", "cyclic" or None (the backend's default), see `tridiagonal.py`.
+    """
     T, n, nc, K, m, g = st.T, st.n, st.nc, st.K, st.m, st.g
     FF = list(normal.FF)
     dtype = FF[0].dtype
@@ -681,20 +669,19 @@ def factor(normal: Normal, st: Structure, damping: Array | float = 0.0, marquard
             if st.W:
                 for j in range(K):
                     WG = WG - _group_sum("qula,qulk->qak", Xw[:, j], Xg, j, st)
-    L = U = Y = S_inv = None
+    tri = Y = S_inv = None
     G, r, Kb = st.blocking()
     if Kb:
-        D, Ub = _assemble(FF, FW, WW, st)
-        L, U = _tri_factor(D, Ub)
+        tri = tridiagonal_factor(*_assemble(FF, FW, WW, st), tridiagonal)
     if g:
         if Kb:
             C = _to_blocks(FG[:, :nc] if nc else None, WG, st)  # (Kb, N, g)
-            Y = _tri_solve(L, U, C)
+            Y = tridiagonal_solve(tri, C)
             S = GG - jnp.einsum("kna,knb->ab", C, Y)
         else:
             S = GG
         S_inv = jsl.solve_triangular(jnp.linalg.cholesky(S), jnp.eye(g, dtype=dtype), lower=True)
-    return Factor(sF, sW, sG, L_local, X, L, U, Y, S_inv, st)
+    return Factor(sF, sW, sG, L_local, X, tri, Y, S_inv, st)
 
 
 def _split_X(X: Array, st: Structure):
@@ -726,9 +713,9 @@ def solve_factored(f: Factor, bF: Array, bW: Array | None = None, bG: Array | No
     else:
         cF = bF
     xF_c, xW, xG = cF, bW, None
-    if f.L is not None:
+    if f.tri is not None:
         b = _to_blocks(cF, bW, st)
-        z = _tri_solve(f.L, f.U, b[..., None])[..., 0]
+        z = tridiagonal_solve(f.tri, b[..., None])[..., 0]
         if g:
             u = f.S_inv @ (bG - jnp.einsum("kna,kn->a", f.Y, b))
             xG = f.S_inv.T @ u
@@ -795,6 +782,7 @@ class StructuredCholesky(lx.AbstractLinearSolver):
         hessian: whether the operator is the Hessian (see above).
         refinements: rounds of iterative refinement of a Hessian solve against the ridge.
         factor_dtype: dtype in which H is formed and factorised (None: the operator's).
+        tridiagonal: "scan", "cyclic" or None (the backend's default), see `tridiagonal.py`.
         frame_mask: (T,) False for padded frames (pinned to a zero step), or None.
     """
 
@@ -806,6 +794,7 @@ class StructuredCholesky(lx.AbstractLinearSolver):
     frame_mask: Array | None = None
     damped: bool | None = eqx.field(static=True, default=None)
     refinements: int = eqx.field(static=True, default=3)
+    tridiagonal: str | None = eqx.field(static=True, default=None)
 
     @property
     def structure(self) -> Structure:
@@ -814,6 +803,7 @@ class StructuredCholesky(lx.AbstractLinearSolver):
     def _tangent(self, tF, tW, tG):
         return self.layout.unravel(tF, tW, tG)
 
+    @full_precision
     def init(self, operator, options):
         del options
         st, layout = self.structure, self.layout
@@ -835,7 +825,7 @@ class StructuredCholesky(lx.AbstractLinearSolver):
             # cost (SIP's translation drift, seen by accelerations only: H singular)
             # factorisable; `compute` refines against H itself, so the ridge costs no accuracy.
             ridge = 1e-2 * float(np.sqrt(np.finfo(dtype).eps))
-            return factor(normal, st, ridge, marquardt=True), None, None, operator
+            return factor(normal, st, ridge, True, self.tridiagonal), None, None, operator
         jac_mv, damping = _damped_parts(operator, self.damped)
         out = jtu.tree_leaves(operator.out_structure()[0] if damping is not None else operator.out_structure())
         if len(out) != len(self.bandwidths):
@@ -852,8 +842,9 @@ class StructuredCholesky(lx.AbstractLinearSolver):
 
         blocks = jacobian_blocks(mv, st, in_dtype, self.bandwidths, self.columns)
         normal, _, _ = normal_equations(blocks, st, dtype, self.frame_mask)
-        return factor(normal, st, 0.0 if damping is None else damping), blocks, damping, None
+        return factor(normal, st, 0.0 if damping is None else damping, False, self.tridiagonal), blocks, damping, None
 
+    @full_precision
     def compute(self, state, vector, options):
         del options
         f, blocks, damping, operator = state
