@@ -1,12 +1,14 @@
 """The SMPL forward pass: NumPy reference, gradients, batch shapes, dtypes, errors."""
 
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
 import jaxmocap
-from jaxmocap.body import forward, forward_kinematics, make_body
+from jaxmocap.body import forward, forward_kinematics, kinematics, make_body
 from conftest import central_difference
 from smpl_numpy import smpl_forward_numpy
 
@@ -139,3 +141,127 @@ def test_body_is_a_pytree_with_static_topology(random_body):
         jax.tree_util.tree_map(lambda x: jnp.stack([x, x]), random_body)
     )
     assert vmapped.shape == (2, random_body.num_vertices, 3)
+
+
+# Sparse skinning (the GPU path): each vertex's few non-zero weights instead of all joints.
+
+
+def _sparsified_body(smpl_dict, per_vertex=4, seed=5):
+    """The random test model with at most `per_vertex` non-zero weights per vertex."""
+    d = smpl_dict
+    r = np.random.default_rng(seed)
+    weights = np.zeros_like(d["weights"])
+    for _ in range(per_vertex):
+        weights[np.arange(len(weights)), r.integers(0, 24, len(weights))] += r.random(len(weights))
+    weights /= weights.sum(1, keepdims=True)
+    return make_body(d["v_template"], d["f"], d["shapedirs"], d["posedirs"], d["J_regressor"], weights, dtype=np.float64)
+
+
+def _skinning_inputs(body, n, seed):
+    """Random (n, J, 3, 4) skinning transforms (rotation + offset) and (n, V, 3) rest vertices."""
+    r = np.random.default_rng(seed)
+    rot = jaxmocap.rotation.axis_angle_to_matrix(jnp.asarray(r.normal(size=(n, body.num_joints, 3)), body.dtype))
+    transforms = jnp.concatenate([rot, jnp.asarray(r.normal(size=(n, body.num_joints, 3, 1)), body.dtype)], -1)
+    return transforms, jnp.asarray(r.normal(scale=0.5, size=(n, body.num_vertices, 3)), body.dtype)
+
+
+def test_max_influences_counts_non_zero_weights(smpl_dict, random_body):
+    assert random_body.max_influences == 24  # random weights: every joint non-zero
+    body = _sparsified_body(smpl_dict)
+    assert body.max_influences == int(np.count_nonzero(np.asarray(body.weights), axis=1).max()) <= 4
+    low = jaxmocap.default_body("low")
+    assert low.max_influences == int(np.count_nonzero(np.asarray(low.weights), axis=1).max())
+    assert low.astype(jnp.float64).max_influences == low.max_influences
+    assert jaxmocap.body.mannequin_body(detail=0).max_influences == 1  # rigid parts
+    with pytest.raises(ValueError, match="non-zero skinning weights"):
+        dataclasses.replace(low, max_influences=1)
+
+
+@pytest.mark.parametrize("which", ["sparsified", "random", "default_low"])
+def test_sparse_skinning_equals_dense(smpl_dict, random_body, which):
+    body = {
+        "sparsified": lambda: _sparsified_body(smpl_dict),
+        "random": lambda: random_body,  # 24 influences: top_k keeps them all
+        "default_low": lambda: jaxmocap.default_body("low").astype(jnp.float64),
+    }[which]()
+    transforms, v_posed = _skinning_inputs(body, 3, seed=1)
+    dense = jax.jit(kinematics._skin_dense)(body, transforms, v_posed)
+    sparse = jax.jit(kinematics._skin_sparse)(body, transforms, v_posed)
+    assert sparse.dtype == jnp.float64
+    np.testing.assert_allclose(sparse, dense, atol=1e-12)
+    # Whole forward pass, float32, explicit paths against each other.
+    b32 = body.astype(jnp.float32)
+    pose = rng.normal(scale=0.5, size=(4, 24, 3)).astype(np.float32)
+    local = jaxmocap.rotation.axis_angle_to_matrix(jnp.asarray(pose))
+    betas = rng.normal(size=(4, body.num_betas)).astype(np.float32)
+    out = {s: jax.jit(lambda b, r, s_=s: kinematics._forward_rotations(b, r, betas, skinning=s_).vertices)(b32, local) for s in ("dense", "sparse")}
+    np.testing.assert_allclose(out["sparse"], out["dense"], atol=2e-6)
+
+
+def test_automatic_skinning_is_dense_on_cpu(smpl_dict):
+    """`forward` picks per platform; on the CPU it must stage out the dense product only."""
+    body = _sparsified_body(smpl_dict)
+    pose = rng.normal(scale=0.5, size=(2, 24, 3))
+    hlo = jax.jit(forward).lower(body, pose).compile().as_text()
+    if jax.default_backend() == "cpu":
+        assert "gather" not in hlo and "sort" not in hlo
+    dense = jax.jit(lambda b, r: kinematics._forward_rotations(b, r, skinning="dense").vertices)
+    np.testing.assert_allclose(
+        forward_jit(body, pose).vertices, dense(body, jaxmocap.rotation.axis_angle_to_matrix(jnp.asarray(pose))), atol=1e-12
+    )
+
+
+@pytest.mark.parametrize("where", ["zero", "random"])
+def test_sparse_skinning_gradients(smpl_dict, where):
+    """Vertices' pose Jacobians through the sparse path: finite (zero pose included) and
+    equal to the dense path's, forward and reverse mode."""
+    body = _sparsified_body(smpl_dict)
+    pose0 = np.zeros((24, 3)) if where == "zero" else rng.normal(scale=0.5, size=(24, 3))
+
+    def vertices(skinning):
+        def f(p):
+            local = jaxmocap.rotation.axis_angle_to_matrix(p)
+            return kinematics._forward_rotations(body, local, jnp.zeros(10), skinning=skinning).vertices[::5].ravel()
+
+        return f
+
+    x = jnp.asarray(pose0)
+    sparse_rev = jax.jit(jax.jacrev(vertices("sparse")))(x)
+    sparse_fwd = jax.jit(jax.jacfwd(vertices("sparse")))(x)
+    dense_fwd = jax.jit(jax.jacfwd(vertices("dense")))(x)
+    assert np.isfinite(sparse_rev).all() and np.isfinite(sparse_fwd).all()
+    np.testing.assert_allclose(sparse_rev, dense_fwd, atol=1e-10)
+    np.testing.assert_allclose(sparse_fwd, dense_fwd, atol=1e-10)
+
+
+def test_one_and_two_blend_products_agree(random_body):
+    """Shape and pose blend shapes as one product against the stacked bases or as two."""
+    pose = jaxmocap.rotation.axis_angle_to_matrix(jnp.asarray(rng.normal(scale=0.5, size=(3, 24, 3))))
+    betas = rng.normal(size=(3, 10))
+    run = lambda joint: jax.jit(lambda b: kinematics._forward_rotations(b, pose, betas, joint_blend=joint).vertices)(random_body)  # noqa: E731
+    np.testing.assert_allclose(run(True), run(False), atol=1e-12)
+
+
+def test_sparse_skinning_derivatives_match_dense(smpl_dict):
+    """Sparse skinning differentiates as the dense product: the same gradient with respect
+    to every leaf of the body (weights included, all joints) and the same second
+    derivatives."""
+    body = _sparsified_body(smpl_dict)
+    transforms, v_posed = _skinning_inputs(body, 2, seed=3)
+    probe = jnp.asarray(rng.normal(size=(2, body.num_vertices, 3)))
+
+    def loss(skin):
+        return lambda b, t, v: jnp.sum(probe * skin(b, t, v) ** 2)
+
+    grads = {
+        name: jax.jit(jax.grad(loss(skin), argnums=(0, 1, 2)))(body, transforms, v_posed)
+        for name, skin in (("dense", kinematics._skin_dense), ("sparse", kinematics._skin_sparse))
+    }
+    for d, s in zip(jax.tree_util.tree_leaves(grads["dense"]), jax.tree_util.tree_leaves(grads["sparse"])):
+        np.testing.assert_allclose(s, d, atol=1e-10)
+    t1, v1, p1 = transforms[:1], v_posed[:1], probe[:1]
+
+    def second(skin):
+        return jax.jit(jax.hessian(lambda t: jnp.sum(p1 * skin(body, t, v1) ** 2)))(t1)
+
+    np.testing.assert_allclose(second(kinematics._skin_sparse), second(kinematics._skin_dense), atol=1e-9)

@@ -6,6 +6,7 @@ SMPL (Loper et al. 2015) as summarised in Huang §2.1 and von Marcard §2.2.1-2.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Sequence
 
 import equinox as eqx
@@ -13,6 +14,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from jax import Array
+from jax.custom_derivatives import SymbolicZero
 
 from ..rotation import axis_angle_to_matrix
 from .model import Body
@@ -148,20 +150,184 @@ def _check_inputs(body: Body, local_rotations, betas, trans) -> tuple[Array, Arr
     )
 
 
-def _skin(body: Body, transforms: Array, v_posed: Array) -> Array:
+#: Sparse skinning gathers 12 values per influence and vertex where the dense product does
+#: 12 multiply-adds per joint; measured faster with 4 and 6 influences on an H200
+#: (benchmarks/body_forward.py). Past this many the dense product is kept, unmeasured.
+_SPARSE_MAX_INFLUENCES = 8
+#: From this many samples in a call the shape and pose blend shapes are one matrix product
+#: against the stacked bases (copying the bases each call costs more for fewer).
+_JOINT_BLEND_MIN_BATCH = 256
+
+
+def _apply_blended(blended: Array, v_posed: Array) -> Array:
+    """v = R v_posed + t for per-vertex (N, V, 3, 4) transforms [R | t].
+
+    Written as column products and sums rather than an einsum: XLA-CPU runs the einsum's
+    (N·V)-batched 3x4 matrix-vector products one at a time (4x slower at N = 64,
+    benchmarks/body_forward.py), while this fuses into one elementwise loop.
+    """
+    x, y, z = (v_posed[..., c, None] for c in range(3))
+    return blended[..., 0] * x + blended[..., 1] * y + blended[..., 2] * z + blended[..., 3]
+
+
+def _blend_dense(weights: Array, transforms: Array, v_posed: Array) -> Array:
+    """Σ_j w_vj (R_j v_posed + t_j) for (V, J) weights, blending all J transforms first."""
+    N, J = transforms.shape[:2]
+    # Full float32 here: GPUs' default TF32 products moved vertices by ~0.5 mm
+    # (benchmarks/results/body_forward_gpu.json).
+    blended = jnp.matmul(
+        weights, transforms.reshape(N, J, 12), precision=jax.lax.Precision.HIGHEST
+    ).reshape(N, weights.shape[0], 3, 4)
+    return _apply_blended(blended, v_posed)
+
+
+def _sparse_terms(weights: Array, influences: int):
+    """Each vertex's K largest weights and their joints, (V, K) each, and a gather of
+    (N, J) planes at those joints."""
+    # The barrier keeps XLA from constant-folding the sort when the body is a jit
+    # constant (seconds of compile time for 6890 vertices).
+    w, joints = jax.lax.top_k(jax.lax.optimization_barrier(weights), influences)
+
+    def take(plane: Array, k: int) -> Array:  # (N, J) -> (N, V)
+        return plane.at[:, joints[:, k]].get(mode="promise_in_bounds")
+
+    return w, take
+
+
+def _blend_sparse(weights: Array, transforms: Array, v_posed: Array, influences: int) -> Array:
+    """Σ_k w_vk (R_{j_vk} v_posed + t_{j_vk}) over each vertex's K largest weights."""
+    w, take = _sparse_terms(weights, influences)
+    # One (N, J) plane per entry of [R | t], gathered as scalars per output coordinate:
+    # 2.4x faster on an H200 than gathering whole 3x4 blocks (benchmarks/body_forward.py).
+    planes = [transforms[..., a, b] for a in range(3) for b in range(4)]
+    x, y, z = v_posed[..., 0], v_posed[..., 1], v_posed[..., 2]
+    coordinates = []
+    for a in range(3):
+        total = 0
+        for k in range(influences):
+            row = [take(p, k) for p in planes[4 * a : 4 * a + 4]]
+            total = total + w[:, k] * (row[0] * x + row[1] * y + row[2] * z + row[3])
+        coordinates.append(total)
+    return jnp.stack(coordinates, -1)
+
+
+def _blended_rotations(weights: Array, transforms: Array, influences: int) -> Array:
+    """Σ_k w_vk R_{j_vk}, (N, V, 3, 3): the derivative of `_blend_sparse` along v_posed."""
+    w, take = _sparse_terms(weights, influences)
+    entries = [
+        sum(w[:, k] * take(transforms[..., a, b], k) for k in range(influences)) for a in range(3) for b in range(3)
+    ]
+    return jnp.stack(entries, -1).reshape(*entries[0].shape, 3, 3)
+
+
+@functools.partial(jax.custom_jvp, nondiff_argnums=(3,))
+def _blend_sparse_dense_tangents(weights: Array, transforms: Array, v_posed: Array, influences: int) -> Array:
+    """`_blend_sparse`, differentiated as the dense blend in the transforms and weights.
+
+    Its derivative along the transforms, transposed (reverse mode, `linear_transpose`),
+    would be a scatter-add of (N, V, K) terms into (N, J, 3, 4): 4-5x slower gradients
+    on an H200 and 5-12x slower on XLA-CPU than the dense product's transpose, a matrix
+    product (benchmarks/body_forward.py). Along v_posed the derivative is the blended
+    rotation Σ_k w_vk R_{j_vk} of each vertex, gathered as in the primal; its transpose is
+    elementwise.
+    """
+    return _blend_sparse(weights, transforms, v_posed, influences)
+
+
+def _blend_sparse_jvp(influences, primals, tangents):
+    weights, transforms, v_posed = primals
+    d_weights, d_transforms, d_v_posed = tangents
+    out = _blend_sparse_dense_tangents(weights, transforms, v_posed, influences)
+    terms = []
+    if not isinstance(d_transforms, SymbolicZero):
+        terms.append(_blend_dense(weights, d_transforms, v_posed))
+    if not isinstance(d_v_posed, SymbolicZero):
+        terms.append(mat3_apply(_blended_rotations(weights, transforms, influences), d_v_posed))
+    if not isinstance(d_weights, SymbolicZero):
+        # The dense formula's derivative: every joint, not only the non-zero weights.
+        terms.append(_blend_dense(d_weights, transforms, v_posed))
+    return out, sum(terms) if terms else jnp.zeros_like(out)
+
+
+_blend_sparse_dense_tangents.defjvp(_blend_sparse_jvp, symbolic_zeros=True)
+
+
+def _skin_dense(body: Body, transforms: Array, v_posed: Array) -> Array:
     """Linear blend skinning v = Σ_j w_vj (R_j v_posed + t_j) for (N, J, 3, 4) transforms.
 
-    Blending the J transforms first (one (V, J) x (J, 12N) product) costs 12 multiply-adds
-    per vertex and joint. A gather over each vertex's few non-zero weights was measured
-    5-9x slower on XLA-CPU (benchmarks/body_forward.py history), so skinning is dense.
+    Huang eq. 2.4 / von Marcard eq. 2.33, blending all J transforms first: one (V, J) x
+    (J, 12N) product, 12 multiply-adds per vertex and joint, then one affine map per
+    vertex. This is the CPU path: on XLA-CPU `_skin_sparse` was slower below a few
+    hundred samples (the top_k sort and element-wise gathers) and 2.4-5.5x slower in
+    linearize + transpose, though 1.5x faster forward at 1024 (benchmarks/body_forward.py).
     """
-    N, J, V = transforms.shape[0], body.num_joints, body.num_vertices
-    # Full float32 here: GPUs' default TF32 products moved vertices by ~0.5 mm
-    # (benchmarks/results/body_forward_gpu.json); this product is memory-bound anyway.
-    blended = jnp.matmul(
-        body.weights, transforms.reshape(N, J, 12), precision=jax.lax.Precision.HIGHEST
-    ).reshape(N, V, 3, 4)
-    return jnp.einsum("nvab,nvb->nva", blended[..., :3], v_posed) + blended[..., 3]
+    return _blend_dense(body.weights, transforms, v_posed)
+
+
+def _skin_sparse(body: Body, transforms: Array, v_posed: Array, influences: int | None = None) -> Array:
+    """Linear blend skinning over each vertex's `influences` largest weights only.
+
+    The same sum as `_skin_dense`, exact whenever no vertex has more non-zero weights
+    than `influences` (default `body.max_influences`): v = Σ_k w_vk A_{j_vk} [v_posed; 1]
+    with (w_vk, j_vk) the vertex's K largest weights (`lax.top_k`, once per call, not per
+    sample). Every term gathers from the small (N, J, 3, 4) transforms, so on a GPU the
+    whole blend is one loop that reads the rest-pose vertices and writes the posed ones,
+    instead of materialising the (N, V, 12) blended transforms of the dense product.
+    Derivatives along the transforms and weights are the dense product's
+    (`_blend_sparse_dense_tangents`).
+    """
+    K = body.max_influences if influences is None else influences
+    if K is None:
+        raise ValueError("sparse skinning needs a number of influences: body.max_influences is None.")
+    return _blend_sparse_dense_tangents(body.weights, transforms, v_posed, K)
+
+
+def _skin(body: Body, transforms: Array, v_posed: Array, skinning: str = "auto") -> Array:
+    """Skinning by `skinning`: "dense", "sparse", or "auto" (dense on CPUs, sparse elsewhere).
+
+    "auto" stages both out with `lax.platform_dependent`, so one traced function is right
+    on any backend; bodies with unknown or many influences stay dense everywhere.
+    """
+    K = body.max_influences
+    if skinning == "dense" or (skinning == "auto" and (K is None or K > _SPARSE_MAX_INFLUENCES)):
+        return _skin_dense(body, transforms, v_posed)
+    if skinning == "sparse":
+        return _skin_sparse(body, transforms, v_posed)
+    if skinning != "auto":
+        raise ValueError(f"skinning must be 'auto', 'dense' or 'sparse', got {skinning!r}.")
+    return jax.lax.platform_dependent(
+        body, transforms, v_posed, cpu=_skin_dense, default=_skin_sparse
+    )
+
+
+def _blend_shapes(body: Body, betas: Array, pose_feature: Array, joint: bool | None = None, blend_dtype=None) -> Array:
+    """Rest-pose vertices T(β, θ) = T̄ + B_s(β) + B_p(θ) (Huang eq. 2.2-2.3), (N, V, 3).
+
+    The offsets are matrix products in the default precision (TF32 on GPUs); the template
+    is added afterwards in full precision (TF32 on a ~1 m template would cost ~1 mm).
+    `joint` (default: from the batch size) stacks [β, pose feature] against the stacked
+    bases for one product instead of two; `blend_dtype` (e.g. bfloat16, a benchmark
+    variant) multiplies in that dtype with float32 accumulation.
+    """
+    N, nb, V = betas.shape[0], betas.shape[-1], body.num_vertices
+    dtype = body.v_template.dtype
+    shapedirs = body.shapedirs[:nb].reshape(nb, 3 * V)
+    posedirs = body.posedirs.reshape(-1, 3 * V)
+    if blend_dtype is not None:
+        shapedirs, posedirs = shapedirs.astype(blend_dtype), posedirs.astype(blend_dtype)
+        betas, pose_feature = betas.astype(blend_dtype), pose_feature.astype(blend_dtype)
+    product = lambda a, b: jnp.matmul(a, b, preferred_element_type=dtype)  # noqa: E731
+    if joint is None:
+        joint = N >= _JOINT_BLEND_MIN_BATCH
+    if joint:
+        # Zero rows up to a multiple of 32 coefficients: cuBLAS ran the odd 217-deep
+        # product 1.35x slower on an H200 (unaligned rows keep it off its fast kernels).
+        pad = -(nb + posedirs.shape[0]) % 32
+        coeffs = jnp.concatenate([betas, pose_feature, jnp.zeros((N, pad), betas.dtype)], -1)
+        offsets = product(coeffs, jnp.concatenate([shapedirs, posedirs, jnp.zeros((pad, 3 * V), posedirs.dtype)]))
+    else:
+        offsets = product(betas, shapedirs) + product(pose_feature, posedirs)
+    return (body.v_template.reshape(-1) + offsets).reshape(N, V, 3)
 
 
 def forward(body: Body, pose, betas=None, trans=None) -> BodyOutput:
@@ -203,6 +369,8 @@ def forward_rotations(body: Body, local_rotations, betas=None, trans=None) -> Bo
     blend skinning v_i = Σ_j w_ij G_j(θ, J) G_j(0, J)⁻¹ t_i.
 
     Computation happens in the dtype of `local_rotations` (the body is cast if needed).
+    On GPUs and other accelerators skinning sums over each vertex's `body.max_influences`
+    non-zero weights only, on CPUs over all joints; both are the same sum up to rounding.
 
     Args:
         body: the body model.
@@ -213,28 +381,32 @@ def forward_rotations(body: Body, local_rotations, betas=None, trans=None) -> Bo
         BodyOutput with vertices (..., V, 3), joints (..., J, 3) and global
         joint_rotations (..., J, 3, 3); batch axes broadcast across the inputs.
     """
+    return _forward_rotations(body, local_rotations, betas, trans)
+
+
+def _forward_rotations(
+    body: Body, local_rotations, betas=None, trans=None, skinning: str = "auto", joint_blend=None, blend_dtype=None
+) -> BodyOutput:
+    """`forward_rotations` with its implementation choices open (tests and benchmarks):
+    `skinning` as in `_skin`, `joint_blend` and `blend_dtype` as in `_blend_shapes`."""
     local, betas, trans = _check_inputs(body, local_rotations, betas, trans)
     dtype = local.dtype
     if body.dtype != dtype:
         body = body.astype(dtype)
-    batch, V, nb = local.shape[:-3], body.num_vertices, betas.shape[-1]
+    batch, nb = local.shape[:-3], betas.shape[-1]
     # Work on a flat batch of N samples: 2-D matrix products are what CPU and GPU BLAS
     # run fastest (a 3-D einsum against posedirs made XLA-CPU transpose it every call).
     local, betas, trans = local.reshape(-1, body.num_joints, 3, 3), betas.reshape(-1, nb), trans.reshape(-1, 3)
 
     pose_feature = (local[:, 1:] - jnp.eye(3, dtype=dtype)).reshape(len(local), -1)
-    v_posed = (
-        body.v_template.reshape(-1)
-        + betas @ body.shapedirs[:nb].reshape(nb, 3 * V)
-        + pose_feature @ body.posedirs.reshape(-1, 3 * V)
-    ).reshape(-1, V, 3)
+    v_posed = _blend_shapes(body, betas, pose_feature, joint_blend, blend_dtype)
 
     rest = shaped_joints(body, betas)
     global_rot, global_pos = forward_kinematics(body.parents, local, rest)
     # Skinning transform A_j = G_j(θ) G_j(0)⁻¹ = [G_R | G_t - G_R J_j].
-    offsets = global_pos - jnp.einsum("njab,njb->nja", global_rot, rest)
+    offsets = global_pos - mat3_apply(global_rot, rest)
     transforms = jnp.concatenate([global_rot, offsets[..., None]], -1)  # (N, J, 3, 4)
-    vertices = _skin(body, transforms, v_posed) + trans[:, None]
+    vertices = _skin(body, transforms, v_posed, skinning) + trans[:, None]
     unflat = lambda x: x.reshape(*batch, *x.shape[1:])  # noqa: E731
     return BodyOutput(
         vertices=unflat(vertices),

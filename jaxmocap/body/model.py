@@ -11,6 +11,7 @@ from __future__ import annotations
 import hashlib
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jax import Array
@@ -78,6 +79,9 @@ class Body(eqx.Module):
         joint_names: one name per joint.
         kind: "smpl", "smplh", "smplx" (reduced to the SMPL tree) or "default".
         gender: "neutral", "male", "female".
+        max_influences: the most non-zero skinning weights of any vertex (6 for the
+            default body), counted by `make_body`; the GPU forward then blends only that
+            many joints per vertex. None (unknown): dense skinning everywhere.
     """
 
     v_template: Array
@@ -90,6 +94,7 @@ class Body(eqx.Module):
     joint_names: tuple[str, ...] = eqx.field(static=True)
     kind: str = eqx.field(static=True, default="smpl")
     gender: str = eqx.field(static=True, default="neutral")
+    max_influences: int | None = eqx.field(static=True, default=None)
 
     def __check_init__(self):
         V = self.v_template.shape[0]
@@ -116,6 +121,17 @@ class Body(eqx.Module):
                     f"parents must list each joint after its parent with the root first; "
                     f"joint {j} has parent {p}."
                 )
+        if self.max_influences is not None:
+            K = self.max_influences
+            if not isinstance(K, int) or not 1 <= K <= J:
+                raise ValueError(f"max_influences must be an int in [1, {J}] or None, got {K!r}.")
+            if not isinstance(self.weights, jax.core.Tracer):
+                # Sparse skinning would silently drop any joint beyond the K largest weights.
+                most = int(np.max(np.count_nonzero(np.asarray(self.weights), axis=1)))
+                if most > K:
+                    raise ValueError(
+                        f"max_influences={K} but a vertex has {most} non-zero skinning weights."
+                    )
         faces = self.faces_static.array
         if faces.ndim != 2 or faces.shape[1] != 3 or faces.min() < 0 or faces.max() >= V:
             raise ValueError(f"faces must be (F, 3) indices into {V} vertices.")
@@ -175,8 +191,11 @@ def make_body(
 ) -> Body:
     """Build a `Body` from arrays in SMPL's file layout, casting leaves to `dtype`.
 
-    shapedirs and posedirs are (V, 3, K) as in SMPL files.
+    shapedirs and posedirs are (V, 3, K) as in SMPL files. `max_influences` is counted
+    here from the concrete weights (exactly non-zero entries per vertex).
     """
+    weights = np.asarray(weights)
+    influences = max(1, int(np.count_nonzero(weights, axis=1).max())) if weights.ndim == 2 and weights.size else None
     as_leaf = lambda x: jnp.asarray(np.asarray(x), dtype)  # noqa: E731
     blend_first = lambda x: as_leaf(np.moveaxis(np.asarray(x), -1, 0))  # noqa: E731
     return Body(
@@ -190,4 +209,5 @@ def make_body(
         joint_names=tuple(str(n) for n in joint_names),
         kind=kind,
         gender=gender,
+        max_influences=influences,
     )
