@@ -248,10 +248,10 @@ def test_solves_use_full_float32_products():
     import re
 
     problems, data = _variants(5)
-    problem, params = problems["all"]
+    problem, params = problems["border"]
 
     def value(p):
-        return solve(problem, p, data, max_steps=2).value
+        return solve(problem, p, data, max_steps=1).value
 
     for jaxpr in (jax.make_jaxpr(value)(params),
                   jax.make_jaxpr(jax.grad(lambda p: sum(v.sum() for v in value(p).values())))(params)):  # fmt: skip
