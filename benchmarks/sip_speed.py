@@ -336,23 +336,22 @@ def main(argv=None) -> int:
     if gpu:
         payload["gpu_single_s"] = single["median_s"]
         payload["gpu_1000x1000_s"] = big["median_s"] if big and big["sequences"] == 1000 == args.frames else None
-        _merge_gpu_keys(RESULTS / "sip_speed.json", payload)
+        cpu_file = RESULTS / "sip_speed.json"
+        if cpu_file.is_file():
+            write_json(cpu_file.name, dict(json.loads(cpu_file.read_text()), **_gpu_keys(payload)))
     elif (RESULTS / "sip_speed_gpu.json").is_file():
-        _merge_gpu_keys(payload, json.loads((RESULTS / "sip_speed_gpu.json").read_text()))
+        payload.update(_gpu_keys(json.loads((RESULTS / "sip_speed_gpu.json").read_text())))
     name = f"sip_speed{'_' + args.suffix if args.suffix else ''}.json"
     print(f"wrote {write_json(name, payload)}")
     return 0
 
 
-def _merge_gpu_keys(into, gpu_run: dict) -> None:
-    """Copy a GPU run's issue-20 keys (and its machine) into a payload or a results file."""
+def _gpu_keys(gpu_run: dict) -> dict:
+    """A GPU run's issue-20 keys and, under "gpu", its machine and details."""
     keys = {k: gpu_run.get(k) for k in ("gpu_single_s", "gpu_1000x1000_s")}
     keys["gpu"] = {"machine": gpu_run["machine"], "tridiagonal": gpu_run.get("tridiagonal"),
                    "big_batch": gpu_run.get("big_batch")}  # fmt: skip
-    if isinstance(into, dict):
-        into.update(keys)
-    elif into.is_file():
-        write_json(into.name, dict(json.loads(into.read_text()), **keys))
+    return keys
 
 
 if __name__ == "__main__":

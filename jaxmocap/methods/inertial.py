@@ -338,7 +338,7 @@ def _sequential(problem, data, x0, progress=False, **kw):
             )
         return new, (new, sol.result)
 
-    _, (poses, results) = jax.lax.scan(step, x0, jnp.arange(data.num_frames))
+    _, (poses, results) = jax.lax.scan(step, x0, jnp.arange(T))
     return poses, results
 
 
