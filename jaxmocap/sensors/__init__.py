@@ -14,6 +14,7 @@ from . import keypoints as keypoints
 from . import objects as objects
 from . import scenario as scenario
 from . import silhouette as silhouette
+from . import threedpw as threedpw
 from . import triangulation as triangulation
 from .calibration import heading_reset as heading_reset
 from .calibration import remove_heading as remove_heading

@@ -5,6 +5,7 @@ Draws arrays it is given and nothing else (the demo pipeline lives in `jaxmocap.
 Coordinates stay in jaxmocap's world frame (metres, y up); glTF is y up as well.
 """
 
+from . import vip as vip
 from .mesh import MeshExportError as MeshExportError
 from .mesh import export_mesh as export_mesh
 from .mesh import export_sequence as export_sequence

@@ -471,14 +471,16 @@ def plot_sequence(
 def plot_error_curves(curves: dict, path, fps: float = 30.0, ylabel: str = "MPJAE [°]", title: str = "") -> Path:
     """Per-frame error (mean over joints) of several methods over time, one line each.
 
-    curves: {method name: (T,) or (T, N_J) errors}.
+    curves: {method name: (T,) or (T, N_J) errors}; NaN frames are gaps, left out of the mean.
     """
     fig = Figure(figsize=(8, 3.2))
     ax = fig.subplots()
     for name, e in curves.items():
-        e = np.asarray(e)
+        e = np.asarray(e, np.float64)
         e = e.mean(-1) if e.ndim == 2 else e
-        ax.plot(np.arange(len(e)) / fps, e, label=f"{name} (mean {e.mean():.1f})", lw=1.4)
+        finite = e[np.isfinite(e)]
+        mean = finite.mean() if finite.size else np.nan
+        ax.plot(np.arange(len(e)) / fps, e, label=f"{name} (mean {mean:.1f})", lw=1.4)
     ax.set_xlabel("time [s]")
     ax.set_ylabel(ylabel)
     ax.set_title(title, fontsize=10)
