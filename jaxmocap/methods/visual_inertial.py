@@ -19,8 +19,10 @@ onto the detections (linear least squares with the rotation known; our stand-in 
 per-hypothesis camera fit of eq. 4.13-4.14). The body translation starts at the given
 one on every frame.
 
-Association (eq. 4.11-4.18) is not implemented yet: `from_scenario` takes the person's
-detections by the simulator's identity labels.
+Association (eq. 4.11-4.18): `associated_keypoints` assigns a scenario's detections to its
+IMU wearers (`methods.association`) from their Inertial Tracker poses; pass its rows to
+`from_scenario(keypoints=…)`. By default `from_scenario` takes the person's detections by
+the simulator's identity labels (the "oracle" used by the ablations).
 
 Variants (Tables 4.4-4.9): `free_heading=False` (VIP-noHeadParam), `free_heading=False,
 free_x0=False` (VIP-vanilla), `tracker_with(…)` on a VIP result (VIP-IT), true
@@ -55,9 +57,10 @@ from ..priors.pose_prior import PosePrior, default_pose_prior
 from ..rotation import axis_angle_to_matrix, matrix_to_axis_angle
 from ..sensors.keypoints import keypoint_regressor, person_track, regress_keypoints
 from ..solve import Problem, Solution, frame, sequence, solve, with_weights
+from .association import Association, AssociationModel, associate
 
 __all__ = ["VIPWeights", "VIPResult", "vip_data", "from_scenario", "inertial_tracker", "initial_camera",
-           "video_inertial_poser"]  # fmt: skip
+           "video_inertial_poser", "tracker_keypoints", "associated_keypoints"]  # fmt: skip
 
 
 @dataclasses.dataclass(frozen=True)
@@ -189,7 +192,7 @@ def from_scenario(scenario, index: int, body: Body, person: int = 0, x0=None, ke
 
     x0 defaults to the true pose at frame 0. keypoints (T, 18, 3) replaces the detections
     (VIP-2D passes the true projections); by default the person's detections are taken by
-    the simulator's identity labels (association, eq. 4.11-4.18, is not implemented).
+    the simulator's identity labels (`associated_keypoints` gives them by association).
     sensors: indices of the body sensors to use (default all).
     Returns (data, truth, bones) with truth = {poses, trans, betas, cam_R, cam_t} of that
     person and bones the bone of each sensor used.
@@ -212,6 +215,36 @@ def from_scenario(scenario, index: int, body: Body, person: int = 0, x0=None, ke
     truth = {"poses": seq["poses"][person], "trans": seq["trans"][person], "betas": seq["betas"][person],
              "cam_R": seq["cam_R"][0], "cam_t": seq["cam_t"][0]}  # fmt: skip
     return data, truth, bones
+
+
+def tracker_keypoints(scenario, index: int, body: Body, people=(0, 1), x0s=None, prior: PosePrior | None = None):
+    """World COCO-18 keypoints (P, T, 18, 3) of the Inertial Tracker's poses (eq. 4.10) of each
+    wearer in `people`, at translation 0 (IMUs do not observe position): the hypotheses of
+    the first association (eq. 4.11). x0s: one given initial pose (24, 3) per person
+    (default each person's true frame-0 pose)."""
+    seq = scenario.sequence(index)
+    T = len(seq["cam_imu_ori"])
+    # The tracker reads no image: a placeholder detection only satisfies `vip_data`'s check.
+    dummy = np.ones((T, 18, 3))
+    out = []
+    for k, p in enumerate(people):
+        x0 = None if x0s is None else x0s[k]
+        data, _, bones = from_scenario(scenario, index, body, person=p, x0=x0, keypoints=dummy, prior=prior)
+        poses = inertial_tracker(data, bones)
+        posed = forward(data.body, poses, data.betas, jnp.zeros((T, 3), poses.dtype))
+        out.append(np.asarray(regress_keypoints(data.regressor, posed.vertices)))
+    return np.stack(out)
+
+
+def associated_keypoints(scenario, index: int, body: Body, people=(0, 1), x0s=None, model: AssociationModel | None = None,
+                         prior: PosePrior | None = None, **kw) -> Association:
+    """Detections of a scenario assigned to its wearers `people` by association (eq.
+    4.11-4.18) from their Inertial Tracker keypoints (`tracker_keypoints`). `.keypoints[k]`
+    (T, 18, 3) is person people[k]'s input to `from_scenario(keypoints=…)`; kw go to
+    `association.associate`."""
+    seq = scenario.sequence(index)
+    joints3d = tracker_keypoints(scenario, index, body, people, x0s, prior)
+    return associate(joints3d, seq["cam_K"][0], seq["cam_imu_ori"], seq["det_keypoints"][0], model=model, **kw)
 
 
 @functools.lru_cache(maxsize=None)

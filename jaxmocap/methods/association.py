@@ -1,0 +1,487 @@
+"""Association of 2D detections with IMU wearers (VIP, von Marcard §4.3.2, eq. 4.11-4.18).
+
+Every detection v of frame t and every wearer l make a hypothesis H(l, v). Each one gets a
+camera M_H fitted to the 3D keypoints of person l's hypothesis pose (e.g. the Inertial
+Tracker's) against v, and three kinds of features:
+
+    unary (eq. 4.13-4.14)     f_un = e_img(H, M_H) · e_cam(H, M_H)
+    inter-frame (eq. 4.15-4.17), same person, 0 < |t − t'| <= window:
+                              f_trans = ‖M_H r_t − M_H' r_t'‖, f_ori = ‖log((R_H R_t)ᵀ R_H' R_t')‖,
+                              f_time = |t − t'|
+    intra-frame (eq. 4.18), two people in one frame: f_intra(H, H̲), f_intra(H', H̲), the
+                              camera centre of each hypothesis against the meta camera H̲
+                              fitted to both.
+
+Logistic regression maps features to costs c = −⟨f, α⟩ (§4.4.1; α in
+`association_weights.json`, trained by `experiments/train_association.py`), and the binary
+quadratic program of eq. 4.11-4.12 is linearised and solved by HiGHS (`scipy.optimize.milp`).
+
+Choices that are ours (the thesis leaves them open):
+  - Hypothesis cameras M_H: world-to-camera (R, t), the rotation R_H the camera IMU's
+    (measured, §4.2.3) and t fitted; without the IMU all six degrees from a DLT start.
+    Measured on a training scene (2 wearers, 3 bystanders): the detection with the
+    lowest f_un is the right one in 97.5 % of frames with the rotation known, 90 % with it
+    free — a free rotation also fits a bystander who faces another way. 12
+    Levenberg-Marquardt steps in normalised image coordinates (pixels / focal length), so
+    the features do not depend on the image size.
+  - e_img divides by Σ w_k instead of N_joints (eq. 4.13): otherwise a detection with few or
+    low-confidence keypoints (typical of false detections) looks consistent for that alone.
+  - Root r_t = mid-hip, root orientation R_t = the frame of the hip line and the mid-hip →
+    neck direction: the hypotheses are COCO-18 keypoints, not poses.
+  - Meta camera M_H̲ (eq. 4.18): one translation per person unless `positions_known` (the
+    Inertial Tracker does not observe where people stand) and then, so that the feature
+    is not identically 0, a free rotation started at the IMU's: it measures whether both
+    detections agree with one camera rotation. With positions known: the IMU rotation and
+    one translation (the thesis's camera-centre consistency).
+  - Features enter the regression as log(f + ε) (they are heavy-tailed: a fit that fails
+    gives values 10³ times the typical ones); f_time as |t − t'| / window.
+  - Hypotheses with a unary probability below `min_probability` or fewer than 5 detected
+    keypoints are dropped before the pairs are built (the graph stays small).
+  - Pair costs are scaled by one trained `pair_scale`: each node has up to 2·window
+    inter-frame edges and their log-odds are not independent evidence.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import json
+import time
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import scipy.optimize
+import scipy.sparse
+
+from ..rotation import axis_angle_to_matrix
+
+__all__ = ["AssociationModel", "Association", "HypothesisFeatures", "load_model", "associate",
+           "hypothesis_features", "pair_features", "solve_labelling", "camera_fit"]  # fmt: skip
+
+WEIGHTS_FILE = Path(__file__).with_name("association_weights.json")
+N_JOINTS = 18
+_RHIP, _LHIP, _NECK = 8, 11, 1
+MIN_KEYPOINTS = 5
+_EPS = 1e-3  # ε of log(f + ε): 1 mm, 0.06°, 1e-3 normalised px·m
+_MIN_DEPTH = 0.05  # m: a point behind the camera projects as if 5 cm in front
+
+
+@dataclasses.dataclass(frozen=True)
+class AssociationModel:
+    """Logistic-regression weights α (bias first) of the three feature kinds, the pair cost
+    scale and the pruning threshold; `provenance` says how they were trained."""
+
+    unary: tuple = (2.0, -1.0)
+    inter: tuple = (2.0, -0.5, -0.5, -1.0)
+    intra: tuple = (2.0, -0.5, -0.5)
+    pair_scale: float = 0.1
+    min_probability: float = 0.01
+    provenance: dict = dataclasses.field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+
+def load_model(path=None) -> AssociationModel:
+    """The shipped weights (`association_weights.json`) or those in `path`."""
+    d = json.loads(Path(path or WEIGHTS_FILE).read_text())
+    return AssociationModel(**{k: tuple(v) if isinstance(v, list) else v for k, v in d.items()})
+
+
+@dataclasses.dataclass(frozen=True)
+class Association:
+    """index (P, T): the assigned detection slot or −1; keypoints (P, T, 18, 3) the assigned
+    rows (zero confidence where unassigned); objective: eq. 4.11 at the solution; status:
+    one HiGHS message per chunk; seconds: {features, solve}."""
+
+    index: np.ndarray
+    keypoints: np.ndarray
+    objective: float
+    status: tuple
+    seconds: dict
+
+
+# ----------------------------------------------------------------------------- camera fit
+
+
+def _translation(R, X, uv, w, group, G):
+    """Least-squares t_g with R fixed: x̂ × (R X + t) = 0 per point (linear in t)."""
+    xh = jnp.concatenate([uv, jnp.ones_like(uv[:, :1])], -1)
+    A = jnp.cross(xh[:, None, :], jnp.eye(3)[None], axis=-1)  # [x̂]_× e_i columns
+    A = jnp.swapaxes(A, -1, -2)  # (N, 3, 3) = [x̂]_×
+    AtA = jnp.einsum("nji,njk->nik", A, A) * w[:, None, None]
+    b = -jnp.einsum("nik,nk->ni", AtA, X @ R.T)
+    one = jax.nn.one_hot(group, G)  # (N, G)
+    M = jnp.einsum("ng,nik->gik", one, AtA) + 1e-9 * jnp.eye(3)
+    return jnp.linalg.solve(M, jnp.einsum("ng,ni->gi", one, b)[..., None])[..., 0]
+
+
+def _dlt_rotation(X, uv, w):
+    """World-to-camera rotation from a weighted DLT (used when no camera IMU is given)."""
+    Xh = jnp.concatenate([X, jnp.ones_like(X[:, :1])], -1)
+    z = jnp.zeros_like(Xh)
+    rows = jnp.concatenate([
+        jnp.concatenate([Xh, z, -uv[:, :1] * Xh], -1), jnp.concatenate([z, Xh, -uv[:, 1:] * Xh], -1)], 0)  # fmt: skip
+    rows = rows * jnp.sqrt(jnp.concatenate([w, w]))[:, None]
+    Pm = jnp.linalg.svd(rows)[2][-1].reshape(3, 4)
+    depth = (Xh @ Pm[2]) @ w  # points must lie in front
+    Pm = jnp.where(depth < 0, -Pm, Pm)
+    U, _, Vt = jnp.linalg.svd(Pm[:, :3])
+    R = U @ Vt
+    return jnp.where(jnp.linalg.det(R) < 0, -R, R)
+
+
+def camera_fit(X, uv, w, R0, group, num_groups: int, free_rotation: bool = True, steps: int = 12):
+    """Levenberg-Marquardt fit of a world-to-camera pose to 2D points.
+
+    X (N, 3) world points, uv (N, 2) normalised image points (K⁻¹ applied), w (N,)
+    confidences (0 = absent), R0 (3, 3) start rotation, group (N,) the translation each
+    point uses (0 .. num_groups−1; eq. 4.18's meta camera with unknown positions has two);
+    free_rotation=False keeps R = R0 (a rotation measured by the camera IMU).
+    Returns R (3, 3), t (num_groups, 3), per-point error ‖e_k‖ (N,) and depth ‖R X + t‖ (N,).
+    """
+    sw = jnp.sqrt(w)
+
+    def pose(p):
+        return axis_angle_to_matrix(p[:3]) @ R0, p[3:].reshape(num_groups, 3)
+
+    def residual(p):
+        R, t = pose(p)
+        q = X @ R.T + t[group]
+        return (sw[:, None] * (q[:, :2] / jnp.maximum(q[:, 2:], _MIN_DEPTH) - uv)).ravel()
+
+    def step(carry, _):
+        p, lam, cost = carry
+        r, J = residual(p), jax.jacfwd(residual)(p)
+        if not free_rotation:
+            J = J.at[:, :3].set(0.0)
+        H = J.T @ J
+        d = -jnp.linalg.solve(H + lam * jnp.diag(jnp.diag(H)) + 1e-12 * jnp.eye(len(p)), J.T @ r)
+        new = residual(p + d) @ residual(p + d)
+        ok = new < cost
+        return (jnp.where(ok, p + d, p), jnp.where(ok, lam * 0.3, lam * 10.0), jnp.where(ok, new, cost)), None
+
+    p0 = jnp.concatenate([jnp.zeros(3, X.dtype), _translation(R0, X, uv, w, group, num_groups).ravel()])
+    r0 = residual(p0)
+    (p, _, _), _ = jax.lax.scan(step, (p0, jnp.asarray(1e-3, X.dtype), r0 @ r0), None, length=steps)
+    R, t = pose(p)
+    q = X @ R.T + t[group]
+    err = jnp.linalg.norm(q[:, :2] / jnp.maximum(q[:, 2:], _MIN_DEPTH) - uv, axis=-1)
+    return R, t, err, jnp.linalg.norm(q, axis=-1)
+
+
+@functools.partial(jax.jit, static_argnames=("use_imu",))
+def _unary_fits(X, uv, w, R_imu, use_imu: bool):
+    def one(X, uv, w, R_imu):
+        R0 = R_imu if use_imu else _dlt_rotation(X, uv, w)
+        return camera_fit(X, uv, w, R0, jnp.zeros(len(X), int), 1, free_rotation=not use_imu)
+
+    return jax.vmap(one)(X, uv, w, R_imu)
+
+
+@functools.partial(jax.jit, static_argnames=("shared", "free_rotation"))
+def _meta_fits(X, uv, w, R0, shared: bool, free_rotation: bool):
+    group = jnp.zeros(X.shape[1], int) if shared else jnp.repeat(jnp.arange(2), N_JOINTS)
+    fit = functools.partial(camera_fit, group=group, num_groups=1 if shared else 2, free_rotation=free_rotation)
+    return jax.vmap(lambda X, uv, w, R0: fit(X, uv, w, R0))(X, uv, w, R0)
+
+
+def _batched(fn, arrays, **kw):
+    """fn over the leading axis in padded power-of-two blocks (few distinct compiles)."""
+    n = len(arrays[0])
+    if n == 0:
+        return None
+    size = max(64, 1 << int(np.ceil(np.log2(n))))
+    pad = [np.concatenate([a, np.repeat(a[:1], size - n, 0)]) for a in arrays]
+    return [np.asarray(o)[:n] for o in fn(*map(jnp.asarray, pad), **kw)]
+
+
+# ----------------------------------------------------------------------------- features
+
+
+def _check(joints3d, K, cam_orientation, detections):
+    joints3d, detections = np.asarray(joints3d, np.float64), np.asarray(detections, np.float64)
+    if joints3d.ndim != 4 or joints3d.shape[2:] != (N_JOINTS, 3):
+        raise ValueError(f"joints3d has shape {joints3d.shape}; expected (P, T, 18, 3) world COCO-18 keypoints.")
+    P, T = joints3d.shape[:2]
+    if detections.ndim != 4 or detections.shape[0] != T or detections.shape[2:] != (N_JOINTS, 3):
+        raise ValueError(f"detections have shape {detections.shape}; expected (T, D, 18, 3) rows "
+                         f"(u, v, confidence) with T = {T} as in joints3d.")  # fmt: skip
+    K = np.asarray(K, np.float64)
+    if K.shape != (3, 3):
+        raise ValueError(f"K has shape {K.shape}; expected (3, 3).")
+    if cam_orientation is not None:
+        cam_orientation = np.asarray(cam_orientation, np.float64)
+        if cam_orientation.shape != (T, 3, 3):
+            raise ValueError(f"cam_orientation has shape {cam_orientation.shape}; expected (T, 3, 3) = ({T}, 3, 3).")
+        if not np.isfinite(cam_orientation).all():
+            raise ValueError("cam_orientation has NaN samples; fill them or pass None.")
+    return joints3d, K, cam_orientation, detections
+
+
+@dataclasses.dataclass(frozen=True)
+class HypothesisFeatures:
+    """Per hypothesis (l, t, v) (P, T, D): valid, f_un (eq. 4.14), the camera R, t and the
+    camera-frame root position (eq. 4.15) and orientation (eq. 4.16)."""
+
+    valid: np.ndarray
+    f_un: np.ndarray
+    R: np.ndarray
+    t: np.ndarray
+    root: np.ndarray
+    frame: np.ndarray
+
+
+def _root_frames(X):
+    """Mid-hip r_t and the body frame R_t (columns: hip line, up, forward) of (..., 18, 3)."""
+    r = 0.5 * (X[..., _RHIP, :] + X[..., _LHIP, :])
+    a = X[..., _LHIP, :] - X[..., _RHIP, :]
+    a = a / np.linalg.norm(a, axis=-1, keepdims=True)
+    up = X[..., _NECK, :] - r
+    up = up - (up * a).sum(-1, keepdims=True) * a
+    up = up / np.linalg.norm(up, axis=-1, keepdims=True)
+    return r, np.stack([a, up, np.cross(a, up)], -1)
+
+
+def _normalised(detections, K):
+    finite = np.isfinite(detections).all(-1)
+    det = np.where(finite[..., None], detections, 0.0)
+    w = np.clip(det[..., 2], 0.0, None)
+    uv = (det[..., :2] - K[:2, 2]) @ np.linalg.inv(K[:2, :2]).T
+    return uv, w
+
+
+def hypothesis_features(joints3d, K, cam_orientation, detections) -> HypothesisFeatures:
+    """Unary features of every hypothesis (eq. 4.13-4.14); arguments as in `associate`."""
+    joints3d, K, cam_orientation, detections = _check(joints3d, K, cam_orientation, detections)
+    P, T = joints3d.shape[:2]
+    D = detections.shape[1]
+    uv, w = _normalised(detections, K)
+    valid = np.broadcast_to(((w > 0).sum(-1) >= MIN_KEYPOINTS)[None], (P, T, D)) & np.isfinite(joints3d).all((-1, -2))[:, :, None]
+    l, t, v = np.nonzero(valid)
+    R_imu = np.eye(3)[None].repeat(T, 0) if cam_orientation is None else np.swapaxes(cam_orientation, -1, -2)
+    f_un = np.full((P, T, D), np.inf)
+    Rs, ts = np.zeros((P, T, D, 3, 3)), np.zeros((P, T, D, 3))
+    out = _batched(_unary_fits, [joints3d[l, t], uv[t, v], w[t, v], R_imu[t]], use_imu=cam_orientation is not None)
+    if out is not None:
+        R, tt, err, depth = out
+        ww = w[t, v]
+        e_img = (ww * err).sum(-1) / ww.sum(-1)  # eq. 4.13 (ours: / Σ w_k)
+        e_cam = depth.mean(-1)  # mean distance of the 3D keypoints to the camera centre
+        f_un[l, t, v] = np.where(np.isfinite(e_img * e_cam), e_img * e_cam, np.inf)
+        Rs[l, t, v], ts[l, t, v] = R, tt[:, 0]
+    r, B = _root_frames(np.nan_to_num(joints3d))
+    root = np.einsum("ltdab,ltb->ltda", Rs, r) + ts
+    frame = np.einsum("ltdab,ltbc->ltdac", Rs, B)
+    return HypothesisFeatures(valid, f_un, Rs, ts, root, frame)
+
+
+def _log(f):
+    return np.log(np.asarray(f) + _EPS)
+
+
+def unary_design(f_un):
+    return np.stack([np.ones_like(f_un), _log(f_un)], -1)
+
+
+def pair_features(hyp: HypothesisFeatures, keep, joints3d, K, detections, window: int = 30,
+                  positions_known: bool = False, imu_rotation: bool = True):
+    """Inter- and intra-frame pairs among the kept hypotheses (keep (P, T, D) bool).
+
+    Returns (inter, intra): inter {a, b: flat hypothesis indices into (P, T, D), f (n, 3)
+    (f_trans, f_ori, f_time) eq. 4.15-4.17}; intra {a, b, f (m, 2)} eq. 4.18.
+    """
+    P, T, D = keep.shape
+    flat = np.arange(P * T * D).reshape(P, T, D)
+    A, B = [], []
+    for l in range(P):  # eq. 4.15-4.17: same person, 0 < t' − t <= window
+        t, v = np.nonzero(keep[l])
+        order = np.argsort(t, kind="stable")
+        t, v = t[order], v[order]
+        lo = np.searchsorted(t, t, side="right")
+        hi = np.searchsorted(t, t + window, side="right")
+        n = hi - lo
+        i = np.repeat(np.arange(len(t)), n)
+        j = np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n) + np.repeat(lo, n)
+        A.append(flat[l, t[i], v[i]])
+        B.append(flat[l, t[j], v[j]])
+    a, b = np.concatenate(A).astype(int), np.concatenate(B).astype(int)
+    root, frame = hyp.root.reshape(-1, 3), hyp.frame.reshape(-1, 3, 3)
+    f_trans = np.linalg.norm(root[a] - root[b], axis=-1)
+    cos = (np.einsum("nab,nab->n", frame[a], frame[b]) - 1.0) / 2.0
+    f_ori = np.arccos(np.clip(cos, -1.0, 1.0))
+    f_time = np.abs(np.unravel_index(a, (P, T, D))[1] - np.unravel_index(b, (P, T, D))[1]).astype(float)
+    inter = {"a": a, "b": b, "f": np.stack([f_trans, f_ori, f_time], -1)}
+
+    A, B = [], []
+    for l in range(P):  # eq. 4.18: two people, one frame, two different detections
+        for m in range(l + 1, P):
+            both = keep[l][:, :, None] & keep[m][:, None, :] & ~np.eye(D, dtype=bool)
+            t, v, u = np.nonzero(both)
+            A.append(flat[l, t, v])
+            B.append(flat[m, t, u])
+    a = np.concatenate(A).astype(int) if A else np.zeros(0, int)
+    b = np.concatenate(B).astype(int) if B else np.zeros(0, int)
+    intra = {"a": a, "b": b, "f": np.zeros((len(a), 2))}
+    if len(a):
+        la, ta, va = np.unravel_index(a, (P, T, D))
+        lb, _, vb = np.unravel_index(b, (P, T, D))
+        uv, w = _normalised(np.asarray(detections, np.float64), K)
+        X = np.concatenate([joints3d[la, ta], joints3d[lb, ta]], 1)
+        R, tt, _, _ = _batched(_meta_fits, [X, np.concatenate([uv[ta, va], uv[ta, vb]], 1),
+                                            np.concatenate([w[ta, va], w[ta, vb]], 1), hyp.R.reshape(-1, 3, 3)[a]],
+                               shared=positions_known, free_rotation=not (positions_known and imu_rotation))  # fmt: skip
+        centre = lambda R, t: -np.einsum("nba,nb->na", R, t)  # noqa: E731  c = −Rᵀ t
+        Rf, tf = hyp.R.reshape(-1, 3, 3), hyp.t.reshape(-1, 3)
+        f_a = np.linalg.norm(centre(Rf[a], tf[a]) - centre(R, tt[:, 0]), axis=-1)
+        f_b = np.linalg.norm(centre(Rf[b], tf[b]) - centre(R, tt[:, -1]), axis=-1)
+        intra["f"] = np.stack([f_a, f_b], -1)
+    return inter, intra
+
+
+def inter_design(f, window: int):
+    return np.stack([np.ones(len(f)), _log(f[:, 0]), _log(f[:, 1]), f[:, 2] / window], -1)
+
+
+def intra_design(f):
+    return np.stack([np.ones(len(f)), _log(f[:, 0]), _log(f[:, 1])], -1)
+
+
+# ----------------------------------------------------------------------------- labelling
+
+
+def solve_labelling(shape, nodes, unary, pairs, pair_costs, chunk: int = 100, time_limit: float = 30.0):
+    """Minimise eq. 4.11 subject to eq. 4.12 with HiGHS, chunk frames at a time.
+
+    shape (P, T, D); nodes: flat indices of the candidate hypotheses; unary: their costs
+    c_v^l; pairs (m, 2) flat indices, pair_costs (m,) c_{v,v'}^{l,l'}. Returns the chosen
+    flat indices, the objective and the HiGHS messages.
+
+    Linearisation: y = x_a x_b is needed only on the side the objective pushes against,
+    so y is continuous in [0, 1]: for c < 0 (a reward) y <= x_a, y <= x_b; for c > 0 (a
+    penalty) y >= x_a + x_b − 1. At integral x the minimiser then sets y = x_a x_b exactly.
+    Chunks: frames [s, s + chunk) are solved in order; pairs reaching back into decided
+    chunks become linear terms on the new node (x_old is known), pairs to undecided later
+    frames wait for their chunk. The first chunk ignores the future, a documented loss
+    against one global program (which HiGHS needs minutes for at 300 frames × 5 × 2).
+    """
+    P, T, D = shape
+    nodes = np.asarray(nodes, int)
+    frame_of = lambda f: np.unravel_index(f, shape)[1]  # noqa: E731
+    chosen = np.zeros(P * T * D, bool)
+    cost = np.zeros(P * T * D)
+    cost[nodes] = unary
+    pairs = np.asarray(pairs, int).reshape(-1, 2)
+    pair_costs = np.asarray(pair_costs, float)
+    pf = np.stack([frame_of(pairs[:, 0]), frame_of(pairs[:, 1])], -1) if len(pairs) else np.zeros((0, 2), int)
+    objective, status = 0.0, []
+    node_frame = frame_of(nodes)
+    for s in range(0, T, chunk):
+        e = min(T, s + chunk)
+        here = nodes[(node_frame >= s) & (node_frame < e)]
+        if len(here) == 0:
+            continue
+        c = cost[here].copy()
+        pos = np.full(P * T * D, -1)
+        pos[here] = np.arange(len(here))
+        # pairs with one end decided before s: a linear term on the new end if the old was chosen
+        back = (pf.min(1) < s) & (pf.max(1) >= s) & (pf.max(1) < e)
+        pb, first = pairs[back], pf[back, 0] < s
+        old, new = np.where(first, pb[:, 0], pb[:, 1]), np.where(first, pb[:, 1], pb[:, 0])
+        on = chosen[old] & (pos[new] >= 0)
+        np.add.at(c, pos[new[on]], pair_costs[back][on])
+        inside = (pf.min(1) >= s) & (pf.max(1) < e)
+        pi, pc = pairs[inside], pair_costs[inside]
+        n, m = len(here), len(pi)
+        ia, ib = pos[pi[:, 0]], pos[pi[:, 1]]
+        rows, cols, vals, ub = [], [], [], []
+        r = 0
+        l_, t_, v_ = np.unravel_index(here, shape)
+        for key in (t_ * D + v_, l_ * T + t_):  # eq. 4.12a (one person per detection), 4.12b
+            _, g = np.unique(key, return_inverse=True)
+            rows.append(r + g), cols.append(np.arange(n)), vals.append(np.ones(n))
+            ub.append(np.ones(g.max() + 1))
+            r += g.max() + 1
+        neg = pc < 0
+        k = np.flatnonzero(neg)  # y − x_a <= 0, y − x_b <= 0
+        for x in (ia[k], ib[k]):
+            rows += [r + np.arange(len(k))] * 2
+            cols += [n + k, x]
+            vals += [np.ones(len(k)), -np.ones(len(k))]
+            ub.append(np.zeros(len(k)))
+            r += len(k)
+        k = np.flatnonzero(~neg)  # x_a + x_b − y <= 1
+        rows += [r + np.arange(len(k))] * 3
+        cols += [ia[k], ib[k], n + k]
+        vals += [np.ones(len(k)), np.ones(len(k)), -np.ones(len(k))]
+        ub.append(np.ones(len(k)))
+        r += len(k)
+        A = scipy.sparse.csr_array((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(r, n + m))
+        res = scipy.optimize.milp(
+            np.concatenate([c, pc]), integrality=np.r_[np.ones(n), np.zeros(m)],
+            bounds=scipy.optimize.Bounds(0, 1),
+            constraints=scipy.optimize.LinearConstraint(A, -np.inf, np.concatenate(ub)),
+            options={"time_limit": time_limit},
+        )  # fmt: skip
+        status.append(res.message)
+        if res.x is None:  # no feasible point within the limit: leave the chunk unassigned
+            continue
+        pick = here[res.x[:n] > 0.5]
+        chosen[pick] = True
+        objective += float(res.fun)
+    return np.flatnonzero(chosen), objective, tuple(status)
+
+
+def _logit(design, alpha):
+    return design @ np.asarray(alpha, np.float64)
+
+
+def associate(joints3d, K, cam_orientation, detections, model: AssociationModel | None = None, window: int = 30,
+              positions_known: bool = False, chunk: int = 100, time_limit: float = 30.0) -> Association:
+    """Assign 2D detections to the P IMU wearers (eq. 4.11-4.18).
+
+    Args:
+        joints3d: (P, T, 18, 3) world COCO-18 keypoints of each wearer's hypothesis pose
+            (e.g. the Inertial Tracker's through `sensors.keypoints.regress_keypoints`).
+        K: (3, 3) intrinsics; cam_orientation: (T, 3, 3) camera-to-world rotation from the
+            camera IMU, or None (each hypothesis camera then starts from a DLT).
+        detections: (T, D, 18, 3) rows (u, v, confidence) in pixels; padded or missing rows
+            have confidence 0 or NaN (NaN keypoints count as missing).
+        model: `AssociationModel` (default: the shipped weights); window: inter-frame edges
+            span at most this many frames (§4.4.1: 30); positions_known: the hypotheses
+            share one world frame with their true relative positions (e.g. a fused result),
+            so eq. 4.18's meta camera has one translation.
+        chunk, time_limit: frames per binary program and HiGHS seconds per chunk.
+    Returns:
+        `Association`.
+    """
+    joints3d, K, cam_orientation, detections = _check(joints3d, K, cam_orientation, detections)
+    if not (isinstance(window, (int, np.integer)) and window >= 1 and isinstance(chunk, (int, np.integer)) and chunk >= 1):
+        raise ValueError(f"window and chunk must be ints >= 1, got {window!r} and {chunk!r}.")
+    model = load_model() if model is None else model
+    P, T = joints3d.shape[:2]
+    D = detections.shape[1]
+    t0 = time.perf_counter()
+    hyp = hypothesis_features(joints3d, K, cam_orientation, detections)
+    z = np.where(hyp.valid, _logit(unary_design(np.where(hyp.valid, hyp.f_un, 1.0)), model.unary), -np.inf)
+    keep = hyp.valid & (z >= np.log(model.min_probability / (1 - model.min_probability)))
+    inter, intra = pair_features(hyp, keep, joints3d, K, detections, window, positions_known,
+                                 cam_orientation is not None)
+    pairs = np.concatenate([np.stack([inter["a"], inter["b"]], -1), np.stack([intra["a"], intra["b"]], -1)])
+    pair_costs = -model.pair_scale * np.concatenate([_logit(inter_design(inter["f"], window), model.inter),
+                                                     _logit(intra_design(intra["f"]), model.intra)])  # fmt: skip
+    t1 = time.perf_counter()
+    nodes = np.flatnonzero(keep)
+    chosen, objective, status = solve_labelling((P, T, D), nodes, -z.reshape(-1)[nodes], pairs, pair_costs, chunk,
+                                                time_limit)  # fmt: skip
+    index = np.full((P, T), -1)
+    l, t, v = np.unravel_index(chosen, (P, T, D))
+    index[l, t] = v
+    keypoints = np.zeros((P, T, N_JOINTS, 3))
+    if D:
+        rows = np.nan_to_num(detections[np.arange(T)[None], np.maximum(index, 0)])
+        keypoints = np.where((index >= 0)[..., None, None], rows, 0.0)
+    return Association(index, keypoints, objective, status,
+                       {"features": t1 - t0, "solve": time.perf_counter() - t1})  # fmt: skip
