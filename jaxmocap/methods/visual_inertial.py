@@ -33,8 +33,10 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import time
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jax import Array
@@ -56,11 +58,12 @@ from ..energies.visual_inertial import (
 from ..priors.pose_prior import PosePrior, default_pose_prior
 from ..rotation import axis_angle_to_matrix, matrix_to_axis_angle
 from ..sensors.keypoints import keypoint_regressor, person_track, regress_keypoints
-from ..solve import Problem, Solution, frame, sequence, solve, with_weights
+from ..solve import Problem, Solution, frame, sequence, solve, solve_batch, with_weights
 from .association import Association, AssociationModel, associate
 
 __all__ = ["VIPWeights", "VIPResult", "vip_data", "from_scenario", "inertial_tracker", "initial_camera",
-           "video_inertial_poser", "tracker_keypoints", "associated_keypoints"]  # fmt: skip
+           "video_inertial_poser", "tracker_keypoints", "associated_keypoints", "with_keypoints", "world_keypoints",
+           "VIPScene", "video_inertial_scene"]  # fmt: skip
 
 
 @dataclasses.dataclass(frozen=True)
@@ -363,6 +366,7 @@ def video_inertial_poser(
     init_trans=None,
     sigma: float = 100.0,
     max_steps: int = 30,
+    start: VIPResult | None = None,
 ) -> VIPResult:
     """VIP fusion (eq. 4.19-4.30) from the Inertial Tracker (eq. 4.10).
 
@@ -374,7 +378,19 @@ def video_inertial_poser(
             free_camera=False it is held fixed (VIP-Cam with the true camera).
         init, init_trans: (T, 24, 3), (T, 3) start (default: IT poses, x₀'s translation 0).
         sigma: E_img's Geman-McClure σ in reference pixels.
+        start: a previous result to continue from (every unknown, headings and x₀ too):
+            the second round of `video_inertial_scene`.
     """
+    problem, params, data, fixed = _fusion_setup(data, bones, weights, free_heading, free_x0, camera, free_camera, init,
+                                                 init_trans, sigma, start)  # fmt: skip
+    return _result(solve(problem, params, data, max_steps=max_steps), data, *fixed)
+
+
+def _fusion_setup(data, bones, weights, free_heading, free_x0, camera, free_camera, init, init_trans, sigma, start):
+    """The weighted problem, start values and data of one VIP fusion solve, and (camera
+    start, tracker poses) for the result."""
+    if start is not None:
+        init, init_trans, camera = start.poses, start.trans, start.camera
     bones = _bones(data, bones)
     T, S = data.num_frames, len(bones)
     dtype = data.orientation.dtype
@@ -397,12 +413,123 @@ def video_inertial_poser(
     else:
         data = eqx.tree_at(lambda d: d.camera, data, _camera_matrices(jnp.asarray(cam, dtype)))
     if free_heading:
-        params["heading"] = jnp.zeros(S, dtype)
+        params["heading"] = jnp.zeros(S, dtype) if start is None else jnp.asarray(start.heading, dtype)
     if free_x0:
-        params["x0"] = matrix_to_axis_angle(data.x0)
-    sol = solve(problem, params, data, max_steps=max_steps)
+        params["x0"] = matrix_to_axis_angle(data.x0) if start is None else jnp.asarray(start.x0, dtype)
+    tracker = poses if start is None else start.init
+    return problem, params, data, (jnp.asarray(cam, dtype), tracker)
+
+
+def _result(sol: Solution, data: VIPData, cam, init) -> VIPResult:
     v = sol.value
     return VIPResult(
-        poses=v["pose"], trans=v["trans"], camera=v.get("cam", jnp.asarray(cam, dtype)),
-        heading=v.get("heading", data.heading), x0=v.get("x0", matrix_to_axis_angle(data.x0)), init=poses, solution=sol,
+        poses=v["pose"], trans=v["trans"], camera=v.get("cam", cam), heading=v.get("heading", data.heading),
+        x0=v.get("x0", matrix_to_axis_angle(data.x0)), init=init, solution=sol,
     )  # fmt: skip
+
+
+def with_keypoints(data: VIPData, keypoints) -> VIPData:
+    """`data` with new detections (T, 18, 3) (u, v, confidence; NaN or confidence 0 = missing),
+    e.g. the rows an association gave this person; a frame without any is fitted from the
+    IMUs alone."""
+    keypoints = np.asarray(keypoints, np.float64)
+    if keypoints.shape != (data.num_frames, 18, 3):
+        raise ValueError(f"keypoints have shape {keypoints.shape}; expected ({data.num_frames}, 18, 3).")
+    finite = np.isfinite(keypoints).all(-1)
+    confidence = np.where(finite, keypoints[..., 2], 0.0).clip(0.0, None)
+    dtype = data.keypoints.dtype
+    return eqx.tree_at(lambda d: (d.keypoints, d.confidence), data,
+                       (jnp.asarray(np.nan_to_num(keypoints[..., :2]), dtype), jnp.asarray(confidence, dtype)))  # fmt: skip
+
+
+def world_keypoints(data: VIPData, poses, trans) -> np.ndarray:
+    """COCO-18 keypoints (T, 18, 3) in the world of the posed model."""
+    dtype = data.body.dtype
+    out = forward(data.body, jnp.asarray(poses, dtype), data.betas, jnp.asarray(trans, dtype))
+    return np.asarray(regress_keypoints(data.regressor, out.vertices), np.float64)
+
+
+@dataclasses.dataclass(frozen=True)
+class VIPScene:
+    """`video_inertial_scene`'s answer: people, one `VIPResult` per IMU wearer after the last
+    round; associations, one per round; seconds, the wall time of each stage."""
+
+    people: tuple
+    associations: tuple
+    seconds: dict
+
+
+def video_inertial_scene(datas, bones, detections, weights: VIPWeights = VIPWeights(), rounds: int = 2,
+                         model: AssociationModel | None = None, max_steps: int = 30, log=None, **fusion) -> VIPScene:
+    """The whole Video Inertial Poser (§4.3) for the IMU wearers of one recording.
+
+    Inertial Tracker per wearer (eq. 4.10) → association of the detections with the wearers
+    (eq. 4.11-4.18) → fusion (eq. 4.19-4.30); association and fusion are then repeated once
+    (`rounds=2`, the thesis), the second association from the fused poses and camera, the
+    second fusion continuing from the first.
+
+    datas: one `VIPData` per wearer (`vip_data`; their own keypoints are ignored: the
+        detections are assigned here), all of the same length and the same camera.
+    detections: (T, D, 18, 3) every person detected per frame (u, v, confidence), rows of
+        zeros or NaN where a frame has fewer than D; an empty frame is fine.
+    fusion: options of `video_inertial_poser` (free_heading, free_x0, sigma, ...).
+
+    The wearers are solved as one batch (`solve_batch`: one compiled program). Ours: each
+    wearer keeps their own camera unknowns (the camera is shared in the thesis's joint
+    problem); the second association maps every wearer into the first wearer's camera
+    world, so that the intra-frame costs compare one camera (positions known, eq. 4.18).
+    """
+    datas = list(datas)
+    if not datas:
+        raise ValueError("no IMU wearers: pass one VIPData per person wearing IMUs.")
+    if rounds < 1:
+        raise ValueError(f"rounds must be >= 1, got {rounds}.")
+    T = datas[0].num_frames
+    if any(d.num_frames != T for d in datas):
+        raise ValueError(f"the wearers' sequences differ in length: {[d.num_frames for d in datas]}.")
+    detections = np.asarray(detections, np.float64)
+    if detections.ndim != 4 or detections.shape[0] != T or detections.shape[2:] != (18, 3):
+        raise ValueError(f"detections have shape {detections.shape}; expected (T, D, 18, 3) with T = {T}.")
+    say = log or (lambda *_: None)
+    bones = _bones(datas[0], bones)
+    seconds = {"tracker": 0.0, "association": 0.0, "fusion": 0.0}
+    d0 = datas[0]
+    clock = time.perf_counter()
+    hyp = np.stack([world_keypoints(d, inertial_tracker(d, bones), np.zeros((T, 3))) for d in datas])
+    seconds["tracker"] += time.perf_counter() - clock
+    cam_R, results, associations = np.asarray(d0.cam_orientation), None, []
+    for r in range(rounds):
+        clock = time.perf_counter()
+        assoc = associate(hyp, d0.K, cam_R, detections, model=model, positions_known=r > 0)
+        seconds["association"] += time.perf_counter() - clock
+        associations.append(assoc)
+        say(f"round {r + 1}: {int((assoc.index >= 0).sum())} detections assigned to {len(datas)} wearer(s)")
+        lacking = [k for k in range(len(datas)) if not (assoc.keypoints[k][..., 2] > 0).any()]
+        if lacking:
+            raise ValueError(f"wearer(s) {lacking} were assigned no detection in any frame: VIP cannot place them "
+                             "in the image; check the detections, or fit them with the Inertial Tracker alone.")  # fmt: skip
+        clock = time.perf_counter()
+        setups = [_fusion_setup(with_keypoints(d, assoc.keypoints[k]), bones, weights, fusion.get("free_heading", True),
+                                fusion.get("free_x0", True), None, True, None, None, fusion.get("sigma", 100.0),
+                                None if results is None else results[k]) for k, d in enumerate(datas)]  # fmt: skip
+        stack = lambda *xs: jnp.stack(xs)  # noqa: E731
+        params = jax.tree.map(stack, *[s[1] for s in setups])
+        data = jax.tree.map(stack, *[s[2] for s in setups])
+        sol = solve_batch(setups[0][0], params, data, max_steps=max_steps)
+        results = [_result(jax.tree.map(lambda x, k=k: x[k], sol), s[2], *s[3]) for k, s in enumerate(setups)]
+        seconds["fusion"] += time.perf_counter() - clock
+        say(f"round {r + 1}: fused, costs {[float(x.solution.cost) for x in results]}")
+        # Next hypotheses: each wearer's fused keypoints seen from the first wearer's camera.
+        cams = [np.asarray(_camera_matrices(x.camera)) for x in results]
+        hyp = np.stack([_into_camera(world_keypoints(d, x.poses, x.trans), cams[k], cams[0])
+                        for k, (d, x) in enumerate(zip(datas, results))])  # fmt: skip
+        cam_R = cams[0][:, :3, :3]
+    return VIPScene(tuple(results), tuple(associations), seconds)
+
+
+def _into_camera(X, cam_from, cam_to):
+    """Points (T, N, 3) fitted with camera-to-world poses cam_from (T, 4, 4), re-expressed so
+    that cam_to sees them as cam_from did."""
+    Rf, cf, Rt, ct = cam_from[:, :3, :3], cam_from[:, :3, 3], cam_to[:, :3, :3], cam_to[:, :3, 3]
+    local = np.einsum("tba,tnb->tna", Rf, X - cf[:, None])
+    return np.einsum("tab,tnb->tna", Rt, local) + ct[:, None]
