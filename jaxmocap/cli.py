@@ -361,6 +361,61 @@ def _run_interaction(args) -> int:
     return 0
 
 
+# --- vip ----------------------------------------------------------------------------
+
+
+def _people(text: str) -> list[int]:
+    try:
+        return [int(v) for v in text.split(",") if v.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected person indices separated by commas (e.g. 0,1), got {text!r}") from None
+
+
+def _configure_vip(p: argparse.ArgumentParser) -> None:
+    sub = p.add_subparsers(dest="vip_action", metavar="ACTION", required=True)
+    d = sub.add_parser("demo", help="simulate IMU wearers and bystanders filmed by a hand-held camera; fit with VIP",
+                       description="Simulate a scene from the procedural motion library (no downloads): IMU wearers "
+                       "(13 IMUs each) and bystanders filmed by a hand-held camera with an IMU, OpenPose-like "
+                       "detections. Fit it with the Video Inertial Poser (Inertial Tracker, association, fusion, "
+                       "twice) and write per-wearer npz, overlays, errors over time, a GLB scene and report.json.")
+    d.add_argument("--out", required=True, metavar="DIR", help="output folder")
+    d.add_argument("--frames", type=_positive(int), default=60, metavar="N", help="frames to simulate (default: 60)")
+    d.add_argument("--wearers", type=_positive(int), default=2, metavar="P", help="people wearing IMUs (default: 2)")
+    d.add_argument("--bystanders", type=int, default=2, metavar="B", help="people without IMUs (default: 2)")
+    d.add_argument("--seed", type=int, default=0, help="seed of the simulation (default: 0)")
+    f = sub.add_parser("fit", help="fit a 3DPW sequence file (IMUs simulated from its reference poses)",
+                       description="Fit the Video Inertial Poser to a 3DPW sequence pickle: the chosen people wear "
+                       "13 IMUs simulated from the file's reference poses, the file's OpenPose detections of "
+                       "everyone are associated with them; the outputs are those of `jaxmocap vip demo`.")
+    f.add_argument("file", help="3DPW sequence file (sequenceFiles/*/name.pkl)")
+    f.add_argument("--out", required=True, metavar="DIR", help="output folder")
+    f.add_argument("--people", type=_people, metavar="A,B", help="the IMU wearers (default: everyone in the file)")
+    f.add_argument("--frames", type=_frame_slice, metavar="START:STOP",
+                   help="frames to fit (default: the longest run with a valid camera pose for every wearer)")
+    for q in (d, f):
+        q.add_argument("--steps", type=_positive(int), default=30, metavar="N", help="LM steps per fusion (default: 30)")
+        _add_body_option(q)
+
+
+def _run_vip(args) -> int:
+    from .app.vip import run_vip_demo, run_vip_fit
+
+    log = lambda line: print(line, flush=True)  # noqa: E731
+    if args.vip_action == "demo":
+        r = run_vip_demo(args.out, frames=args.frames, wearers=args.wearers, bystanders=args.bystanders, seed=args.seed,
+                         body=args.body, max_steps=args.steps, log=log)  # fmt: skip
+    else:
+        r = run_vip_fit(args.file, args.out, people=args.people, frames=args.frames, body=args.body,
+                        max_steps=args.steps, log=log)  # fmt: skip
+    for k, e in enumerate(r["people"]):
+        errors = f", MPJPE IT {e['it_mpjpe_mm']:.1f} mm -> VIP {e['vip_mpjpe_mm']:.1f} mm" if "vip_mpjpe_mm" in e else ""
+        print(f"wearer {k} (person {e['person']}): {r['association'][-1]['assigned'][k]}/{r['frames']} frames "
+              f"assigned{errors}")
+    print(f"wrote    {', '.join(str(Path(args.out) / f) for f in r['outputs'])}")
+    print(f"done in {r['seconds']['total']:.1f} s")
+    return 0
+
+
 # --- sweep --------------------------------------------------------------------------
 
 
@@ -401,6 +456,8 @@ COMMANDS: list[Command] = [
     Command("multiview", "fit SMPL to multi-camera OpenPose keypoints (Multi-view SMPLify)", _configure_multiview, _run_multiview),
     Command("interaction", "a person handling an object, from RGB-D views (InterCap): jaxmocap interaction demo",
             _configure_interaction, _run_interaction),
+    Command("vip", "IMU wearers + a hand-held camera (Video Inertial Poser): jaxmocap vip demo | fit FILE.pkl",
+            _configure_vip, _run_vip),
     Command("prior", "build a pose prior from your own motion (jaxmocap prior build DIR)", _configure_prior, _run_prior),
     Command("sweep", "grid of methods × weights × sensor errors × datasets, resumable", _configure_sweep, _run_sweep),
 ]

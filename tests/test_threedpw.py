@@ -5,32 +5,23 @@ The file is written here in 3DPW's layout (a protocol-2 pickle of numpy arrays a
 poses2d are exact functions of poses, trans and the camera.
 """
 
-import pickle
-
 import jax.numpy as jnp
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from jaxmocap.body import forward
 from jaxmocap.body.io import default_body
 from jaxmocap.body.kinematics import shaped_joints
 from jaxmocap.formats.threedpw import load_threedpw, valid_span
 from jaxmocap.methods.visual_inertial import vip_data
-from jaxmocap.motion import library
 from jaxmocap.motion.amass import Z_UP_TO_Y_UP
 from jaxmocap.motion.skeleton import MotionFileError
 from jaxmocap.rotation import axis_angle_to_matrix
-from jaxmocap.sensors.camera import intrinsics, look_at, project
-from jaxmocap.sensors.keypoints import keypoint_regressor, regress_keypoints
+from jaxmocap.sensors.camera import project
 from jaxmocap.sensors.threedpw import vip_inputs
+from threedpw_file import joints_and_keypoints, threedpw_dict, write_threedpw
 
 T = 20
-
-
-def _joints_and_keypoints(body, poses, trans, betas):
-    out = forward(body, jnp.asarray(poses), jnp.asarray(betas), jnp.asarray(trans))
-    return np.asarray(out.joints), np.asarray(regress_keypoints(keypoint_regressor(body, "coco18"), out.vertices))
 
 
 @pytest.fixture(scope="module")
@@ -41,43 +32,11 @@ def body():
 @pytest.fixture(scope="module")
 def raw(body):
     """The dict of a 3DPW sequence file, y up, and the arrays it was made from."""
-    walk = library.MOTIONS["walk"](num_frames=T, fps=30.0, body=body)
-    raise_ = library.MOTIONS["arm_raises"](num_frames=T, fps=30.0, body=body)
-    poses = np.stack([walk.poses, raise_.poses])
-    trans = np.stack([walk.trans, raise_.trans + [1.2, 0.0, 0.5]])
-    betas = [np.linspace(-1.0, 1.0, 10), np.r_[0.5, np.zeros(299)]]  # 3DPW: 10 or 300 values
-    K = intrinsics(1080, 1920, 55.0)  # portrait: principal point (540, 960)
-    s = np.arange(T) / T
-    eyes = np.stack([0.6 + 1.5 * s, np.full(T, 1.5), np.full(T, 4.0)], -1)
-    R, t = look_at(eyes, np.broadcast_to([0.6, 0.9, 0.0], (T, 3)))
-    cam = np.zeros((T, 4, 4))
-    cam[:, :3, :3], cam[:, :3, 3], cam[:, 3, 3] = R, t, 1.0
-    joints, poses2d = [], []
-    for p in range(2):
-        j, kp = _joints_and_keypoints(body, poses[p], trans[p], betas[p][:10])
-        uv, _ = project(jnp.asarray(K), jnp.asarray(R)[:, None], jnp.asarray(t)[:, None], jnp.asarray(kp)[:, None])
-        rows = np.concatenate([np.asarray(uv)[:, 0], np.full((T, 18, 1), 0.8)], -1)
-        rows[::5, 3] = 0.0  # an undetected joint, as OpenPose writes it
-        joints.append(j.reshape(T, 72))
-        poses2d.append(np.ascontiguousarray(np.swapaxes(rows, 1, 2)))  # 3DPW stores (T, 3, 18)
-    data = {
-        "sequence": "courtyard_synthetic_00", "genders": [b"m", b"f"], "betas": betas,
-        "poses": [x.reshape(T, 72) for x in poses], "trans": list(trans),
-        "poses_60Hz": [np.repeat(x.reshape(T, 72), 2, 0) for x in poses], "trans_60Hz": [np.repeat(x, 2, 0) for x in trans],
-        "betas_clothed": [b[:10] for b in betas], "v_template_clothed": [np.zeros((6890, 3))] * 2,
-        "jointPositions": joints, "poses2d": poses2d, "cam_poses": cam, "cam_intrinsics": K,
-        "campose_valid": [np.r_[np.ones(T - 3), np.zeros(3)].astype(bool), np.ones(T, bool)],
-        "img_frame_ids": 2 * np.arange(T),
-    }  # fmt: skip
-    return data, {"poses": poses, "trans": trans, "joints": np.stack(joints).reshape(2, T, 24, 3), "poses2d": poses2d}
+    return threedpw_dict(body, T)
 
 
 def _write(tmp_path, data, name="seq.pkl"):
-    # 3DPW's files are Python-2 pickles (protocol 2) of NumPy 1 arrays, whose reconstructor
-    # lives in numpy.core (numpy._core since NumPy 2): written as they were.
-    path = tmp_path / name
-    path.write_bytes(pickle.dumps(data, protocol=2).replace(b"numpy._core.", b"numpy.core."))
-    return path
+    return write_threedpw(tmp_path / name, data)
 
 
 @pytest.fixture(scope="module")
@@ -108,7 +67,7 @@ def test_round_trip(seq_path, raw):
 def test_joint_positions_and_keypoints_follow_from_the_read_motion(seq_path, body):
     seq = load_threedpw(seq_path)
     for p in range(2):
-        joints, kp = _joints_and_keypoints(body, seq.poses[p], seq.trans[p], seq.betas[p])
+        joints, kp = joints_and_keypoints(body, seq.poses[p], seq.trans[p], seq.betas[p])
         np.testing.assert_allclose(joints, seq.joints[p], atol=1e-9)
         uv, z = project(jnp.asarray(seq.K), jnp.asarray(seq.cam_R)[:, None], jnp.asarray(seq.cam_t)[:, None],
                         jnp.asarray(kp)[:, None])  # fmt: skip
@@ -132,7 +91,7 @@ def test_world_rotation_converts_a_z_up_file_exactly(raw, body, tmp_path):
         pz[:, 0] = Rotation.from_matrix(R.T @ root).as_rotvec()
         poses_z.append(pz)
         trans_z.append((truth["trans"][p] + j0) @ R - j0)
-        joints_z, _ = _joints_and_keypoints(body, pz, trans_z[p], data["betas"][p][:10])
+        joints_z, _ = joints_and_keypoints(body, pz, trans_z[p], data["betas"][p][:10])
         np.testing.assert_allclose(joints_z, truth["joints"][p] @ R, atol=1e-9)  # the file is consistent
     cam = data["cam_poses"].copy()
     cam[:, :3, :3] = cam[:, :3, :3] @ R  # p_c = R_c p_y + t = (R_c R) p_z + t
@@ -145,7 +104,7 @@ def test_world_rotation_converts_a_z_up_file_exactly(raw, body, tmp_path):
     np.testing.assert_allclose(seq.joints, truth["joints"], atol=1e-12)
     np.testing.assert_allclose(seq.cam_R, data["cam_poses"][:, :3, :3], atol=1e-12)
     for p in range(2):
-        np.testing.assert_allclose(_joints_and_keypoints(body, seq.poses[p], seq.trans[p], seq.betas[p])[0],
+        np.testing.assert_allclose(joints_and_keypoints(body, seq.poses[p], seq.trans[p], seq.betas[p])[0],
                                    truth["joints"][p], atol=1e-6)  # fmt: skip
     with pytest.raises(ValueError, match="rotation matrix"):
         load_threedpw(_write(tmp_path, z), world_rotation=2 * np.eye(3))

@@ -132,3 +132,21 @@ def test_energy_gradients_are_finite(scene):
     for k, g in grads.items():
         assert np.isfinite(np.asarray(g)).all(), k
     assert float(jnp.abs(grads["heading"]).sum()) > 0  # the heading does enter the energy
+
+
+def test_whole_method_assigns_and_fuses(scene):
+    """`video_inertial_scene`: tracker → association → fusion, twice, from the raw detections."""
+    sc, data, bones, truth = scene["scenario"], scene["data"], scene["bones"], scene["truth"]
+    seq = sc.sequence(0)
+    out = vip.video_inertial_scene([data], bones, seq["det_keypoints"][0], weights=vip.VIPWeights(prior=0.0006),
+                                   max_steps=100)  # fmt: skip
+    labels = seq["det_person"][0]
+    for a in out.associations:  # every visible detection of the wearer, and nothing else
+        idx = a.index[0]
+        assert ((idx >= 0) == (labels == 0).any(1)).all()
+        assert (labels[np.arange(len(idx)), np.maximum(idx, 0)][idx >= 0] == 0).all()
+    res = out.people[0]
+    err = lambda poses: np.mean(pose_errors(scene["body"], np.asarray(poses), truth["poses"])["mpjpe"])  # noqa: E731
+    assert err(res.poses) < 0.7 * err(scene["it"])
+    assert abs(err(res.poses) - err(scene["res"].poses)) < 5.0  # mm: the same fit as from identity labels
+    assert set(out.seconds) == {"tracker", "association", "fusion"}

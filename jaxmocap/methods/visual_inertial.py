@@ -512,11 +512,14 @@ def video_inertial_scene(datas, bones, detections, weights: VIPWeights = VIPWeig
         setups = [_fusion_setup(with_keypoints(d, assoc.keypoints[k]), bones, weights, fusion.get("free_heading", True),
                                 fusion.get("free_x0", True), None, True, None, None, fusion.get("sigma", 100.0),
                                 None if results is None else results[k]) for k, d in enumerate(datas)]  # fmt: skip
-        stack = lambda *xs: jnp.stack(xs)  # noqa: E731
-        params = jax.tree.map(stack, *[s[1] for s in setups])
-        data = jax.tree.map(stack, *[s[2] for s in setups])
-        sol = solve_batch(setups[0][0], params, data, max_steps=max_steps)
-        results = [_result(jax.tree.map(lambda x, k=k: x[k], sol), s[2], *s[3]) for k, s in enumerate(setups)]
+        if len(setups) == 1:  # the program `video_inertial_poser` compiles
+            results = [_result(solve(*setups[0][:3], max_steps=max_steps), setups[0][2], *setups[0][3])]
+        else:
+            stack = lambda *xs: jnp.stack(xs)  # noqa: E731
+            params = jax.tree.map(stack, *[s[1] for s in setups])
+            data = jax.tree.map(stack, *[s[2] for s in setups])
+            sol = solve_batch(setups[0][0], params, data, max_steps=max_steps)
+            results = [_result(jax.tree.map(lambda x, k=k: x[k], sol), s[2], *s[3]) for k, s in enumerate(setups)]
         seconds["fusion"] += time.perf_counter() - clock
         say(f"round {r + 1}: fused, costs {[float(x.solution.cost) for x in results]}")
         # Next hypotheses: each wearer's fused keypoints seen from the first wearer's camera.
