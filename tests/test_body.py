@@ -265,3 +265,23 @@ def test_sparse_skinning_derivatives_match_dense(smpl_dict):
         return jax.jit(jax.hessian(lambda t: jnp.sum(p1 * skin(body, t, v1) ** 2)))(t1)
 
     np.testing.assert_allclose(second(kinematics._skin_sparse), second(kinematics._skin_dense), atol=1e-9)
+
+
+def test_compact_body_poses_exactly_like_the_mesh():
+    """`compact_body`: joints, joint rotations, keypoints and kept vertices of the full body."""
+    from jaxmocap.body.compact import compact_body
+    from jaxmocap.sensors.keypoints import keypoint_regressor, regress_keypoints
+
+    body = jaxmocap.default_body("low").astype(jnp.float64)
+    reg = keypoint_regressor(body, "coco18")
+    keep = np.array([0, 100, 700])
+    small, small_reg, _ = compact_body(body, reg, keep)
+    rng = np.random.default_rng(0)
+    pose, betas, trans = rng.normal(0, 0.4, (3, 24, 3)), rng.normal(0, 1, (3, 10)), rng.normal(0, 1, (3, 3))
+    full, cut = (forward(b, jnp.asarray(pose), jnp.asarray(betas), jnp.asarray(trans))
+                 for b in (body, small))  # fmt: skip
+    np.testing.assert_allclose(cut.joints, full.joints, atol=1e-9)
+    np.testing.assert_allclose(cut.joint_rotations, full.joint_rotations, atol=1e-9)
+    np.testing.assert_allclose(cut.vertices[:, :3], full.vertices[:, keep], atol=1e-9)
+    np.testing.assert_allclose(regress_keypoints(small_reg, cut.vertices), regress_keypoints(reg, full.vertices), atol=1e-9)
+    assert small.num_vertices == 3 + int((np.abs(np.asarray(reg) @ np.asarray(body.weights)) > 1e-12).sum()) + 24

@@ -216,7 +216,7 @@ def write_outputs(out_dir, inputs: VIPInputs, scene, log=print) -> dict:
                  heading=np.asarray(r.heading, np.float64), x0=np.asarray(r.x0, np.float64),
                  bones=np.asarray(inputs.bones), tracker_poses=np.asarray(r.init, np.float64))  # fmt: skip
         outputs.append(name)
-        verts.append(_posed(data.body, r.poses, betas, r.trans))
+        verts.append(_posed(body, r.poses, betas, r.trans))
         kps.append(world_keypoints(data, r.poses, r.trans))
         entry = {"person": int(inputs.people[k]), "heading_deg": [round(float(h), 2) for h in np.degrees(r.heading)],
                  "cost": float(r.solution.cost)}  # fmt: skip

@@ -42,6 +42,7 @@ import numpy as np
 from jax import Array
 
 from .._checks import check_rate, check_weight
+from ..body.compact import compact_body
 from ..body.kinematics import forward, shaped_joints
 from ..body.model import Body
 from ..energies.imu import GRAVITY_REACTION, joint_limit_term, mahalanobis_term
@@ -176,13 +177,16 @@ def vip_data(
     R_b0 = np.asarray(out.joint_rotations)[b]
     sensor_point = np.einsum("sba,sb->sa", R_b0, np.asarray(out.vertices)[v] - np.asarray(out.joints)[b])
     a = lambda x: jnp.asarray(x, dtype)  # noqa: E731
+    # Ours, for speed: the terms pose a body of the keypoints' skinned points and the joints
+    # (`body.compact`, exact), not the mesh: 99 points instead of 1229 on the default body.
+    body, regressor, _ = compact_body(body, keypoint_regressor(body, "coco18"))
     return VIPData(
         orientation=a(orientation), orientation0=a(orientation[0]),
         acceleration=a(_global_acceleration(orientation, acceleration)), sensor_point=a(sensor_point),
         rest_joints=shaped_joints(body, a(betas)), prior=prior if prior is not None else default_pose_prior(dtype),
         body=body, betas=a(betas), cam_orientation=a(cam_orientation),
         cam_acceleration=a(_global_acceleration(cam_orientation, cam_acceleration)), K=a(K),
-        regressor=a(keypoint_regressor(body, "coco18")), keypoints=a(np.nan_to_num(keypoints[..., :2])),
+        regressor=a(regressor), keypoints=a(np.nan_to_num(keypoints[..., :2])),
         confidence=a(confidence), pixel_scale=a(REFERENCE_IMAGE_HEIGHT / float(image_height)),
         heading=a(np.zeros(S)), x0=axis_angle_to_matrix(a(x0)), camera=jnp.broadcast_to(jnp.eye(4, dtype=dtype), (T, 4, 4)),
         fps=float(fps),
