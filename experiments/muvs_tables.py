@@ -14,7 +14,9 @@ monocular also after per-frame similarity alignment ("Sim", Table 4.5). Shape er
 vertex distance of the zero-pose meshes (Table 4.2). Leg-swap repair: of the (view, frame)
 pairs whose detected legs were swapped while the true knees and ankles were >= 15 cm apart, the
 share whose fitted 3-D knees and ankles are on the correct side (and, for reference, the
-same share over all such frames, swapped or not).
+same share over all such frames, swapped or not); `by_vote` splits the events by whether
+the clean views outnumber the swapped ones at that frame ("outvoted"), match them ("tie":
+one of one or two views) or not: only the first can be settled by the views alone.
 
     python experiments/muvs_tables.py                      # -> out/muvs_tables/
     python experiments/muvs_tables.py --out experiments/results   # publish
@@ -138,6 +140,8 @@ def main(argv=None):
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", type=Path, default=Path("out/muvs_tables"))
     ap.add_argument("--resolve-swaps", action="store_true", help="flip back swapped views first (resolve_left_right)")
+    ap.add_argument("--weights", nargs="*", default=[], metavar="NAME=VALUE",
+                    help="MuVSWeights overrides, e.g. sigma=100 silhouette_points=None steps=50,50,30")
     args = ap.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
     body = default_body("low")
@@ -149,7 +153,7 @@ def main(argv=None):
     names = KEYPOINT_FORMATS["body25"]
     leg_kp = [i for i, n in enumerate(names) if any(p in n for p in ("hip", "knee", "ankle", "toe", "heel"))]
     true_joints = np.stack([joints_of(body, t["poses"], t["betas"][:10], t["trans"]) for t in truth])
-    w = mv.MuVSWeights()
+    w = mv.MuVSWeights().replace(**dict(_override(x) for x in args.weights))
     tables, shapes, swaps, sim = {}, {}, {}, {}
 
     def publish():
@@ -201,6 +205,7 @@ def main(argv=None):
             aligned = procrustes_align(jnp.asarray(pred), jnp.asarray(true_joints), scale=True)
             mrow[key] = float(jnp.mean(jnp.linalg.norm(aligned - true_joints, axis=-1)) * 1000)
             events = repaired = 0
+            votes = {c: [0, 0] for c in ("outvoted", "tie", "majority_swapped")}
             for b, t in enumerate(truth):
                 ok, apart = legs_correct(pred[b], true_joints[b], body)
                 swapped = t["swapped"][:, :n][..., leg_kp].any(-1) & apart[:, None]  # (T, n)
@@ -208,8 +213,15 @@ def main(argv=None):
                 legs_n[key] = legs_n.get(key, 0) + int(apart.sum())
                 events += int(swapped.sum())
                 repaired += int((swapped & ok[:, None]).sum())
+                # Per event: do the clean views outnumber the swapped ones at that frame?
+                k = swapped.sum(1, keepdims=True)
+                kind = np.where(2 * k < n, 0, np.where(2 * k == n, 1, 2)) + 0 * swapped
+                for c, name in enumerate(votes):
+                    votes[name][0] += int((swapped & (kind == c)).sum())
+                    votes[name][1] += int((swapped & (kind == c) & ok[:, None]).sum())
             wrow[key] = {"events": events, "repaired": repaired, "rate": repaired / max(events, 1),
-                         "legs_correct_all_frames": legs_ok[key] / max(legs_n[key], 1)}
+                         "legs_correct_all_frames": legs_ok[key] / max(legs_n[key], 1),
+                         "by_vote": {c: {"events": e, "repaired": r} for c, (e, r) in votes.items()}}
         tables[f"views_{n}"], shapes[f"views_{n}"], swaps[f"views_{n}"], sim[f"views_{n}"] = row, srow, wrow, mrow
         print(f"{n} view(s): MPJPE " + "  ".join(f"{k} {v:.1f}" for k, v in row.items())
               + f"  | shape {srow['S']:.1f} mm | swaps repaired after T: {wrow['S_T']['rate']:.1%}"
@@ -217,6 +229,18 @@ def main(argv=None):
         publish()  # after every view count: an interrupted run keeps what it finished
     result, directions = publish()
     print(json.dumps({"swap_repair_rate": result["swap_repair_rate"], "directions_hold": directions}, indent=1))
+
+
+def _override(text: str):
+    """"name=value" -> (name, value): None, ints, floats, or comma-separated tuples of them."""
+    name, _, value = text.partition("=")
+    if name not in mv.MuVSWeights.__dataclass_fields__:
+        raise SystemExit(f"--weights: MuVSWeights has no field {name!r}")
+
+    def one(v):
+        return None if v == "None" else int(v) if v.lstrip("-").isdigit() else float(v)
+
+    return name, tuple(one(v) for v in value.split(",")) if "," in value else one(value)
 
 
 def _plot(tables, path):

@@ -164,3 +164,42 @@ def test_person_track_takes_each_views_slot_of_that_person():
     got, got_sw = person_track(kp, who, 0, swapped)
     np.testing.assert_array_equal(got, ref)
     np.testing.assert_array_equal(got_sw, ref_sw)
+
+
+def test_compact_body_gives_the_same_keypoints_joints_and_silhouette_terms(scene):
+    """`compact` re-expresses the keypoints as rigidly skinned points per joint: exact."""
+    body = scene["body"]
+    data = mv.camera_data(body, scene["K"], scene["R"], scene["t"], scene["kp"], "body25", masks=scene["masks"])
+    rng = np.random.default_rng(3)
+    params = {"pose": jnp.asarray(rng.normal(size=(6, 24, 3)) * 0.4, jnp.float32),
+              "trans": jnp.asarray(scene["trans"], jnp.float32), "betas": jnp.asarray(rng.normal(size=(6, 10)), jnp.float32)}  # fmt: skip
+    w = mv.MuVSWeights()
+    full = mv._weighted(mv._stage_one_problem(w.sigma, w.silhouette_stride, w.silhouette_slack, True), w, jnp.float32)
+    joints = mv._weighted(mv._stage_one_problem(w.sigma, w.silhouette_stride, w.silhouette_slack, False), w, jnp.float32)
+    small = mv.compact(data, 0)
+    assert small.body.num_vertices < 0.15 * body.num_vertices and not small.pose_blend
+    for k, v in joints.costs(params, data).items():
+        np.testing.assert_allclose(float(joints.costs(params, small)[k]), float(v), rtol=1e-5, err_msg=k)
+    strided = mv.compact(data, None, w.silhouette_stride)  # the full body's model points: E_S unchanged
+    for k, v in full.costs(params, data).items():
+        np.testing.assert_allclose(float(full.costs(params, strided)[k]), float(v), rtol=1e-4, err_msg=k)
+    pose = axis_angle_to_matrix(params["pose"])
+    want = forward(body, params["pose"], params["betas"], params["trans"]).joints
+    got = ec._posed({"pose": pose, "trans": params["trans"], "betas": params["betas"]}, small).joints
+    np.testing.assert_allclose(np.asarray(got), np.asarray(want), atol=1e-5)
+    with pytest.raises(ValueError, match="already compact"):
+        mv.compact(small)
+
+
+def test_structured_temporal_solve_matches_the_generic_engine(scene):
+    """`_temporal_lm` (Kronecker-structured elimination of the DCT coefficients) takes the
+    same steps on the same energy as the generic structured solver."""
+    body = scene["body"]
+    data = mv.camera_data(body, scene["K"], scene["R"], scene["t"], scene["kp"] + np.array([2.0, -1.0, 0.0]), "body25")
+    w = mv.MuVSWeights(window=6)
+    p0 = mv.initialise(data, w.num_betas)
+    p1, _ = mv.stage_one(data, p0, w.replace(steps=(3, 3, 3)), silhouettes=False)
+    fast, c_fast = mv.stage_two(data, p1, w, max_steps=5)
+    slow, c_slow = mv.stage_two(data, p1, w, max_steps=5, structured=False)
+    np.testing.assert_allclose(c_fast["temporal"], c_slow["temporal"], rtol=0.02)
+    assert _mpjpe(body, fast, fast["betas"], scene["joints"]) < 40.0

@@ -300,18 +300,22 @@ def _skin(body: Body, transforms: Array, v_posed: Array, skinning: str = "auto")
     )
 
 
-def _blend_shapes(body: Body, betas: Array, pose_feature: Array, joint: bool | None = None, blend_dtype=None) -> Array:
+def _blend_shapes(body: Body, betas: Array, pose_feature: Array | None, joint: bool | None = None, blend_dtype=None) -> Array:
     """Rest-pose vertices T(β, θ) = T̄ + B_s(β) + B_p(θ) (Huang eq. 2.2-2.3), (N, V, 3).
 
     The offsets are matrix products in the default precision (TF32 on GPUs); the template
     is added afterwards in full precision (TF32 on a ~1 m template would cost ~1 mm).
     `joint` (default: from the batch size) stacks [β, pose feature] against the stacked
     bases for one product instead of two; `blend_dtype` (e.g. bfloat16, a benchmark
-    variant) multiplies in that dtype with float32 accumulation.
+    variant) multiplies in that dtype with float32 accumulation. `pose_feature` None:
+    B_p ≡ 0 (a body whose posedirs are all zero), the product skipped.
     """
     N, nb, V = betas.shape[0], betas.shape[-1], body.num_vertices
     dtype = body.v_template.dtype
     shapedirs = body.shapedirs[:nb].reshape(nb, 3 * V)
+    if pose_feature is None:
+        offsets = jnp.matmul(betas.astype(shapedirs.dtype), shapedirs, preferred_element_type=dtype)
+        return (body.v_template.reshape(-1) + offsets).reshape(N, V, 3)
     posedirs = body.posedirs.reshape(-1, 3 * V)
     if blend_dtype is not None:
         shapedirs, posedirs = shapedirs.astype(blend_dtype), posedirs.astype(blend_dtype)
@@ -385,10 +389,13 @@ def forward_rotations(body: Body, local_rotations, betas=None, trans=None) -> Bo
 
 
 def _forward_rotations(
-    body: Body, local_rotations, betas=None, trans=None, skinning: str = "auto", joint_blend=None, blend_dtype=None
+    body: Body, local_rotations, betas=None, trans=None, skinning: str = "auto", joint_blend=None, blend_dtype=None,
+    pose_blend: bool = True,
 ) -> BodyOutput:
     """`forward_rotations` with its implementation choices open (tests and benchmarks):
-    `skinning` as in `_skin`, `joint_blend` and `blend_dtype` as in `_blend_shapes`."""
+    `skinning` as in `_skin`, `joint_blend` and `blend_dtype` as in `_blend_shapes`;
+    `pose_blend=False` skips B_p (exact only for a body whose posedirs are zero: the
+    caller checks that on the host, e.g. `methods.multiview`'s compact body)."""
     local, betas, trans = _check_inputs(body, local_rotations, betas, trans)
     dtype = local.dtype
     if body.dtype != dtype:
@@ -398,7 +405,7 @@ def _forward_rotations(
     # run fastest (a 3-D einsum against posedirs made XLA-CPU transpose it every call).
     local, betas, trans = local.reshape(-1, body.num_joints, 3, 3), betas.reshape(-1, nb), trans.reshape(-1, 3)
 
-    pose_feature = (local[:, 1:] - jnp.eye(3, dtype=dtype)).reshape(len(local), -1)
+    pose_feature = (local[:, 1:] - jnp.eye(3, dtype=dtype)).reshape(len(local), -1) if pose_blend else None
     v_posed = _blend_shapes(body, betas, pose_feature, joint_blend, blend_dtype)
 
     rest = shaped_joints(body, betas)
