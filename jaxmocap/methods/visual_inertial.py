@@ -162,8 +162,7 @@ def vip_data(
     K = np.asarray(K, np.float64)
     if K.shape != (3, 3):
         raise ValueError(f"K has shape {K.shape}; expected (3, 3).")
-    finite = np.isfinite(keypoints).all(-1)
-    confidence = np.where(finite, keypoints[..., 2], 0.0).clip(0.0, None)
+    uv, confidence = _detections(keypoints)
     if not (confidence > 0).any():
         raise ValueError("no frame has a detection (all confidences are 0 or NaN): VIP needs images; "
                          "use the Inertial Tracker or SIP for IMUs alone.")  # fmt: skip
@@ -186,7 +185,7 @@ def vip_data(
         rest_joints=shaped_joints(body, a(betas)), prior=prior if prior is not None else default_pose_prior(dtype),
         body=body, betas=a(betas), cam_orientation=a(cam_orientation),
         cam_acceleration=a(_global_acceleration(cam_orientation, cam_acceleration)), K=a(K),
-        regressor=a(regressor), keypoints=a(np.nan_to_num(keypoints[..., :2])),
+        regressor=a(regressor), keypoints=a(uv),
         confidence=a(confidence), pixel_scale=a(REFERENCE_IMAGE_HEIGHT / float(image_height)),
         heading=a(np.zeros(S)), x0=axis_angle_to_matrix(a(x0)), camera=jnp.broadcast_to(jnp.eye(4, dtype=dtype), (T, 4, 4)),
         fps=float(fps),
@@ -233,14 +232,15 @@ def tracker_keypoints(scenario, index: int, body: Body, people=(0, 1), x0s=None,
     T = len(seq["cam_imu_ori"])
     # The tracker reads no image: a placeholder detection only satisfies `vip_data`'s check.
     dummy = np.ones((T, 18, 3))
-    out = []
-    for k, p in enumerate(people):
-        x0 = None if x0s is None else x0s[k]
-        data, _, bones = from_scenario(scenario, index, body, person=p, x0=x0, keypoints=dummy, prior=prior)
-        poses = inertial_tracker(data, bones)
-        posed = forward(data.body, poses, data.betas, jnp.zeros((T, 3), poses.dtype))
-        out.append(np.asarray(regress_keypoints(data.regressor, posed.vertices)))
-    return np.stack(out)
+    datas = [from_scenario(scenario, index, body, person=p, x0=None if x0s is None else x0s[k], keypoints=dummy,
+                           prior=prior) for k, p in enumerate(people)]  # fmt: skip
+    return tracker_hypotheses([d for d, _, _ in datas], datas[0][2])
+
+
+def tracker_hypotheses(datas, bones) -> np.ndarray:
+    """Keypoints (P, T, 18, 3) of each wearer's Inertial Tracker poses at translation 0 (IMUs do
+    not observe position): the hypotheses of the first association (eq. 4.11)."""
+    return np.stack([world_keypoints(d, inertial_tracker(d, bones), np.zeros((d.num_frames, 3))) for d in datas])
 
 
 def associated_keypoints(scenario, index: int, body: Body, people=(0, 1), x0s=None, model: AssociationModel | None = None,
@@ -297,8 +297,7 @@ def initial_camera(data: VIPData, poses, trans) -> np.ndarray:
     per frame the centre whose projection of the posed keypoints best fits the detections
     (weighted linear least squares, x̂ × (R X + t) = 0); frames with fewer than 3
     detected keypoints take the centre of the nearest fitted frame."""
-    out = forward(data.body, jnp.asarray(poses, data.body.dtype), data.betas, jnp.asarray(trans, data.body.dtype))
-    X = np.asarray(regress_keypoints(data.regressor, out.vertices), np.float64)  # (T, 18, 3)
+    X = world_keypoints(data, poses, trans)  # (T, 18, 3)
     Rc = np.asarray(data.cam_orientation, np.float64)
     T = len(X)
     if not np.isfinite(Rc).all():
@@ -439,11 +438,16 @@ def with_keypoints(data: VIPData, keypoints) -> VIPData:
     keypoints = np.asarray(keypoints, np.float64)
     if keypoints.shape != (data.num_frames, 18, 3):
         raise ValueError(f"keypoints have shape {keypoints.shape}; expected ({data.num_frames}, 18, 3).")
-    finite = np.isfinite(keypoints).all(-1)
-    confidence = np.where(finite, keypoints[..., 2], 0.0).clip(0.0, None)
+    uv, confidence = _detections(keypoints)
     dtype = data.keypoints.dtype
-    return eqx.tree_at(lambda d: (d.keypoints, d.confidence), data,
-                       (jnp.asarray(np.nan_to_num(keypoints[..., :2]), dtype), jnp.asarray(confidence, dtype)))  # fmt: skip
+    return eqx.tree_at(lambda d: (d.keypoints, d.confidence), data, (jnp.asarray(uv, dtype), jnp.asarray(confidence, dtype)))
+
+
+def _detections(keypoints: np.ndarray):
+    """(T, 18, 3) rows (u, v, confidence) -> pixels (T, 18, 2), confidences (T, 18), with
+    NaN rows and negative confidences as missing (confidence 0)."""
+    finite = np.isfinite(keypoints).all(-1)
+    return np.nan_to_num(keypoints[..., :2]), np.where(finite, keypoints[..., 2], 0.0).clip(0.0, None)
 
 
 def world_keypoints(data: VIPData, poses, trans) -> np.ndarray:
@@ -499,7 +503,7 @@ def video_inertial_scene(datas, bones, detections, weights: VIPWeights = VIPWeig
     seconds = {"tracker": 0.0, "association": 0.0, "fusion": 0.0}
     d0 = datas[0]
     clock = time.perf_counter()
-    hyp = np.stack([world_keypoints(d, inertial_tracker(d, bones), np.zeros((T, 3))) for d in datas])
+    hyp = tracker_hypotheses(datas, bones)
     seconds["tracker"] += time.perf_counter() - clock
     cam_R, results, associations = np.asarray(d0.cam_orientation), None, []
     for r in range(rounds):
