@@ -43,6 +43,7 @@ sys.path.insert(0, str(ROOT))
 from jaxmocap.body.io import default_body  # noqa: E402
 from jaxmocap.methods import association as A  # noqa: E402
 from jaxmocap.methods import visual_inertial as vip  # noqa: E402
+from jaxmocap.motion.io import find_cmu_dir  # noqa: E402
 from jaxmocap.rotation import axis_angle_to_matrix, matrix_to_axis_angle  # noqa: E402
 from jaxmocap.sensors import make_scenario  # noqa: E402
 from jaxmocap.sensors.errors import random_rotations  # noqa: E402
@@ -164,7 +165,7 @@ def main(argv=None) -> int:
     p.add_argument("--frames", type=int, default=150)
     p.add_argument("--seed", type=int, default=100)
     p.add_argument("--window", type=int, default=30)
-    p.add_argument("--cmu", default=str(ROOT.parent / "shared" / "data" / "cmu"))
+    p.add_argument("--cmu", default=str(find_cmu_dir() or ROOT.parent / "shared" / "data" / "cmu"))
     p.add_argument("--cache", default=str(ROOT / "out" / "train_association"))
     p.add_argument("--out", default=str(A.WEIGHTS_FILE))
     a = p.parse_args(argv)

@@ -39,6 +39,7 @@ from train_association import WEARERS, scene_inputs  # noqa: E402
 from jaxmocap.body.io import default_body  # noqa: E402
 from jaxmocap.methods import association as A  # noqa: E402
 from jaxmocap.priors.build import evaluation_prior  # noqa: E402
+from jaxmocap.motion.corpus import find_cmu_cc_dir  # noqa: E402
 
 
 def eligible_clips(folder: Path, frames: int) -> list[str]:
@@ -72,7 +73,7 @@ def main(argv=None) -> int:
     p.add_argument("--scenes", type=int, default=8)
     p.add_argument("--frames", type=int, default=150)
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--cmu-cc", default=str(ROOT.parent / "shared" / "data" / "cmu_cc"))
+    p.add_argument("--cmu-cc", default=str(find_cmu_cc_dir() or ROOT.parent / "shared" / "data" / "cmu_cc"))
     p.add_argument("--out", default=str(ROOT / "experiments" / "results"))
     p.add_argument("--cache", default=str(ROOT / "out" / "vip_association"))
     a = p.parse_args(argv)

@@ -41,6 +41,7 @@ from jaxmocap.body.io import default_body  # noqa: E402
 from jaxmocap.methods import inertial  # noqa: E402
 from jaxmocap.methods import visual_inertial as vip  # noqa: E402
 from jaxmocap.metrics import pose_errors  # noqa: E402
+from jaxmocap.motion.corpus import find_cmu_cc_dir  # noqa: E402
 from jaxmocap.priors.build import evaluation_prior  # noqa: E402
 from jaxmocap.rotation import matrix_to_axis_angle  # noqa: E402
 from jaxmocap.sensors import make_scenario  # noqa: E402
@@ -196,7 +197,7 @@ def main(argv=None) -> int:
     p.add_argument("--frames", type=int, default=300)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--steps", type=int, default=30, help="LM steps of each VIP solve")
-    p.add_argument("--cmu-cc", default=str(ROOT.parent / "shared" / "data" / "cmu_cc"))
+    p.add_argument("--cmu-cc", default=str(find_cmu_cc_dir() or ROOT.parent / "shared" / "data" / "cmu_cc"))
     p.add_argument("--out", default=str(ROOT / "out" / "vip_tables"),
                    help="output folder (the committed tables: experiments/results)")
     p.add_argument("--shard", default="0/1", help="k/n: this process runs clips i with i %% n == k (several "
