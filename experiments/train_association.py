@@ -59,21 +59,34 @@ def noisy_x0(rng, pose0):
     return np.asarray(matrix_to_axis_angle(random_rotations(rng, np.radians(10.0), (24,)) @ R))
 
 
-def scene_inputs(motions, bystanders: int, frames: int, seed: int, body, priors=None) -> dict:
-    """One crowded scene: IT keypoints of the wearers, detections, labels, camera."""
+def _scene(motions, bystanders: int, frames: int, seed: int, body):
+    """A crowded vip_config scene (persons `WEARERS` wear IMUs) and each wearer's given x₀."""
     motions = list(motions)[: 1 + bystanders]  # vip_config: 1 + bystanders people
     sc = make_scenario(motions, vip_config(bystanders=bystanders, max_frames=frames), seed=seed, body=body,
                        num_sequences=1)  # fmt: skip
     seq = sc.sequence(0)
     rng = np.random.default_rng(seed)
-    J = []
-    for k, p in enumerate(WEARERS):
-        prior = None if priors is None else priors[k]
-        x0 = noisy_x0(rng, seq["poses"][p][0])
-        J.append(vip.tracker_keypoints(sc, 0, body, (p,), x0s=[x0], prior=prior)[0])
+    return sc, [noisy_x0(rng, seq["poses"][p][0]) for p in WEARERS]
+
+
+def scene_inputs(motions, bystanders: int, frames: int, seed: int, body, priors=None) -> dict:
+    """One crowded scene: IT keypoints of the wearers, detections, labels, camera."""
+    sc, x0s = _scene(motions, bystanders, frames, seed, body)
+    seq = sc.sequence(0)
+    J = [vip.tracker_keypoints(sc, 0, body, (p,), x0s=[x0s[k]], prior=None if priors is None else priors[k])[0]
+         for k, p in enumerate(WEARERS)]  # fmt: skip
     return {"joints3d": np.stack(J), "K": seq["cam_K"][0], "cam_orientation": seq["cam_imu_ori"],
             "detections": seq["det_keypoints"][0], "labels": seq["det_person"][0],
-            "names": [Path(str(m)).name for m in motions]}  # fmt: skip
+            "names": [Path(str(m)).name for m in motions[: 1 + bystanders]]}  # fmt: skip
+
+
+def scene_vip_data(motions, bystanders: int, frames: int, seed: int, body, priors=None):
+    """The same scene as `scene_inputs` as the whole method's inputs: (datas, bones), one
+    `VIPData` per wearer with the same x₀ and prior."""
+    sc, x0s = _scene(motions, bystanders, frames, seed, body)
+    out = [vip.from_scenario(sc, 0, body, person=p, x0=x0s[k], prior=None if priors is None else priors[k])
+           for k, p in enumerate(WEARERS)]  # fmt: skip
+    return [d for d, _, _ in out], out[0][2]
 
 
 def logistic_regression(X, y, ridge: float = 1e-3, steps: int = 50) -> np.ndarray:
