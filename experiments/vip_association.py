@@ -66,7 +66,9 @@ def evaluate(s: dict, res: A.Association) -> dict:
             "detections": int((labels != -2).sum()), "false_detections": int((labels == -1).sum()),
             "wrong_to_other_wearer": int((got & ~ok & (who >= 0) & (who < len(WEARERS))).sum()),
             "wrong_to_bystander": int((got & (who >= len(WEARERS))).sum()),
-            "wrong_to_false_detection": int((got & (who == -1)).sum())}  # fmt: skip
+            "wrong_to_false_detection": int((got & (who == -1)).sum()),
+            # chunks whose binary program stopped at HiGHS's time limit (a loaded machine)
+            "time_limited_chunks": sum("time limit" in str(m).lower() for m in res.status)}  # fmt: skip
 
 
 def main(argv=None) -> int:
@@ -122,9 +124,10 @@ def main(argv=None) -> int:
         done.with_suffix(".tmp").write_text(json.dumps(r))
         done.with_suffix(".tmp").replace(done)
         per_scene.append(r)
-    tot = {k: sum(s[k] for s in per_scene) for k in ("assigned", "right", "wrong", "wearer_detections", "detections",
-                                                     "false_detections", "wrong_to_other_wearer", "wrong_to_bystander",
-                                                     "wrong_to_false_detection", "frames")}  # fmt: skip
+    tot = {k: sum(s.get(k, 0) for s in per_scene) for k in ("assigned", "right", "wrong", "wearer_detections",
+                                                            "detections", "false_detections", "wrong_to_other_wearer",
+                                                            "wrong_to_bystander", "wrong_to_false_detection", "frames",
+                                                            "time_limited_chunks")}  # fmt: skip
     out = {
         "association": {"precision": tot["right"] / max(tot["assigned"], 1),
                         "recall": tot["right"] / max(tot["wearer_detections"], 1)},
