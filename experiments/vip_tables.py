@@ -74,40 +74,45 @@ def run_clip(scenario, i: int, body, rng, steps: int, prior=None) -> dict:
     noise = matrix_to_axis_angle(random_rotations(rng, np.radians(10.0), (24,)) @ _R(x0_true))
     x0 = np.asarray(noise)
     data, truth, bones = vip.from_scenario(scenario, i, body, x0=x0, prior=prior)
-    out = {}
+    out, clock = {}, time.time()
+
+    def row(name, poses):  # one table row, with progress: a clip takes minutes
+        out[name] = _errors(body, poses, truth)
+        print(f"  {name}: {out[name][0]:.1f} mm ({time.time() - clock:.0f} s)", flush=True)
+
     it = vip.inertial_tracker(data, bones)
-    out["IT"] = _errors(body, it, truth)
+    row("IT", it)
     # VIP: the whole method, detections assigned by association (two rounds).
     scene = vip.video_inertial_scene([data], bones, seq["det_keypoints"][0], max_steps=steps)
     res = scene.people[0]
-    out["VIP"] = _errors(body, res.poses, truth)
+    row("VIP", res.poses)
     out["association"] = _association_counts(scene.associations[-1].index[0], seq["det_person"][0])
     out["seconds_by_stage"] = {k: round(v, 1) for k, v in scene.seconds.items()}
     # The fusion ablations take the final association's detections.
     data = vip.with_keypoints(data, scene.associations[-1].keypoints[0])
-    out["VIP-IT"] = _errors(body, vip.inertial_tracker(data, bones, heading=res.heading, x0=res.x0), truth)
+    row("VIP-IT", vip.inertial_tracker(data, bones, heading=res.heading, x0=res.x0))
     r = vip.video_inertial_poser(data, bones, free_heading=False, free_x0=False, init=it, max_steps=steps)
-    out["VIP-vanilla"] = _errors(body, r.poses, truth)
+    row("VIP-vanilla", r.poses)
     r = vip.video_inertial_poser(data, bones, free_heading=False, init=it, max_steps=steps)
-    out["VIP-noHeadParam"] = _errors(body, r.poses, truth)
+    row("VIP-noHeadParam", r.poses)
     true_uv = seq["kp_true"][0, 0]  # (T, 18, 2)
     kp = np.concatenate([true_uv, np.ones(true_uv.shape[:-1] + (1,))], -1)
     kp = np.where((seq["kp_depth"][0, 0] > 0)[..., None], kp, 0.0)
     data2, _, _ = vip.from_scenario(scenario, i, body, x0=x0, keypoints=kp, prior=prior)
-    out["VIP-2D"] = _errors(body, vip.video_inertial_poser(data2, bones, init=it, max_steps=steps).poses, truth)
+    row("VIP-2D", vip.video_inertial_poser(data2, bones, init=it, max_steps=steps).poses)
     Rc = np.swapaxes(truth["cam_R"], -1, -2)
     centre = -np.einsum("tab,tb->ta", Rc, truth["cam_t"])
     cam = np.concatenate([np.asarray(matrix_to_axis_angle(Rc)), centre], -1)
     r = vip.video_inertial_poser(data, bones, camera=cam, free_camera=False, init=it, max_steps=steps)
-    out["VIP-Cam"] = _errors(body, r.poses, truth)
+    row("VIP-Cam", r.poses)
     data6, _, bones6 = vip.from_scenario(scenario, i, body, x0=x0, sensors=six, prior=prior,
                                          keypoints=scene.associations[-1].keypoints[0])
-    out["VIP-6IMU"] = _errors(body, vip.video_inertial_poser(data6, bones6, max_steps=steps).poses, truth)
+    row("VIP-6IMU", vip.video_inertial_poser(data6, bones6, max_steps=steps).poses)
     setup = inertial.calibrate(
         body, bones6, np.asarray(seq["imu_vertices"])[six], seq["imu_ori"][0][:, six], seq["imu_acc"][0][:, six],
         np.zeros((24, 3)), scenario.config.fps, betas=truth["betas"], prior=prior,
     )  # fmt: skip
-    out["SIP-zero-init"] = _errors(body, inertial.sparse_inertial_poser(setup).poses, truth)
+    row("SIP-zero-init", inertial.sparse_inertial_poser(setup).poses)
     out["heading_error_deg"] = float(np.degrees(np.abs(np.asarray(res.heading) + seq["imu_heading"][0].mean(0)).mean()))
     return out
 
@@ -145,6 +150,7 @@ def run(clips: int, frames: int, seed: int, steps: int, folder: Path, out: Path,
         # 0-3 bystanders, cycling, so that crowded and lone scenes both occur.
         scenario = make_scenario([f], vip_config(bystanders=i % 4, max_frames=frames), seed=seed + i, body=body)
         t0 = time.time()
+        print(f"clip {i}: {Path(f).name}, {i % 4} bystanders", flush=True)
         r = run_clip(scenario, 0, body, rng, steps, prior=evaluation_prior(f))  # the bundled prior saw every clip
         r["clip"], r["seconds"] = Path(f).name, round(time.time() - t0, 1)
         print(json.dumps(r), flush=True)
