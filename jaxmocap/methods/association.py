@@ -480,12 +480,16 @@ def association_graph(joints3d, K, cam_orientation, detections, model: Associati
     return AssociationGraph(keep.shape, nodes, z.reshape(-1)[nodes], pairs, pair_z, time.perf_counter() - t0)
 
 
+def _check_chunk(chunk):
+    if not (isinstance(chunk, (int, np.integer)) and chunk >= 1):
+        raise ValueError(f"chunk must be an int >= 1, got {chunk!r}.")
+
+
 def solve_graph(graph: AssociationGraph, detections, model: AssociationModel | None = None, chunk: int = 100,
                 time_limit: float = 30.0) -> Association:
     """Eq. 4.11 on `graph` with the model's costs: c_v = −z_v + assignment_cost (ours: a
     threshold on the evidence a detection needs), c_vv' = −pair_scale · z_vv'."""
-    if not (isinstance(chunk, (int, np.integer)) and chunk >= 1):
-        raise ValueError(f"chunk must be an int >= 1, got {chunk!r}.")
+    _check_chunk(chunk)
     model = load_model() if model is None else model
     P, T, D = graph.shape
     t1 = time.perf_counter()
@@ -522,6 +526,7 @@ def associate(joints3d, K, cam_orientation, detections, model: AssociationModel 
     Returns:
         `Association`.
     """
+    _check_chunk(chunk)  # before the features, which take seconds
     model = load_model() if model is None else model
     graph = association_graph(joints3d, K, cam_orientation, detections, model, window, positions_known)
     return solve_graph(graph, detections, model, chunk, time_limit)
