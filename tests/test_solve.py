@@ -6,7 +6,6 @@ acceleration residuals, a prior) at a size that keeps this file fast. Float64 is
 (tests/conftest.py); float32 behaviour is tested explicitly.
 """
 
-import functools
 
 import jax
 import jax.numpy as jnp
@@ -16,8 +15,6 @@ import pytest
 import scipy.optimize
 
 from jaxmocap._compat import DIVERGENCE, MAX_STEPS, SUCCESSFUL
-from jaxmocap.body import forward_kinematics
-from jaxmocap.rotation import axis_angle_to_matrix, matrix_to_axis_angle
 from jaxmocap.solve import (
     Args,
     Cauchy,
@@ -25,81 +22,26 @@ from jaxmocap.solve import (
     Huber,
     Problem,
     Term,
-    nan_mask,
     pad_sequences,
     result_message,
     solve,
     solve_batch,
 )
 from jaxmocap.solve import frame, linear_solver, sequence, window
-from jaxmocap.timeseries import second_difference
 from jaxmocap.solve.solver import residuals
 from jaxmocap.solve.unknowns import to_manifold
-
-PARENTS = (-1, 0, 1)
-REST = jnp.array([[0.0, 0.0, 0.0], [0.0, 0.4, 0.0], [0.3, 0.6, 0.1]])
-OFFSETS = jnp.array([[0.05, 0.0, 0.02], [0.0, 0.1, 0.03], [0.02, 0.05, 0.0]])
-DT = 1.0 / 30.0
-
-
-def sensors(x):
-    """Sensor orientations (T, 3, 3, 3) and positions (T, 3, 3) of the chain; x on SO(3)."""
-    T = x["rot"].shape[0]
-    R, p = forward_kinematics(PARENTS, x["rot"], jnp.broadcast_to(REST, (T, 3, 3)))
-    return R, p + jnp.einsum("tjab,jb->tja", R, OFFSETS) + x["trans"][:, None]
-
-
-def e_ori(x, data):  # von Marcard eq. 3.7
-    R, _ = sensors(x)
-    return matrix_to_axis_angle(R @ jnp.swapaxes(data["R"], -1, -2))
-
-
-def e_acc(x, data):  # eq. 3.10-3.12
-    _, p = sensors(x)
-    return second_difference(p) / DT**2 - data["acc"]
-
-
-def e_prior(x, data):
-    return 0.1 * matrix_to_axis_angle(x["rot"]).reshape(x["rot"].shape[0], -1, 1)
-
-
-def e_smooth2(x, data):  # bandwidth 2: couples t-2 .. t+2 (tests a wider band)
-    w = matrix_to_axis_angle(x["rot"])
-    pad = jnp.concatenate([w[:2], w, w[-2:]])
-    return (pad[:-4] - pad[4:]).reshape(w.shape[0], -1, 3)
-
-
-CHAIN = Problem(
-    [
-        Term("ori", e_ori, weight=1.0, mask=lambda d: nan_mask(d["R"], (-2, -1))),
-        Term("acc", e_acc, weight=0.05, bandwidth=1, mask=lambda d: nan_mask(d["acc"])),
-        # Accelerations leave translation free up to a constant velocity; pin it weakly.
-        Term("trans", lambda x, d: (x["trans"] - d["trans"])[..., None], weight=1e-2),
-    ],
-    rotations=("rot",),
+from solve_chain import (
+    e_ori,
+    e_acc,
+    CHAIN,
+    motion,
+    rot_error,
+    WIN,
+    e_heading,
+    e_offset,
+    e_window,
+    _variants,
 )
-
-
-def motion(T, seed=0, dtype=jnp.float64):
-    """Smooth ground truth, its synthetic measurements and a perturbed start."""
-    rng = np.random.default_rng(seed)
-    t = np.arange(T)[:, None] * DT
-    rot = 0.6 * np.sin(2 * np.pi * rng.uniform(0.3, 1.0, (1, 9)) * t + rng.uniform(0, 6, (1, 9)))
-    trans = np.concatenate([np.sin(t), np.cos(2 * t), 0.3 * t], 1)
-    truth = {"rot": jnp.asarray(rot.reshape(T, 3, 3), dtype), "trans": jnp.asarray(trans, dtype)}
-    R, p = sensors(to_manifold(truth, CHAIN.layout(truth)))
-    data = {"R": R, "acc": second_difference(p) / DT**2, "trans": truth["trans"]}
-    init = {
-        "rot": truth["rot"] + jnp.asarray(rng.normal(scale=0.3, size=(T, 3, 3)), dtype),
-        "trans": truth["trans"] + jnp.asarray(rng.normal(scale=0.05, size=(T, 3)), dtype),
-    }
-    return truth, init, data
-
-
-def rot_error(a, b):
-    Ra, Rb = axis_angle_to_matrix(a), axis_angle_to_matrix(b)
-    return float(jnp.max(jnp.linalg.norm(matrix_to_axis_angle(Ra @ jnp.swapaxes(Rb, -1, -2)), axis=-1)))
-
 
 # --- known minimiser, all backends, manifold parametrisations ------------------------
 
@@ -131,49 +73,6 @@ def test_manifold_parametrisations_converge_alike():
 
 # --- the structured linear solve: band, border, windows ----------------------------------
 
-WIN = window(4, 2)  # overlapping windows: every frame in K = 2 of them
-
-
-def e_heading(x, data):
-    """Orientations seen through a per-sequence heading error γ_s about y (von Marcard §4.2.4)."""
-    R, _ = sensors(x)
-    g = x["heading"]
-    c, s_, z, o = jnp.cos(g), jnp.sin(g), jnp.zeros_like(g), jnp.ones_like(g)
-    Ry = jnp.stack([jnp.stack([c, z, s_], -1), jnp.stack([z, o, z], -1), jnp.stack([-s_, z, c], -1)], -2)
-    return matrix_to_axis_angle(Ry @ R @ jnp.swapaxes(data["R"], -1, -2))
-
-
-def e_offset(x, data):  # a per-sequence translation offset seen by every frame
-    return (x["trans"] + x["offset"] - data["trans"])[..., None]
-
-
-def e_window(x, data):  # translation pulled towards a per-window linear trend (DCT-like, 2 coefficients)
-    T = x["trans"].shape[0]
-    frames, _ = WIN.windows.frames(x["trans"])  # (W, 4, 3)
-    basis = jnp.stack([jnp.ones(4), jnp.linspace(-1.0, 1.0, 4)], 1)  # (4, 2)
-    fit = jnp.einsum("lk,wkc->wlc", basis.astype(frames.dtype), x["coef"])
-    return WIN.windows.rows(frames - fit, T)  # (T, K, 3)
-
-
-def _variants(T, seed=1):
-    _, init, data = motion(T, seed=seed)
-    rng = np.random.default_rng(seed)
-    W = WIN.windows.count(T)
-    base = list(CHAIN.terms) + [Term("prior", e_prior, weight=0.5), Term("smooth2", e_smooth2, weight=0.3, bandwidth=2)]
-    border = [Term("heading", e_heading, weight=0.7, reads=(("rot", None), ("trans", None), ("heading", None))),
-              Term("offset", e_offset, weight=0.2, reads=(("trans", None), ("offset", None)))]  # fmt: skip
-    windows = [Term("window", e_window, weight=0.4, reads=(("trans", None), ("coef", None)))]
-    seq = {"heading": jnp.asarray(rng.normal(0, 0.2, 3)), "offset": jnp.asarray(rng.normal(0, 0.1, 3))}
-    coef = {"coef": jnp.asarray(rng.normal(0, 0.3, (W, 2, 3)))}
-    u_seq = {"heading": sequence("angle"), "offset": sequence()}
-    return {
-        "band": (Problem(base, rotations=("rot",)), init),
-        "border": (Problem(base + border, {"rot": frame("so3"), **u_seq}), {**init, **seq}),
-        "windows": (Problem(base + windows, {"rot": frame("so3"), "coef": WIN}), {**init, **coef}),
-        "all": (Problem(base + border + windows, {"rot": frame("so3"), **u_seq, "coef": WIN}), {**init, **seq, **coef}),
-    }, data
-
-
 @pytest.mark.parametrize("tridiagonal", ["scan", "cyclic"])
 @pytest.mark.parametrize("variant", ["band", "border", "windows", "all"])
 def test_structured_step_equals_dense_step(variant, tridiagonal):
@@ -181,7 +80,7 @@ def test_structured_step_equals_dense_step(variant, tridiagonal):
     of the same normal equations, for frame bands (b = 0, 1, 2 together), a sequence-wide
     border, overlapping windows and all at once; T = 9 is not a multiple of any block.
     Both block-tridiagonal factorisations (sequential scan, cyclic reduction)."""
-    from jaxmocap.solve.solver import _linearise
+    from jaxmocap.solve.solver import linearise
     from jaxmocap.solve.structured import factor, solve_factored
     from jaxmocap.solve.unknowns import retract
 
@@ -190,7 +89,7 @@ def test_structured_step_equals_dense_step(variant, tridiagonal):
     layout = problem.layout(params)
     args = Args(problem, data, None, layout)
     st = args.structure()
-    normal, grad, cost = _linearise(params, args, st, jnp.float64, jnp.float64)
+    normal, grad, cost = linearise(params, args, st, jnp.float64, jnp.float64)
     xF, xW, xG = solve_factored(factor(normal, st, 0.3, tridiagonal=tridiagonal), *grad)
     step = layout.ravel(layout.unravel(st.from_solver_order(xF), xW, xG))
     flat = np.concatenate([np.asarray(p).reshape(-1) for p in step if p is not None])
@@ -319,73 +218,6 @@ def test_se3_unknowns_converge():
     assert int(sol.result) == 0 and float(sol.cost) < 1e-20
     M2 = to_manifold(sol.value, lay)["T"]
     np.testing.assert_allclose(M2, M, atol=1e-8)
-
-
-# --- gradients through a solve ---------------------------------------------------------------
-
-
-def _grad_problem():
-    problems, data = _variants(6, seed=5)
-    problem, params = problems["border"]
-    small = [t for t in problem.terms if t.name not in ("smooth2", "prior")]  # keep compilation short
-    # Noisy accelerations: the terms disagree at the optimum, so every weight matters.
-    noise = np.random.default_rng(6).normal(0, 2.0, data["acc"].shape)
-    return Problem(small, dict(problem.unknowns)), params, dict(data, acc=data["acc"] + noise)
-
-
-def _scalar(v, frames=6):
-    """A scalar of the solution that depends on every kind of unknown (frames: unpadded)."""
-    return (jnp.sum(jnp.sin(v["rot"][..., :frames, :, :])) + jnp.sum(v["trans"][..., :frames, :] * jnp.arange(3.0))
-            + jnp.sum(v["heading"]) + 3 * jnp.sum(v["offset"][..., 0]))  # fmt: skip
-
-
-_KW = dict(max_steps=100, rtol=1e-13, atol=1e-15)
-
-
-def _solution_scalar(problem, params, data, w_acc, obs, const):
-    from jaxmocap.solve.batch import with_weights
-
-    data = dict(data, trans=data["trans"].at[2, 1].set(obs) + const * jnp.asarray([1.0, 0.5, 2.0]))
-    return _scalar(solve(with_weights(problem, {"acc": w_acc}), params, data, **_KW).value)
-
-
-@functools.lru_cache(maxsize=None)
-def _grad_fixture():
-    """The problem, its parameters θ = (w_acc, one observation, a per-sequence constant), the
-    jitted scalar and its jitted value and gradient: compiled once for the tests below."""
-    problem, params, data = _grad_problem()
-    theta = (jnp.asarray(0.05), data["trans"][2, 1], jnp.asarray(0.01))
-    f = jax.jit(lambda w, o, c: _solution_scalar(problem, params, data, w, o, c))
-    return problem, params, data, theta, f, jax.jit(jax.value_and_grad(f, argnums=(0, 1, 2)))
-
-
-def _five_point(f, theta, i, eps=1e-4):
-    """Five-point central difference of f along θ_i: measured at w_acc, the two-point rule at
-    eps = 1e-4 keeps a 4e-4 relative truncation error and at 1e-5 meets the solver's noise
-    (4e-4 on one CI machine); this rule at 1e-4 agrees to 3e-6."""
-
-    def shifted(h):
-        t = [np.asarray(v, np.float64).copy() for v in theta]
-        t[i] = t[i] + h
-        return float(f(*t))
-
-    return (8 * (shifted(eps) - shifted(-eps)) - (shifted(2 * eps) - shifted(-2 * eps))) / (12 * eps)
-
-
-def test_gradients_through_solve_match_finite_differences():
-    """d(solution scalar) / d(term weight, observation, per-sequence constant) by implicit
-    differentiation equals central differences, float64, also under vmap."""
-    _, _, _, theta, f, value_and_grad = _grad_fixture()
-    _, grads = value_and_grad(*theta)
-    for i, g in enumerate(grads):
-        fd = _five_point(f, theta, i)
-        assert abs(float(g) - fd) <= 1e-4 * abs(fd) + 1e-6, (i, float(g), fd)
-    # Under vmap: a batch of weights gives the per-member gradients.
-    ws = jnp.asarray([0.05, 0.2])
-    gv = jax.vmap(jax.grad(lambda w: f(w, theta[1], theta[2])))(ws)
-    assert abs(float(grads[0])) > 1e-3
-    np.testing.assert_allclose(gv[0], grads[0], rtol=1e-6)
-    np.testing.assert_allclose(gv[1], value_and_grad(ws[1], theta[1], theta[2])[1][0], rtol=1e-6)
 
 
 # --- weights are data ------------------------------------------------------------------------
@@ -662,47 +494,3 @@ def test_reads_name_columns_and_are_validated():
         layout.columns((("pose", (24,)),))
     with pytest.raises(ValueError, match="pairs"):
         Term("a", e_ori, reads=("pose",))
-
-
-def test_gradient_through_solve_with_a_gauge_freedom():
-    """A cost blind to a constant + linear drift (SIP's translation, seen through second
-    differences only) has a singular Hessian; a gauge-invariant output still gets its
-    gradient (the adjoint's relative ridge), equal to central differences."""
-    T = 12
-    data = {"acc": jnp.sin(jnp.arange(T, dtype=jnp.float64))[:, None], "obs": jnp.cos(jnp.arange(T, dtype=jnp.float64))[:, None]}
-
-    def f(log_w):
-        problem = Problem([
-            Term("acc", lambda p, d: second_difference(p["x"]) - d["acc"], jnp.exp(log_w), 1),
-            Term("obs", lambda p, d: second_difference(p["x"]) - d["obs"], 1.0, 1),
-        ])  # fmt: skip
-        x = solve(problem, {"x": jnp.zeros((T, 1))}, data, max_steps=100, rtol=1e-12, atol=1e-14).value["x"]
-        return jnp.sum(second_difference(x)[1:-1] ** 2)
-
-    g = float(jax.grad(f)(0.0))
-    fd = float((f(1e-4) - f(-1e-4)) / 2e-4)
-    assert np.isfinite(g) and abs(g - fd) <= 1e-4 * abs(fd), (g, fd)
-
-
-def test_gradient_through_a_padded_batch():
-    """Padded frames change neither the solution nor its gradient w.r.t. per-member weights."""
-    problem, params, data, theta, _, value_and_grad = _grad_fixture()
-    rng = np.random.default_rng(8)
-
-    def pad(x):  # two junk frames on every per-frame leaf
-        return jnp.concatenate([x, jnp.asarray(rng.normal(size=(2,) + x.shape[1:]))]) if x.shape[:1] == (6,) else x
-
-    # the unpadded member: the observation and constant of θ applied as `_solution_scalar` does
-    data = dict(data, trans=data["trans"].at[2, 1].set(theta[1]) + theta[2] * jnp.asarray([1.0, 0.5, 2.0]))
-    pparams, pdata = {k: pad(v) for k, v in params.items()}, {k: pad(v) for k, v in data.items()}
-    mask = jnp.arange(8) < 6
-
-    def batched(w):
-        b = jax.tree_util.tree_map(lambda x: x[None], (pparams, pdata))
-        sol = solve_batch(problem, *b, mask[None], weights={"acc": w[None]}, **_KW)
-        return _scalar(jax.tree_util.tree_map(lambda x: x[0], sol.value))
-
-    vb, gb = jax.value_and_grad(batched)(theta[0])
-    vs, gs = value_and_grad(*theta)  # the single solve, compiled once for both tests
-    np.testing.assert_allclose(vb, vs, rtol=1e-9)
-    np.testing.assert_allclose(gb, gs[0], rtol=1e-6)
