@@ -73,7 +73,10 @@ def test_interaction_demo_writes_scored_results(tmp_path, capsys, truth_as_fit):
     assert report["true_contact_frames"] == [2, 3, 4, 5] == report["contact_frames"]
     assert report["contact_f1"] == report["contact_precision"] == report["contact_recall"] == 1.0
     assert report["mpjpe_mm"] < 0.01 and report["add_s_mm"] < 1e-6 and report["centre_mm"] < 1e-6
-    assert report["contact_gap_mm"] < 1.0  # the true object touches the palm
+    # The true object touches the grip (at pick-up and put-down within 0.1 mm by trimesh's exact
+    # distance), but there at the chair's corner the metric's 48³ SDF grid reads up to 6 mm (its
+    # bound is 14 mm, tests/test_interaction.py): the mean over the 4 contact frames stays below 4.
+    assert report["contact_gap_mm"] < 4.0
     assert report["separate"]["mpjpe_mm"] == report["mpjpe_mm"]
     assert report["settings"]["object"] == "chair" and report["settings"]["frames"] == T
     for key in ("penetration_mean_mm", "penetration_le_5mm", "body_ground_mm", "object_to_points_mm"):

@@ -1,4 +1,5 @@
-"""Motion sequences and motion files (AMASS npz, CMU ASF/AMC, BVH), retargeted to SMPL's tree.
+"""Motion sequences and motion files (AMASS npz, CMU ASF/AMC, BVH), retargeted to SMPL's tree,
+and procedural edits of them (`reach`: a body part touching a point at one frame).
 
 World frame everywhere: metres, y up, SMPL facing +z, left side +x (see `sequence`).
 """
@@ -13,6 +14,8 @@ from .bvh import load_bvh as load_bvh
 from .bvh import read_bvh as read_bvh
 from .io import load_motion as load_motion
 from .io import save_motion as save_motion
+from .reach import ReachError as ReachError
+from .reach import reach as reach
 from .retarget import retarget as retarget
 from .sequence import Motion as Motion
 from .skeleton import MotionFileError as MotionFileError

@@ -14,6 +14,8 @@ camera, COCO-18 detections) and `interaction_config` (InterCap, Huang ch. 5: one
 handling a rigid object, "box", "ball", "bottle" or the non-convex "chair", seen by a ring
 of static RGB-D cameras: label images, noisy depth points with holes, BODY_25 detections;
 `segmentation.object_candidates` turns its label images into instance-segmenter masks).
+With an object, person 0's motion is edited (after the lift) to pick it up from the floor
+and put it down again (`objects.pick_and_place`; `ScenarioConfig.reach=False`: unedited).
 
 Randomness: `numpy.random.SeedSequence(seed)` spawns one child per sequence and that one
 child per component (shape, placement, IMU, camera, detector, depth), so a sequence does
@@ -56,6 +58,7 @@ import numpy as np
 
 from .._checks import check_rate
 from ..body.kinematics import BodyOutput, forward
+from ..motion.reach import ReachError
 from ..motion.sequence import Motion
 from ..rotation import axis_angle_to_matrix
 from .camera import camera_imu, handheld_trajectory, intrinsics, project, ring_cameras
@@ -65,6 +68,7 @@ from .errors import IMUErrorModel, global_free_acceleration, simulate_imu
 from .imu import imu_placement
 from .keypoints import KEYPOINT_FORMATS, DetectorErrorModel, detect, keypoint_regressor, regress_keypoints
 from .objects import CONTACT_PARTS, ObjectTrajectory, RigidObject, contact_trajectory, contact_vertices
+from .objects import pick_and_place
 from .silhouette import rasterize_views, window_for
 
 __all__ = [
@@ -132,6 +136,7 @@ class ScenarioConfig:
     depth_noise: DepthNoiseModel = DepthNoiseModel()
     object: str | None = None
     contact_part: str = "right_hand"
+    reach: bool = True  # edit the motion to pick the object up from / put it down on the floor
 
     def __post_init__(self):
         check_rate("ScenarioConfig.fps", self.fps)
@@ -143,6 +148,8 @@ class ScenarioConfig:
             v = getattr(self, name)
             if not (np.isfinite(v) and v >= 0):
                 raise ValueError(f"ScenarioConfig.{name} must be finite and >= 0, got {v!r}.")
+        if not isinstance(self.reach, bool):
+            raise ValueError(f"ScenarioConfig.reach must be True or False, got {self.reach!r}.")
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
@@ -154,6 +161,7 @@ class ScenarioConfig:
         d["detector"] = DetectorErrorModel(**d["detector"])
         d["depth_noise"] = DepthNoiseModel(**d["depth_noise"])
         d["cameras"] = None if d["cameras"] is None else CameraConfig(**d["cameras"])
+        d.setdefault("reach", False)  # files written before the reach edit existed
         return cls(**d)
 
 
@@ -375,10 +383,15 @@ def interaction_config(
     contact_part: str = "right_grip",
     detector: DetectorErrorModel | None = None,
     depth_noise: DepthNoiseModel | None = None,
+    reach: bool = True,
 ) -> ScenarioConfig:
     """An InterCap scene (Huang ch. 5): one person handles `object` ("box", "ball",
     "bottle" or "chair"; it rests, moves with `contact_part` over the middle half of the
-    frames, then rests again), seen by `num_views` static RGB-D cameras on a ring 3.5 m
+    frames, then rests again; with `reach` (default) it rests on the floor beside the person,
+    whose motion is edited to bend down and pick it up at the first contact frame and to set
+    it down on the floor at the last one, `objects.pick_and_place`; with reach=False the
+    motion is left as it is and the object rests where the hand is at the first and last
+    contact frames, in mid-air), seen by `num_views` static RGB-D cameras on a ring 3.5 m
     plus the walked distance out (Kinect-like depth: σ_z ≈ 2 cm at 4 m, 5 % holes), with
     label images (person 0, object 1; `segmentation.object_candidates` turns them into
     instance-segmenter output), `depth_points` points per view and frame (0: no depth),
@@ -400,6 +413,8 @@ def interaction_config(
         )
     elif not isinstance(detector, DetectorErrorModel):
         raise ValueError(f"interaction_config: detector must be a DetectorErrorModel or None, got {detector!r}.")
+    if not isinstance(reach, bool):
+        raise ValueError(f"interaction_config: reach must be True or False, got {reach!r}.")
     if depth_noise is None:
         depth_noise = DepthNoiseModel(missing_rate=0.05)
     elif not isinstance(depth_noise, DepthNoiseModel):
@@ -408,7 +423,7 @@ def interaction_config(
         fps=fps, max_frames=max_frames, people=1, betas_std=0.5, imu_set=None,
         cameras=CameraConfig(num_views=num_views, width=width, height=height, distance=3.5),
         keypoints="body25", detector=detector, silhouettes=True, depth_points=depth_points,
-        depth_noise=depth_noise, object=object, contact_part=contact_part,
+        depth_noise=depth_noise, object=object, contact_part=contact_part, reach=reach,
     )  # fmt: skip
 
 
@@ -459,6 +474,19 @@ def _make_sequence(body, items, config, rngs, cache, placement, regressor, obj) 
             joint_rotations=posed.joint_rotations,
         )
         people.append((poses, trans, betas, posed))
+    handling = None
+    if obj is not None and config.reach:
+        # Before anything is derived from person 0's motion: the reaches edit it.
+        poses, trans, betas, _ = people[0]
+        start, end = _contact_range(T)
+        try:
+            handling = pick_and_place(obj, body, poses, trans, betas, start, end, config.contact_part,
+                                      blend=max(1, round(fps / 2)))  # fmt: skip
+        except ReachError as e:
+            hint = "interaction_config(reach=False) keeps the motion as it is"
+            raise ValueError(f"{out['name']}: {e} ({hint}).") from e
+        edited = _posed(body, handling.poses, betas, handling.trans)
+        people[0] = (handling.poses, handling.trans, betas, edited)
     out["poses"] = np.stack([x[0] for x in people])
     out["trans"] = np.stack([x[1] for x in people])
     out["betas"] = np.stack([x[2] for x in people])
@@ -483,7 +511,7 @@ def _make_sequence(body, items, config, rngs, cache, placement, regressor, obj) 
     cams = config.cameras
     if cams is None:
         if obj is not None:
-            _add_object(out, body, people, verts, config, obj)
+            _add_object(out, body, people, verts, config, obj, handling)
         return out
     pelvis = out["joints"][:, :, 0].mean(0)  # (T, 3) centre of the people
     K = intrinsics(cams.width, cams.height, cams.fov_degrees)
@@ -509,7 +537,7 @@ def _make_sequence(body, items, config, rngs, cache, placement, regressor, obj) 
         out["cam_imu_acc"] = np.asarray(imu.acceleration[:, 0])
 
     if obj is not None:
-        _add_object(out, body, people, verts, config, obj)
+        _add_object(out, body, people, verts, config, obj, handling)
 
     if regressor is not None:
         kp3 = np.stack([np.asarray(regress_keypoints(regressor, jnp.asarray(v))) for v in verts])  # (P,T,K,3)
@@ -565,13 +593,17 @@ def _make_sequence(body, items, config, rngs, cache, placement, regressor, obj) 
     return out
 
 
-def _add_object(out, body, people, verts, config, obj):
-    T = len(verts[0])
+def _contact_range(T: int) -> tuple[int, int]:
+    """The contact frames [start, end) of an object scene: the middle half."""
+    return T // 4, max(T // 4 + 1, (3 * T) // 4)
+
+
+def _add_object(out, body, people, verts, config, obj, handling=None):
     _, _, _, posed = people[0]
-    start, end = T // 4, max(T // 4 + 1, (3 * T) // 4)
+    start, end = _contact_range(len(verts[0]))
     traj, contact = contact_trajectory(
         obj, body, verts[0], np.asarray(posed.joints), np.asarray(posed.joint_rotations),
-        start, end, config.contact_part,
+        start, end, config.contact_part, rest=None if handling is None else handling.rest,
     )  # fmt: skip
     out["obj_R"], out["obj_t"], out["contact"] = traj.rotations, traj.translations, contact
     out["obj_world"] = ObjectTrajectory(traj.rotations, traj.translations).vertices(obj)
