@@ -33,7 +33,7 @@ float64 under x64) for `--steps` LM steps with rtol = atol = 0 after a warm-up c
 compiles and runs the same steps, and records peak memory (GPU: the device allocator's
 peak_bytes_in_use; CPU: the process's peak resident set, ru_maxrss). It fits the log-log
 slope of time per step against T. At T <= 300 (`--dense-T`) it compares one damped LM
-step of the engine (`_linearise`, `factor`, `solve_factored`, float64) with a dense
+step of the engine (`linearise`, `factor`, `solve_factored`, float64) with a dense
 float64 solve of the same normal equations: J of δ ↦ r(x ⊕ δ) by forward-mode AD
 (chunks of unit tangents, kept sparse on the host), JᵀJ + λI and Jᵀr in SciPy/NumPy
 float64, dense Cholesky.
@@ -377,7 +377,7 @@ def dense_check(kind: str, T: int, lams, chunk: int, max_n: int, backend: str = 
     import scipy.sparse as sp
 
     from jaxmocap.solve import Args
-    from jaxmocap.solve.solver import _linearise
+    from jaxmocap.solve.solver import linearise
     from jaxmocap.solve.structured import factor, solve_factored
     from jaxmocap.solve.unknowns import retract, to_manifold
 
@@ -396,7 +396,7 @@ def dense_check(kind: str, T: int, lams, chunk: int, max_n: int, backend: str = 
 
     # The engine's linearisation and damped step (compiled here, run under the lock).
     t0 = time.perf_counter()
-    lin = jax.jit(lambda p, d: _linearise(p, Args(problem, d, None, layout), st, f64, f64))
+    lin = jax.jit(lambda p, d: linearise(p, Args(problem, d, None, layout), st, f64, f64))
     lin_c = lin.lower(params, data).compile()
     normal_s, grads_s, _ = jax.eval_shape(lin, params, data)
     step = jax.jit(lambda nrm, g, lam: solve_factored(factor(nrm, st, lam), *g))
@@ -605,7 +605,7 @@ def main():
            "XLA_PYTHON_CLIENT_PREALLOCATE=false" if args.parallel else ""),
         "peak_memory": "GPU: jax device memory_stats()['peak_bytes_in_use']" if on_gpu else
         "CPU: peak resident set of the child process (resource.getrusage ru_maxrss), not device memory",
-        "dense_check": "one damped LM step (JtJ + lam I) x = Jt r at the noisy start, engine (_linearise -> factor "
+        "dense_check": "one damped LM step (JtJ + lam I) x = Jt r at the noisy start, engine (linearise -> factor "
         "-> solve_factored, float64 problem data) vs J of delta -> r(x (+) delta) by jax.jvp on unit tangents "
         "(float64), JtJ and Jt r in SciPy sparse float64 on the host, dense Jacobi-scaled Cholesky in float64 "
         f"({args.dense_backend}); error = max|x_struct - x_dense| / max|x_dense|; max_rel_err_vs_dense takes "

@@ -62,7 +62,7 @@ def _lm_step(problem, params, data, lam=0.1):
     layout = problem.layout(params)
     args = Args(problem, data, None, layout)
     st = args.structure()
-    normal, (gF, _, _), cost = S._linearise(params, args, st, jnp.float64, jnp.float64)
+    normal, (gF, _, _), cost = S.linearise(params, args, st, jnp.float64, jnp.float64)
     step = solve_factored(factor(normal, st, lam), gF)[0]
     return st, cost, st.from_solver_order(gF), st.from_solver_order(step)
 

@@ -45,7 +45,8 @@ def _grad_fixture():
     """The problem, its parameters θ = (w_acc, one observation, a per-sequence constant), the
     jitted scalar and its jitted value and gradient: compiled once for the tests below."""
     problem, params, data = _grad_problem()
-    theta = (jnp.asarray(0.05), data["trans"][2, 1], jnp.asarray(0.01))
+    # strongly typed float64, as the finite differences and the vmapped weights pass them: one compile each
+    theta = (jnp.asarray(0.05, jnp.float64), data["trans"][2, 1], jnp.asarray(0.01, jnp.float64))
     f = jax.jit(lambda w, o, c: _solution_scalar(problem, params, data, w, o, c))
     return problem, params, data, theta, f, jax.jit(jax.value_and_grad(f, argnums=(0, 1, 2)))
 

@@ -62,8 +62,7 @@ from ..priors.pose_prior import PosePrior, default_pose_prior
 from ..rotation import matrix_to_axis_angle
 from ..sensors.keypoints import KEYPOINT_FORMATS, flip_pairs, keypoint_regressor
 from ..sensors.triangulation import triangulate
-from ..solve import GemanMcClure, Problem, frame, solve, solve_batch, with_weights
-from ..solve.solver import Args, _linearise
+from ..solve import Args, GemanMcClure, Problem, frame, linearise, solve, solve_batch, with_weights
 from ..solve.unknowns import from_manifold, retract, to_manifold
 
 __all__ = ["MuVSWeights", "MuVSResult", "camera_data", "compact", "initialise", "resolve_left_right", "stage_one", "stage_two", "multiview_smplify", "mask_views", "stack"]
@@ -590,8 +589,8 @@ def _temporal_lm(problem: Problem, params: dict, coef, data: CameraData, tempora
 
         return jax.vmap(one)(x["pose"], x["trans"])
 
-    def linearise(y, c):
-        normal, (gF, _, _), data_cost = _linearise(y, args, st, dtype, dtype)
+    def linearise_all(y, c):  # the engine's per-frame blocks plus the DCT rows
+        normal, (gF, _, _), data_cost = linearise(y, args, st, dtype, dtype)
         r, g = temporal_rows(y, c)
         Jx = g[..., None] * frame_joints_jacobian(y)  # (T, 72, 75)
         H = normal.FF[0] + jnp.einsum("tqi,tqj->tij", Jx, Jx)
@@ -634,11 +633,11 @@ def _temporal_lm(problem: Problem, params: dict, coef, data: CameraData, tempora
         accept = jnp.isfinite(new_cost) & (new_cost < lin[-1])
         y = jax.tree_util.tree_map(lambda a, b: jnp.where(accept, a, b), y_new, y)
         c = jnp.where(accept, c_new, c)
-        lin = jax.lax.cond(accept, lambda: linearise(y, c), lambda: lin)
+        lin = jax.lax.cond(accept, lambda: linearise_all(y, c), lambda: lin)
         return y, c, jnp.where(accept, lam * 0.1, lam * 10.0), lin
 
     y0 = {"pose": params["pose"], "trans": params["trans"]}
-    state = (y0, coef, jnp.asarray(10.0, dtype), linearise(y0, coef))
+    state = (y0, coef, jnp.asarray(10.0, dtype), linearise_all(y0, coef))
     y, c, _, lin = jax.lax.fori_loop(0, steps, body_fn, state)
     return y, c, lin[-1]
 

@@ -192,8 +192,12 @@ def _analytic_blocks(term, x, clean, data, frame_mask, layout: Layout, st: Struc
     return r, st.to_solver_order(blocks)
 
 
-def _linearise(y: dict, args: Args, st: Structure, dtype, factor_dtype):
+def linearise(y: dict, args: Args, st: Structure, dtype, factor_dtype):
     """Residuals at y and their blocks in the left-perturbation tangent: (Normal, grad, cost).
+
+    One Gauss-Newton linearisation of `args.problem` (st = `args.structure()`), for methods
+    that drive their own loop (e.g. MuVS's temporal stage) and for `factor` /
+    `solve_factored`; `dtype` of the residuals, `factor_dtype` of the normal blocks.
 
     Terms with an analytic `jacobian` supply their frame blocks; everything else (other
     terms, and any term's window and sequence blocks) comes from forward-mode AD by
@@ -281,7 +285,7 @@ class VonMarcardLM(optx.AbstractLeastSquaresSolver):
 
     def init(self, fn, y, args, options, f_struct, aux_struct, tags):
         st, dtype, fdtype = self._setup(y, args)
-        normal, grad, cost = _linearise(y, args, st, dtype, fdtype)
+        normal, grad, cost = linearise(y, args, st, dtype, fdtype)
         ok = jnp.isfinite(cost)
         return _LMState(
             normal, grad, cost, jnp.asarray(10.0, fdtype), jnp.asarray(0), ~ok,
@@ -309,7 +313,7 @@ class VonMarcardLM(optx.AbstractLeastSquaresSolver):
         converged = (accept & small_cost & small_step) | (~accept & small_step) | (state.lam > 1e10)
 
         def relinearise(_):
-            return _linearise(y_new, args, st, dtype, fdtype)
+            return linearise(y_new, args, st, dtype, fdtype)
 
         def keep(_):
             return state.normal, state.grad, state.cost
