@@ -209,7 +209,10 @@ def main(argv=None):
     ap.add_argument("--views", type=int, default=4)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", type=Path, default=Path("out/intercap_tables"))
+    ap.add_argument("--only", default="", help="comma-separated scene indices: fit and cache only these (e.g. one "
+                    "machine each); a run without it then gathers the cached fits into the tables")
     args = ap.parse_args(argv)
+    only = {int(i) for i in args.only.split(",") if i.strip()}
     cache = args.out / "cache" / "intercap"
     cache.mkdir(parents=True, exist_ok=True)
     clips = pick_clips(args.scenes)
@@ -217,6 +220,10 @@ def main(argv=None):
         raise SystemExit(f"found {len(clips)} CMU clips, need {args.scenes}: ../shared/data/cmu and cmu_cc must be "
                          "beside the checkout (or JAXMOCAP_CMU / JAXMOCAP_CMU_CC set).")  # fmt: skip
     body = default_body("low")
+    if only:
+        for i in sorted(only):
+            run_scene(i, clips[i], args, body, cache)
+        return
     scenes = [run_scene(i, clip, args, body, cache) for i, clip in enumerate(clips)]
     result = {"scenes": len(scenes), "frames": args.frames, "views": args.views, "weights": vars(InterCapWeights()),
               **summarise(scenes), "thesis": THESIS, "per_scene": scenes,
