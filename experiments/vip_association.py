@@ -81,7 +81,10 @@ def main(argv=None) -> int:
     p.add_argument("--cache", default=str(ROOT / "out" / "vip_association"))
     p.add_argument("--fusion", action="store_true", help="run the whole method (association, fusion, association "
                    "again: `video_inertial_scene`) and score its final association; a GPU job")
+    p.add_argument("--only", default="", help="comma-separated scene indices: compute and cache only these (e.g. one "
+                   "process per scene); a run without it then gathers the cached scenes into the tables")
     a = p.parse_args(argv)
+    only = {int(i) for i in a.only.split(",") if i.strip()}
     body = default_body("low")
     clips = eligible_clips(Path(a.cmu_cc), a.frames)
     if len(clips) < 4:
@@ -93,6 +96,8 @@ def main(argv=None) -> int:
     per_scene, t_start = [], time.time()
     for i in range(a.scenes):
         motions = list(rng.choice(clips, 4, replace=False))
+        if only and i not in only:
+            continue
         f = cache / f"scene_{a.seed}_{i}_{a.frames}.npz"
         t0 = time.time()
         if f.exists():
@@ -124,6 +129,8 @@ def main(argv=None) -> int:
         done.with_suffix(".tmp").write_text(json.dumps(r))
         done.with_suffix(".tmp").replace(done)
         per_scene.append(r)
+    if only:
+        return 0
     tot = {k: sum(s.get(k, 0) for s in per_scene) for k in ("assigned", "right", "wrong", "wearer_detections",
                                                             "detections", "false_detections", "wrong_to_other_wearer",
                                                             "wrong_to_bystander", "wrong_to_false_detection", "frames",

@@ -160,3 +160,24 @@ def test_wrong_shapes_raise(exact):
         A.associate(J, K[:2], None, det)
     with pytest.raises(ValueError, match="cam_orientation"):
         A.associate(J, K, np.eye(3), det)
+
+
+def test_pairs_beyond_the_window_are_penalties_only():
+    """penalty_window > window adds inter-frame pairs up to penalty_window frames apart, and
+    only those whose log-odds say "two people"; the pairs within the window are unchanged."""
+    rng = np.random.default_rng(3)
+    T = 50
+    J = np.stack([np.stack([_person(rng, np.array([x, 1.0, 0.0]) + [0.02 * t, 0, 0]) for t in range(T)])
+                  for x in (-0.6, 0.7)])  # fmt: skip
+    R = np.stack([host_exp([0.0, np.pi + 0.01 * t, 0.0]) for t in range(T)])
+    t_wc = -np.einsum("tab,tb->ta", R, np.array([[0.02 * t, 1.4, 4.0] for t in range(T)]))
+    det = np.stack([_project(J[::-1][:, t] if t >= 25 else J[:, t], R[t], t_wc[t]) for t in range(T)])  # swap at 25
+    cam = np.swapaxes(R, -1, -2)
+    near = A.association_graph(J, K, cam, det, A.AssociationModel(penalty_window=10), window=10)
+    far = A.association_graph(J, K, cam, det, A.AssociationModel(penalty_window=40), window=10)
+    frames = lambda g: np.abs(np.diff(np.stack(np.unravel_index(g.pairs, g.shape))[1], axis=-1))[..., 0]  # noqa: E731
+    assert frames(near).max() <= 10 and frames(far).max() > 10
+    extra = frames(far) > 10
+    assert extra.any() and (far.pair_z[extra] < 0).all()
+    key = lambda g, m: set(map(tuple, g.pairs[m]))  # noqa: E731
+    assert key(far, ~extra) == key(near, np.ones(len(near.pairs), bool))
