@@ -29,6 +29,7 @@ __all__ = [
     "ReachError",
     "ReachInfo",
     "blend_edit",
+    "contact_joint",
     "contact_point",
     "contact_vertices",
     "reach",
@@ -64,14 +65,16 @@ _HANGING_WEIGHT = (0.05, 0.05, 0.05)  # local; their world orientation is kept (
 _SQRT_W = {"reach": 100.0, "feet": 1000.0, "balance": 10.0**0.5, "knees": 10.0}
 
 
-def _check_part(part: str) -> None:
+def contact_joint(part: str) -> int:
+    """Index of the joint that carries `part` (ValueError naming the known parts if unknown)."""
     if part not in CONTACT_PARTS:
         raise ValueError(f"Unknown contact part {part!r}; choose from {sorted(CONTACT_PARTS)}.")
+    return _J[CONTACT_PARTS[part][0]]
 
 
 def contact_vertices(body, part: str) -> np.ndarray:
     """Indices of the body vertices skinned mostly (≥ 0.5) to the part's bones."""
-    _check_part(part)
+    contact_joint(part)
     w = np.asarray(body.weights)
     bones = [_J[b] for b in CONTACT_PARTS[part][1]]
     return np.flatnonzero(w[:, bones].sum(1) >= 0.5)
@@ -85,8 +88,7 @@ def contact_point(
     vertices (V, 3), joints (J, 3), joint_rotations (J, 3, 3); c is the part's contact
     vertex furthest from its joint along n = R_joint · (the part's rest-frame normal).
     """
-    _check_part(part)
-    j = _J[CONTACT_PARTS[part][0]]
+    j = contact_joint(part)
     region = contact_vertices(body, part)
     n = np.asarray(joint_rotations[j], np.float64) @ np.asarray(CONTACT_PARTS[part][2])
     pts = np.asarray(vertices, np.float64)[region]
@@ -118,7 +120,7 @@ def _free_joints(part: str) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndar
     """(free joints, their closeness weights (K, 3), planted foot joints, joints whose world
     orientation is kept: the hanging shoulders and the part's own joint)."""
     base = [_J[n] for n in _BASE]
-    chain, j = [], _J[CONTACT_PARTS[part][0]]
+    chain, j = [], contact_joint(part)
     while j not in base:  # the reaching limb, up to the trunk
         chain.append(j)
         j = SMPL_PARENTS[j]
@@ -129,7 +131,7 @@ def _free_joints(part: str) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndar
     # A reaching foot is not planted.
     moving = part.split("_")[0] if part.endswith("_foot") else None
     planted = [_J[f"{s}_{n}"] for s in ("left", "right") if s != moving for n in ("ankle", "foot")]
-    kept = hanging + [_J[CONTACT_PARTS[part][0]]]
+    kept = hanging + [contact_joint(part)]
     return np.asarray(free), np.asarray(weights), np.asarray(planted), np.asarray(kept)
 
 
@@ -271,7 +273,7 @@ def reach(
         raise ValueError(
             f"reach frame {frame!r} is outside the motion's {T} frames: use an int in 0 .. {T - 1}."
         )
-    _check_part(part)
+    contact_joint(part)
     target = np.asarray(target, np.float64)
     if target.shape != (3,) or not np.all(np.isfinite(target)):
         raise ValueError(f"reach target must be a finite world point (3,), got {target!r}.")

@@ -31,8 +31,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..body.kinematics import forward
-from ..body.model import SMPL_JOINT_NAMES
-from ..motion.reach import CONTACT_PARTS, contact_point, contact_vertices, reach
+from ..motion.reach import CONTACT_PARTS, contact_joint, contact_point, contact_vertices, reach
 from ..objects import RigidObject
 
 __all__ = [
@@ -84,7 +83,7 @@ def contact_trajectory(
     T = len(vertices)
     if not 0 <= start < end <= T:
         raise ValueError(f"Contact range [{start}, {end}) must lie inside the {T} frames.")
-    j = _joint(part)
+    j = contact_joint(part)
     R_j, p_j = np.asarray(joint_rotations[:, j], np.float64), np.asarray(joints[:, j], np.float64)
     if rest is None:
         # Object at identity rotation; its extreme point along -n (a vertex) touches c.
@@ -107,12 +106,6 @@ def contact_trajectory(
     contact = np.zeros(T, bool)
     contact[start:end] = True
     return ObjectTrajectory(Rs, ts), contact
-
-
-def _joint(part: str) -> int:
-    if part not in CONTACT_PARTS:
-        raise ValueError(f"Unknown contact part {part!r}; choose from {sorted(CONTACT_PARTS)}.")
-    return SMPL_JOINT_NAMES.index(CONTACT_PARTS[part][0])
 
 
 @dataclasses.dataclass(frozen=True)
@@ -183,7 +176,7 @@ def pick_and_place(
     T = len(poses)
     if not 0 <= start < end <= T:
         raise ValueError(f"Contact range [{start}, {end}) must lie inside the {T} frames.")
-    j = _joint(part)
+    j = contact_joint(part)
     put, v = end - 1, obj.vertices
     blend = max(1, min(blend, (put - start) // 2))
     betas = np.asarray(betas)[: body.num_betas]

@@ -474,7 +474,7 @@ def _make_sequence(body, items, config, rngs, cache, placement, regressor, obj) 
             joint_rotations=posed.joint_rotations,
         )
         people.append((poses, trans, betas, posed))
-    handling = None
+    rest = None  # the object's pose before the pick-up, when the motion is edited to reach it
     if obj is not None and config.reach:
         # Before anything is derived from person 0's motion: the reaches edit it.
         poses, trans, betas, _ = people[0]
@@ -487,6 +487,7 @@ def _make_sequence(body, items, config, rngs, cache, placement, regressor, obj) 
             raise ValueError(f"{out['name']}: {e} ({hint}).") from e
         edited = _posed(body, handling.poses, betas, handling.trans)
         people[0] = (handling.poses, handling.trans, betas, edited)
+        rest = handling.rest
     out["poses"] = np.stack([x[0] for x in people])
     out["trans"] = np.stack([x[1] for x in people])
     out["betas"] = np.stack([x[2] for x in people])
@@ -511,7 +512,7 @@ def _make_sequence(body, items, config, rngs, cache, placement, regressor, obj) 
     cams = config.cameras
     if cams is None:
         if obj is not None:
-            _add_object(out, body, people, verts, config, obj, handling)
+            _add_object(out, body, people, verts, config, obj, rest)
         return out
     pelvis = out["joints"][:, :, 0].mean(0)  # (T, 3) centre of the people
     K = intrinsics(cams.width, cams.height, cams.fov_degrees)
@@ -537,7 +538,7 @@ def _make_sequence(body, items, config, rngs, cache, placement, regressor, obj) 
         out["cam_imu_acc"] = np.asarray(imu.acceleration[:, 0])
 
     if obj is not None:
-        _add_object(out, body, people, verts, config, obj, handling)
+        _add_object(out, body, people, verts, config, obj, rest)
 
     if regressor is not None:
         kp3 = np.stack([np.asarray(regress_keypoints(regressor, jnp.asarray(v))) for v in verts])  # (P,T,K,3)
@@ -598,12 +599,12 @@ def _contact_range(T: int) -> tuple[int, int]:
     return T // 4, max(T // 4 + 1, (3 * T) // 4)
 
 
-def _add_object(out, body, people, verts, config, obj, handling=None):
+def _add_object(out, body, people, verts, config, obj, rest=None):
     _, _, _, posed = people[0]
     start, end = _contact_range(len(verts[0]))
     traj, contact = contact_trajectory(
         obj, body, verts[0], np.asarray(posed.joints), np.asarray(posed.joint_rotations),
-        start, end, config.contact_part, rest=None if handling is None else handling.rest,
+        start, end, config.contact_part, rest=rest,
     )  # fmt: skip
     out["obj_R"], out["obj_t"], out["contact"] = traj.rotations, traj.translations, contact
     out["obj_world"] = ObjectTrajectory(traj.rotations, traj.translations).vertices(obj)
