@@ -18,6 +18,7 @@ the fraction assigned to the right wearer. Thesis (3DPW, real video): 99.3 % / 9
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import platform
 import sys
@@ -81,6 +82,8 @@ def main(argv=None) -> int:
     p.add_argument("--cache", default=str(ROOT / "out" / "vip_association"))
     p.add_argument("--fusion", action="store_true", help="run the whole method (association, fusion, association "
                    "again: `video_inertial_scene`) and score its final association; a GPU job")
+    p.add_argument("--penalty-window", type=int, default=None,
+                   help="override the shipped model's penalty_window (frames; results cached apart)")
     p.add_argument("--only", default="", help="comma-separated scene indices: compute and cache only these (e.g. one "
                    "process per scene); a run without it then gathers the cached scenes into the tables")
     a = p.parse_args(argv)
@@ -91,6 +94,9 @@ def main(argv=None) -> int:
         raise SystemExit(f"fewer than 4 cmu_cc clips of >= {a.frames} frames at 30 fps in {a.cmu_cc}.")
     rng = np.random.default_rng(a.seed)
     model = A.load_model()
+    if a.penalty_window is not None:
+        model = dataclasses.replace(model, penalty_window=a.penalty_window)
+    variant = "" if a.penalty_window is None else f"_pw{a.penalty_window}"
     cache = Path(a.cache)
     cache.mkdir(parents=True, exist_ok=True)
     per_scene, t_start = [], time.time()
@@ -106,8 +112,9 @@ def main(argv=None) -> int:
         else:
             priors = [evaluation_prior(motions[k]) for k in WEARERS]
             s = scene_inputs(motions, 3, a.frames, a.seed + 1000 + i, body, priors=priors)
-            np.savez(f, **{k: np.asarray(v) for k, v in s.items()})
-        done = cache / f"result_{a.seed}_{i}_{a.frames}_{'fusion' if a.fusion else 'first'}.json"
+            np.savez(f.with_suffix(".tmp.npz"), **{k: np.asarray(v) for k, v in s.items()})
+            f.with_suffix(".tmp.npz").replace(f)  # atomic: a killed run leaves no half scene
+        done = cache / f"result_{a.seed}_{i}_{a.frames}_{'fusion' if a.fusion else 'first'}{variant}.json"
         if done.exists():  # finished scenes of an interrupted run
             per_scene.append(json.loads(done.read_text()))
             continue
@@ -152,6 +159,7 @@ def main(argv=None) -> int:
                    "data": "../shared/data/cmu_cc (CMU subjects 5, 6, 7; held out from training)",
                    "hypotheses": "Inertial Tracker keypoints, x0 with 10 deg (1 sigma) error per joint",
                    "weights": str(A.WEIGHTS_FILE.relative_to(ROOT)), "window": 30,
+                   "penalty_window": model.penalty_window,
                    "command": "python experiments/vip_association.py " + " ".join(argv if argv is not None else sys.argv[1:])},
         "per_scene": per_scene,
     }  # fmt: skip

@@ -109,6 +109,17 @@ def test_binary_program_matches_brute_force(seed):
     assert objective == pytest.approx(value, abs=1e-6), status
 
 
+def test_a_time_limited_program_warns():
+    # A chunk stopped by HiGHS's time limit is HiGHS's incumbent, not the optimum: say so.
+    rng = np.random.default_rng(0)
+    shape = (2, 20, 3)
+    n = int(np.prod(shape))
+    pairs = rng.integers(0, n, (400, 2))
+    pairs = pairs[pairs[:, 0] != pairs[:, 1]]
+    with pytest.warns(RuntimeWarning, match="time limit"):
+        A.solve_labelling(shape, np.arange(n), rng.normal(size=n), pairs, rng.normal(size=len(pairs)), time_limit=1e-6)
+
+
 def test_crowded_scene_one_wearer_one_bystander():
     from jaxmocap.body.io import default_body
     from jaxmocap.methods import visual_inertial as vip
