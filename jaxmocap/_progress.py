@@ -37,3 +37,18 @@ def report(label: str, done, total, detail: str = "", final: bool = False) -> No
         rate = f", {per:.3g} s per {label.split()[-1]}, ETA {per * (total - done):.0f} s at most"
     print(f"\r{label} {done}/{total}{': ' + detail if detail else ''}{rate}" + ("\n" if final else "   "),
           end="", file=sys.stderr, flush=True)  # fmt: skip
+
+
+class StageClock:
+    """Stage timings and one progress line per stage."""
+
+    def __init__(self, log):
+        self.say = log if log is not None else (lambda *_: None)
+        self.timings: dict[str, float] = {}
+        self.last = time.perf_counter()
+
+    def done(self, stage: str, line: str) -> None:
+        now = time.perf_counter()
+        self.timings[stage] = now - self.last
+        self.last = now
+        self.say(f"{stage:<8s} {line} ({self.timings[stage]:.1f} s)")

@@ -41,10 +41,11 @@ from __future__ import annotations
 
 import json
 import math
-import time
 from pathlib import Path
 
 import numpy as np
+
+from .._progress import StageClock
 
 __all__ = [
     "DEMO_OBJECTS",
@@ -146,21 +147,6 @@ def _penetration_figure(depth_mm: np.ndarray, path: Path, title: str) -> Path:
     return save_figure(fig, path)
 
 
-class _Clock:
-    """Stage timings and one progress line per stage."""
-
-    def __init__(self, log):
-        self.say = log if log is not None else (lambda *_: None)
-        self.timings: dict[str, float] = {}
-        self.last = time.perf_counter()
-
-    def done(self, stage: str, line: str) -> None:
-        now = time.perf_counter()
-        self.timings[stage] = now - self.last
-        self.last = now
-        self.say(f"{stage:<8s} {line} ({self.timings[stage]:.1f} s)")
-
-
 def simulate_scene(frames: int = 30, object: str = "box", views: int = 3, width: int = 160, height: int = 120,
                    depth_points: int = 512, seed: int = 0, body="default-low"):
     """The demo's scene: (body, scenario, observations) of the library walk carrying `object`
@@ -192,7 +178,7 @@ def fit_scene(obs, body, progress: bool = False, log=print) -> dict:
     """
     from ..methods.interaction import detect_contact, fit_human, fit_joint, track_object
 
-    clock = _Clock(log)
+    clock = StageClock(log)
     T = obs.num_frames
     obj = track_object(obs, body=body, progress=progress)
     clock.done("object", f"tracked over {T} frames, seen in {int(obj['observed'].sum())}")
@@ -242,7 +228,7 @@ def write_outputs(out_dir, body, obs, truth: dict, true_part: str, fit: dict, se
     from ..viz.mesh import export_mesh
     from ..viz.plot import plot_body
 
-    clock = _Clock(log)
+    clock = StageClock(log)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     T = obs.num_frames
@@ -334,7 +320,7 @@ def run_interaction_demo(
         out_dir.mkdir(parents=True, exist_ok=True)
     except OSError as e:
         raise OSError(e.errno, f"cannot create the output folder {out_dir}: {e.strerror}", str(out_dir)) from e
-    clock = _Clock(log)
+    clock = StageClock(log)
     body_model, scenario, obs = simulate_scene(frames, object, views, width, height, depth_points, seed, body)
     truth = scenario.sequence(0)
     true_part = scenario.config.contact_part

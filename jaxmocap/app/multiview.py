@@ -133,7 +133,7 @@ def read_masks(masks_dir, views, frame_numbers, cameras) -> np.ndarray:
             f"masks of {T} frames x {V} views at {W} x {H} need {T * V * H * W * 4 / 2**30:.1f} GiB of distance "
             f"transforms (limit {MAX_MASK_BYTES / 2**30:.0f} GiB); fit fewer frames at a time (frames=/--frames)."
         )
-    from ..sensors.camera import _to_pixels, distort_points
+    from ..sensors.camera import to_pixels, distort_points
 
     out = np.zeros((T, V, H, W), bool)
     index = {f: i for i, f in enumerate(frame_numbers)}
@@ -154,7 +154,7 @@ def read_masks(masks_dir, views, frame_numbers, cameras) -> np.ndarray:
         j, i = np.meshgrid(np.arange(cam.width, dtype=np.float64), np.arange(cam.height, dtype=np.float64))
         y = (i - cam.K[1, 2]) / cam.K[1, 1]
         x = (j - cam.K[0, 2] - cam.K[0, 1] * y) / cam.K[0, 0]
-        src = np.rint(_to_pixels(cam.K, distort_points(np.stack([x, y], -1), cam.dist))).astype(np.int64)
+        src = np.rint(to_pixels(cam.K, distort_points(np.stack([x, y], -1), cam.dist))).astype(np.int64)
         inside = (src[..., 0] >= 0) & (src[..., 0] < cam.width) & (src[..., 1] >= 0) & (src[..., 1] < cam.height)
         su, sv = np.where(inside, src[..., 0], 0), np.where(inside, src[..., 1], 0)
         for frame, path in files.items():
@@ -233,12 +233,12 @@ def _posed(body, poses, betas, trans, chunk: int = 256):
 
 def _distorted_pixels(cam, uv_undistorted):
     """Undistorted OpenCV pixels (..., 2) → the video's distorted pixels (same K)."""
-    from ..sensors.camera import _to_pixels, distort_points
+    from ..sensors.camera import to_pixels, distort_points
 
     K = cam.K
     y = (uv_undistorted[..., 1] - K[1, 2]) / K[1, 1]
     x = (uv_undistorted[..., 0] - K[0, 2] - K[0, 1] * y) / K[0, 0]
-    return _to_pixels(K, distort_points(np.stack([x, y], -1), cam.dist))
+    return to_pixels(K, distort_points(np.stack([x, y], -1), cam.dist))
 
 
 def _overlay(path, cam, view, frame_numbers, picks, detections, model_kp, vertices, faces):
@@ -443,7 +443,7 @@ def fit_recording(
 
 def _write_outputs(out_dir, sources, recording, cameras, body, layout, keypoints, empty, p1, final, costs, fps,
                    regressor, names, temporal, weights, silhouettes) -> dict:
-    from ..motion.amass import _pose_world, pelvis_rest, save_amass
+    from ..motion.amass import rotate_world, pelvis_rest, save_amass
     from ..motion.sequence import Motion
     from ..sensors.triangulation import projection_matrices
     from ..viz.mesh import export_sequence
@@ -467,7 +467,7 @@ def _write_outputs(out_dir, sources, recording, cameras, body, layout, keypoints
     betas16 = np.zeros(16)
     betas16[: len(final["betas"])] = final["betas"]
     j0 = pelvis_rest(body, betas16)
-    poses_y, trans_y = _pose_world(final["pose"].astype(np.float64), final["trans"].astype(np.float64), to_y, j0)
+    poses_y, trans_y = rotate_world(final["pose"].astype(np.float64), final["trans"].astype(np.float64), to_y, j0)
     motion = Motion(poses_y, trans_y, fps, betas=betas16, gender="neutral", name="multiview")
     npz = save_amass(motion, out_dir / "smpl.npz", body=body, layout="smpl")
 

@@ -150,11 +150,11 @@ def validate_config(raw: dict, source: str = "config") -> dict:
     for e in chosen:
         if e != "as_recorded" and e not in presets:
             _fail(source, f"sensor-error preset {e!r} has no [sensor_errors.{e}] table.")
-    from .sweep_methods import _error_model
+    from .sweep_methods import error_model
 
     for e, spec in presets.items():
         try:
-            _error_model(spec)
+            error_model(spec)
         except (ValueError, TypeError) as err:
             _fail(source, f"[sensor_errors.{e}]: {err}")
     for d in sw["datasets"]:

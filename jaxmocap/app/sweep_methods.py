@@ -67,7 +67,7 @@ class SweepMethod(Protocol):
 # --- datasets ---------------------------------------------------------------------------
 
 
-def _error_model(errors: dict | None):
+def error_model(errors: dict | None):
     from ..sensors import IMUErrorModel
 
     if errors is None:
@@ -152,7 +152,7 @@ def scenario_for(dataset: dict, errors: dict | None, cache: Path, body=None):
     if dataset.get("vary", True) and all(isinstance(m, str) and m in library.MOTIONS for m in items):
         items = _library_motions(items, count, frames, fps, int(dataset.get("seed", 0)), body)
     config = ScenarioConfig(
-        fps=fps, max_frames=frames, imu_set=dataset.get("imu_set", "sip6"), imu_errors=_error_model(errors),
+        fps=fps, max_frames=frames, imu_set=dataset.get("imu_set", "sip6"), imu_errors=error_model(errors),
         betas_std=float(dataset.get("betas_std", 1.0)),
     )  # fmt: skip
     s = make_scenario(items, config, seed=int(dataset.get("seed", 0)), body=body, num_sequences=count)

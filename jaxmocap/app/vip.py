@@ -34,7 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .interaction import _Clock
+from .._progress import StageClock
 
 __all__ = ["DEMO_MOTIONS", "VIPInputs", "demo_inputs", "threedpw_inputs", "fit_inputs", "write_outputs",
            "run_vip_demo", "run_vip_fit"]  # fmt: skip
@@ -194,18 +194,18 @@ def _association_counts(assoc, labels, people) -> dict:
 def write_outputs(out_dir, inputs: VIPInputs, scene, log=print) -> dict:
     """Write the files of the module docstring for a fitted `scene` (`VIPScene`) of
     `inputs`; returns the report (also written as report.json)."""
-    from ..methods.visual_inertial import _camera_matrices, _into_camera, world_keypoints
+    from ..methods.visual_inertial import camera_matrices, into_camera, world_keypoints
     from ..metrics import pose_errors
     from ..motion.io import FORMAT_VERSION
     from ..viz.vip import error_over_time_png, overlay_png, scene_glb
 
-    clock = _Clock(log)
+    clock = StageClock(log)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     body, fps, P = inputs.body, inputs.fps, len(inputs.datas)
     T = inputs.detections.shape[0]
     outputs, people = [], []
-    cams = [np.asarray(_camera_matrices(r.camera), np.float64) for r in scene.people]
+    cams = [np.asarray(camera_matrices(r.camera), np.float64) for r in scene.people]
     verts, kps = [], []
     for k, (data, r) in enumerate(zip(inputs.datas, scene.people)):
         betas = np.asarray(data.betas, np.float64)
@@ -260,7 +260,7 @@ def write_outputs(out_dir, inputs: VIPInputs, scene, log=print) -> dict:
         clock.done("errors", ", ".join(f"wearer {k}: IT {e['it_mpjpe_mm']:.1f} mm -> VIP {e['vip_mpjpe_mm']:.1f} mm"
                                        for k, e in enumerate(people)))  # fmt: skip
 
-    world = np.stack([_into_camera(v, c, cams[0]) for v, c in zip(verts, cams)])  # into wearer 0's world
+    world = np.stack([into_camera(v, c, cams[0]) for v, c in zip(verts, cams)])  # into wearer 0's world
     glb = scene_glb(out_dir / "scene.glb", world, np.asarray(body.faces), cams[0][:, :3, 3],
                     np.swapaxes(cams[0][:, :3, :3], -1, -2))  # fmt: skip
     outputs.append(glb.name)

@@ -350,7 +350,7 @@ def _vip_problem(bones: tuple[int, ...], fps: float, free_heading: bool, free_x0
     return Problem(terms, unknowns)
 
 
-def _camera_matrices(cam: Array) -> Array:
+def camera_matrices(cam: Array) -> Array:
     """(T, 6) (axis-angle, centre) -> (T, 4, 4) camera-to-world."""
     top = jnp.concatenate([axis_angle_to_matrix(cam[:, :3]), cam[:, 3:, None]], -1)
     bottom = jnp.broadcast_to(jnp.asarray([0.0, 0.0, 0.0, 1.0], cam.dtype), (cam.shape[0], 1, 4))
@@ -414,7 +414,7 @@ def _fusion_setup(data, bones, weights, free_heading, free_x0, camera, free_came
     if free_camera:
         params["cam"] = jnp.asarray(cam, dtype)
     else:
-        data = eqx.tree_at(lambda d: d.camera, data, _camera_matrices(jnp.asarray(cam, dtype)))
+        data = eqx.tree_at(lambda d: d.camera, data, camera_matrices(jnp.asarray(cam, dtype)))
     if free_heading:
         params["heading"] = jnp.zeros(S, dtype) if start is None else jnp.asarray(start.heading, dtype)
     if free_x0:
@@ -531,14 +531,14 @@ def video_inertial_scene(datas, bones, detections, weights: VIPWeights = VIPWeig
         seconds["fusion"] += time.perf_counter() - clock
         say(f"round {r + 1}: fused, costs {[float(x.solution.cost) for x in results]}")
         # Next hypotheses: each wearer's fused keypoints seen from the first wearer's camera.
-        cams = [np.asarray(_camera_matrices(x.camera)) for x in results]
-        hyp = np.stack([_into_camera(world_keypoints(d, x.poses, x.trans), cams[k], cams[0])
+        cams = [np.asarray(camera_matrices(x.camera)) for x in results]
+        hyp = np.stack([into_camera(world_keypoints(d, x.poses, x.trans), cams[k], cams[0])
                         for k, (d, x) in enumerate(zip(datas, results))])  # fmt: skip
         cam_R = cams[0][:, :3, :3]
     return VIPScene(tuple(results), tuple(associations), seconds)
 
 
-def _into_camera(X, cam_from, cam_to):
+def into_camera(X, cam_from, cam_to):
     """Points (T, N, 3) fitted with camera-to-world poses cam_from (T, 4, 4), re-expressed so
     that cam_to sees them as cam_from did."""
     Rf, cf, Rt, ct = cam_from[:, :3, :3], cam_from[:, :3, 3], cam_to[:, :3, :3], cam_to[:, :3, 3]

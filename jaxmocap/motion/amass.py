@@ -62,7 +62,7 @@ def pelvis_rest(body=None, betas=None) -> np.ndarray:
     return smpl_rest(body, betas)[0][0]
 
 
-def _pose_world(poses: np.ndarray, trans: np.ndarray, R: np.ndarray, j0: np.ndarray):
+def rotate_world(poses: np.ndarray, trans: np.ndarray, R: np.ndarray, j0: np.ndarray):
     """Rotate the world by R: root ↦ R·root, trans ↦ R(trans + j0) − j0."""
     poses = poses.copy()
     root = Rotation.from_matrix(R) * Rotation.from_rotvec(poses[:, 0])
@@ -149,7 +149,7 @@ def _from_arrays(path: Path, d: dict, body) -> Motion:
     else:  # SMPL-H / SMPL-X / body only: joints 0..21; SMPL hands 22/23 stay zero.
         smpl[:, :22] = poses[:, :66].reshape(T, 22, 3)
     j0 = pelvis_rest(body, betas)
-    smpl, trans = _pose_world(smpl, trans, Z_UP_TO_Y_UP, j0)
+    smpl, trans = rotate_world(smpl, trans, Z_UP_TO_Y_UP, j0)
     return Motion(
         poses=smpl,
         trans=trans,
@@ -180,7 +180,7 @@ def save_amass(motion: Motion, path, body=None, layout: str = "auto") -> Path:
     if layout == "smplh" and hands > 0:
         raise ValueError("SMPL-H files cannot hold SMPL's hand joints 22/23; use layout='smpl'.")
     j0 = pelvis_rest(body, motion.betas)
-    poses, trans = _pose_world(motion.poses, motion.trans, Z_UP_TO_Y_UP.T, j0)
+    poses, trans = rotate_world(motion.poses, motion.trans, Z_UP_TO_Y_UP.T, j0)
     T = motion.num_frames
     flat = (
         poses.reshape(T, 72)

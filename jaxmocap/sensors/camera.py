@@ -236,10 +236,10 @@ def undistort_pixels(uv, K, dist, iterations: int = 20) -> np.ndarray:
             break
     ok = np.all(np.abs(distort_points(xy, d) - target) < 1e-9, -1)
     xy = np.where(ok[..., None], xy, np.nan)
-    return _to_pixels(K, xy)
+    return to_pixels(K, xy)
 
 
-def _to_pixels(K, xy):
+def to_pixels(K, xy):
     """K applied to normalised coordinates (..., 2) -> pixels (..., 2)."""
     u = K[0, 0] * xy[..., 0] + K[0, 1] * xy[..., 1] + K[0, 2]
     return np.stack([u, K[1, 1] * xy[..., 1] + K[1, 2]], -1)
@@ -257,7 +257,7 @@ def project_points(K, dist, R, t, points) -> tuple[np.ndarray, np.ndarray]:
     safe = np.where(np.abs(z) < 1e-12, 1e-12, z)
     xy = distort_points(pc[..., :2] / safe[..., None], dist)
     K = np.asarray(K, np.float64)
-    return _to_pixels(K, xy), z
+    return to_pixels(K, xy), z
 
 
 def pinhole_camera(calibrated) -> Camera:

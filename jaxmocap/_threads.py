@@ -1,0 +1,17 @@
+"""XLA's CPU thread pool, widened on import where jaxlib's LAPACK kernels could deadlock it."""
+
+import os
+
+# jaxlib 0.10's CPU LAPACK kernels (batched Cholesky, triangular solves) cut a large batch
+# into tasks on XLA's intra-op thread pool and block their own pool thread until the tasks
+# are done. When every pool thread blocks so (two concurrent solves on a 2-core machine),
+# no thread is left to run the tasks and the process hangs for ever (measured: the
+# 1000-frame VIP fusion; tests/test_cpu_threads.py). The pool has one thread per usable
+# core unless PJRT_NPROC says otherwise; with at least `MIN_CPU_THREADS` a hang needs that
+# many such kernels at once, and SIP's CPU time is unchanged (4.8 s with 4 threads against
+# 5.1-5.4 s with 2, same process layout). It only acts before JAX's CPU backend starts
+# (import jaxmocap before running JAX code) and never overrides a user's PJRT_NPROC.
+MIN_CPU_THREADS = 4
+cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+if cores < MIN_CPU_THREADS:
+    os.environ.setdefault("PJRT_NPROC", str(MIN_CPU_THREADS))
