@@ -8,7 +8,8 @@ E_motion = w_ori E_ori + w_acc E_acc + w_anthro E_anthro   (eq. 3.5)
   ã^g(t) = (p(t-1) - 2 p(t) + p(t+1)) / dt² (eq. 3.10) of the sensor point rigidly
   attached to its bone, p = M_b^g(x) p^b (eq. 3.11), against the measured
   a^g = R_s^g a^s - g^g (eq. 3.9, computed once by `global_acceleration`).
-- E_anthro = w_mahal 1/T Σ_t d_mahal(t)² + w_limit 1/T Σ_t ‖e_limit(t)‖² (eq. 3.14-3.16).
+- E_anthro = w_mahal 1/T Σ_t d_mahal(t)² + w_limit 1/T Σ_t ‖e_limit(t)‖² (eq. 3.14-3.16);
+  with a `MixturePosePrior`, d_mahal² becomes 2 (E_θ − c_min) of SMPLify's mixture.
 
 Each term is a residual function `fn(params, data)`; the engine squares and sums it, so
 the weight of a `Term` is w / N_s for the sensor terms and w_anthro w_mahal, w_anthro w_limit
@@ -46,7 +47,7 @@ from jax import Array
 
 from ..body.kinematics import chain_transforms, mat3_apply, mat3_mul
 from ..body.model import SMPL_PARENTS
-from ..priors.pose_prior import PosePrior
+from ..priors.pose_prior import MixturePosePrior, PosePrior
 from ..rotation import hat, left_jacobian_inverse, log_small, matrix_to_axis_angle
 from ..solve import Term, nan_mask
 from ..timeseries import second_difference, shift_frames
@@ -78,7 +79,7 @@ class InertialData(eqx.Module):
     sensor_to_bone: (S, 3, 3) R_s^b (eq. 3.3).
     sensor_point: (S, 3) p^b, the sensor's vertex relative to its bone's joint, bone frame.
     rest_joints: (24, 3) the shaped rest joints J(β) of the body.
-    prior: the pose prior (μ, W, limits).
+    prior: the pose prior (μ, W, limits): a `PosePrior` or a `MixturePosePrior`.
     """
 
     orientation: Array
@@ -86,7 +87,7 @@ class InertialData(eqx.Module):
     sensor_to_bone: Array
     sensor_point: Array
     rest_joints: Array
-    prior: PosePrior
+    prior: PosePrior | MixturePosePrior
 
     @property
     def num_frames(self) -> int:
@@ -216,7 +217,12 @@ _PRIOR_READS = (("pose", tuple(range(1, 24))),)
 
 
 class MahalanobisResidual(eqx.Module):
-    """W (x_t - μ) with Wᵀ W = Σ⁻¹, so ‖·‖² = d_mahal(t)² (eq. 3.14): (T, 69)."""
+    """W (x_t - μ) with Wᵀ W = Σ⁻¹, so ‖·‖² = d_mahal(t)² (eq. 3.14): (T, 69).
+
+    With a `MixturePosePrior` (SMPLify's mixture, best component per frame) the residual
+    is (W_k (x_t − μ_k), √(2 (c_k − c_min))) of the frame's selected component k, (T, 70),
+    so ‖·‖² = 2 (E_θ(x_t) − c_min) (see `jaxmocap.priors.pose_prior`).
+    """
 
     reads = _PRIOR_READS
 
@@ -224,11 +230,19 @@ class MahalanobisResidual(eqx.Module):
         return data.prior.mahalanobis_residual(_joint_angles(params["pose"]))
 
     def jacobian(self, params, data: InertialData) -> dict[str, Array]:
-        """∂r/∂δ_j = W_[:, j] J_l⁻¹(x_j): pose (T, 1, 69, 24, 3)."""
+        """∂r/∂δ_j = W_[:, j] J_l⁻¹(x_j): pose (T, 1, R, 24, 3), R = 69 (70 for a mixture).
+
+        W is the prior's ∂r/∂x: one matrix for the single Gaussian, the selected
+        component's (W_k; 0) per frame for a mixture (its constant entry has a zero row).
+        """
         x = _joint_angles(params["pose"])
-        Jl = left_jacobian_inverse(x.reshape(x.shape[0], 23, 3))
-        W = data.prior.whitening.astype(x.dtype).reshape(69, 23, 3)
-        blocks = jnp.einsum("mja,tjab->tmjb", W, Jl)
+        T = x.shape[0]
+        Jl = left_jacobian_inverse(x.reshape(T, 23, 3))
+        W = data.prior.mahalanobis_jacobian(x).astype(x.dtype)
+        if W.ndim == 2:  # the same W for every frame
+            blocks = jnp.einsum("mja,tjab->tmjb", W.reshape(-1, 23, 3), Jl)
+        else:  # per frame, (T, R, 69)
+            blocks = jnp.einsum("tmja,tjab->tmjb", W.reshape(T, -1, 23, 3), Jl)
         return {"pose": jnp.pad(blocks, ((0, 0), (0, 0), (1, 0), (0, 0)))[:, None]}
 
 
