@@ -48,13 +48,12 @@ import jax
 
 jax.config.update("jax_enable_x64", True)
 
-import equinox as eqx  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
 from jaxmocap import metrics  # noqa: E402
 from jaxmocap.app.sweep_methods import InertialItem, InertialMethod  # noqa: E402
-from jaxmocap.body import default_body, forward  # noqa: E402
+from jaxmocap.body import default_body, forward, scaled_body  # noqa: E402
 from jaxmocap.methods import inertial as I  # noqa: E402
 from jaxmocap.motion.corpus import GROUPS, corpus, training_clips  # noqa: E402
 from jaxmocap.priors import PosePrior, default_pose_prior  # noqa: E402
@@ -94,30 +93,33 @@ OLD_PROTOCOL = {"SOP": {"mpjpe": 62.8, "mpjae": 10.6}, "SIP": {"mpjpe": 38.0, "m
 
 
 class Fold:
-    """Priors by excluded subjects, built once each and kept in the cache folder."""
+    """Priors by excluded subjects, built once each and kept in the cache folder.
 
-    def __init__(self, clips, cache: Path):
-        self.clips, self.cache, self.made = clips, cache, {}
+    components: 1 (the tables' single Gaussian) or K > 1, SMPLify's mixture of K Gaussians
+    (`jaxmocap.priors.MixturePosePrior`, files prior_without_<subjects>_k<K>.npz).
+    """
+
+    def __init__(self, clips, cache: Path, components: int = 1):
+        self.clips, self.cache, self.components, self.made = clips, cache, int(components), {}
 
     def prior(self, exclude):
         key = tuple(sorted(exclude)) if exclude is not None else None
         if key not in self.made:
             if key is None:
+                if self.components != 1:
+                    raise ValueError("the bundled prior is one Gaussian; a mixture fold needs excluded subjects.")
                 self.made[key] = default_pose_prior(DTYPE)
             else:
-                path = self.cache / f"prior_without_{'_'.join(key)}.npz"
+                k = f"_k{self.components}" if self.components != 1 else ""
+                path = self.cache / f"prior_without_{'_'.join(key)}{k}.npz"
                 if not path.is_file():
-                    mean, cov, _ = fit_prior([c.path for c in training_clips(self.clips, key)])
-                    np.savez(path.with_suffix(".tmp.npz"), mean=mean, covariance=cov)
-                    path.with_suffix(".tmp.npz").replace(path)
+                    mean, cov, meta = fit_prior([c.path for c in training_clips(self.clips, key)], components=self.components)
+                    extra = {"weights": np.asarray(meta["weights"])} if self.components != 1 else {}
+                    tmp = path.with_name(f"{path.stem}.{os.getpid()}.tmp.npz")  # per process: folds may run concurrently
+                    np.savez(tmp, mean=mean, covariance=cov, **extra)
+                    tmp.replace(path)
                 self.made[key] = PosePrior.load(path, DTYPE)
         return self.made[key]
-
-
-def scaled_body(body, s: float):
-    """The body uniformly scaled by s (template, shape and pose blend shapes)."""
-    return eqx.tree_at(lambda b: (b.v_template, b.shapedirs, b.posedirs), body,
-                       (body.v_template * s, body.shapedirs * s, body.posedirs * s))  # fmt: skip
 
 
 def scenarios(clips, frames: int, seed: int, body, cache: Path, fps: float = 30.0):

@@ -16,7 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
-__all__ = ["Body", "SMPL_FEET", "SMPL_JOINT_NAMES", "SMPL_PARENTS", "StaticArray"]
+__all__ = ["Body", "SMPL_FEET", "SMPL_JOINT_NAMES", "SMPL_PARENTS", "StaticArray", "scaled_body"]
 
 SMPL_JOINT_NAMES: tuple[str, ...] = (
     "pelvis", "left_hip", "right_hip", "spine1", "left_knee", "right_knee", "spine2",
@@ -211,3 +211,17 @@ def make_body(
         gender=gender,
         max_influences=influences,
     )
+
+
+def scaled_body(body: Body, s: float) -> Body:
+    """`body` uniformly scaled by s about its origin (template, shape and pose blend shapes).
+
+    The joints, regressed linearly from the vertices, scale with them; rotations, skinning
+    weights and topology are unchanged, so a pose means the same on every scaled copy.
+    """
+    v = np.asarray(s) if not isinstance(s, jax.core.Tracer) else None
+    if v is not None and (v.ndim != 0 or not np.issubdtype(v.dtype, np.number) or not (np.isfinite(v) and v > 0)):
+        raise ValueError(f"scaled_body: s must be one finite number > 0, got {s!r}.")
+    k = jnp.asarray(s, body.dtype)  # a NumPy float64 s must not promote a float32 body
+    return eqx.tree_at(lambda b: (b.v_template, b.shapedirs, b.posedirs), body,
+                       (body.v_template * k, body.shapedirs * k, body.posedirs * k))  # fmt: skip
