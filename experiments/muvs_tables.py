@@ -3,8 +3,9 @@
 Data: CMU clips no weight was chosen on (`../shared/data/cmu_cc`; MuVS's weights came from
 `../shared/data/cmu`), each fitted with the pose prior built without its subject
 (`jaxmocap.priors.build.evaluation_prior`: the bundled prior has seen every clip), each on a
-default body with random shape, filmed by 4 static cameras on a ring (256 x 192 px),
-BODY_25 keypoints through the detector error model (pixel noise, misses, outliers and
+default body with random shape, filmed by 4 static cameras on a ring (256 x 192 px; the
+person is 45-70 px tall), BODY_25 keypoints through the detector error model (3 px noise,
+misses, outliers and
 left/right swap runs at a known rate), silhouettes rasterised from the true mesh with
 segmentation-like boundary errors (`segmentation_errors`).
 For 1-4 views (the others masked, so one compiled solve serves all), every clip is fitted
@@ -17,6 +18,13 @@ share whose fitted 3-D knees and ankles are on the correct side (and, for refere
 same share over all such frames, swapped or not); `by_vote` splits the events by whether
 the clean views outnumber the swapped ones at that frame ("outvoted"), match them ("tie":
 one of one or two views) or not: only the first can be settled by the views alone.
+`swap_repair_rate` pools the events of every view count; `swap_repair_rate_by_views` gives
+each, and `swap_repair_rate_multiview` pools 2-4 views (one view cannot place the legs in
+depth: its fits get the legs' sides wrong on ~25 % of frames with no swap at all). The
+`_visible` rates count only the events whose true knees and ankles are also ≥ 2 × the
+pixel noise apart in the swapped view's image (`visible_in_image`): at 256 x 192 px the
+knees are a median ~5 px apart in the image, and a swap of two points closer than the
+detector's noise changes nothing a fit could see.
 
     python experiments/muvs_tables.py                      # -> out/muvs_tables/
     python experiments/muvs_tables.py --out experiments/results   # publish
@@ -26,6 +34,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import dataclasses
 import json
 import platform
 import time
@@ -55,6 +64,7 @@ DETECTOR = DetectorErrorModel(
     pixel_noise=3.0, confidence_mean=0.8, confidence_std=0.1, miss_rate=0.03, outlier_rate=0.01,
     swap_rate=0.02, swap_length=8.0, person_miss_rate=0.0, distractor_rate=0.0, max_distractors=0,
 )  # fmt: skip
+CAMERAS = CameraConfig(num_views=4, width=256, height=192)
 
 
 def pick_clips(n: int, frames: int) -> list[Path]:
@@ -84,7 +94,7 @@ def segmentation_errors(masks, rng):
 def build(clips, frames, seed, body):
     cfg = ScenarioConfig(
         max_frames=frames, imu_set=None, betas_std=1.0, num_betas=10, keypoints="body25", detector=DETECTOR,
-        cameras=CameraConfig(num_views=4, width=256, height=192), silhouettes=True,
+        cameras=CAMERAS, silhouettes=True,
     )  # fmt: skip
     datas, truth = [], []
     for i, clip in enumerate(clips):
@@ -94,7 +104,7 @@ def build(clips, frames, seed, body):
         datas.append(mv.camera_data(body, s["cam_K"], s["cam_R"][:, 0], s["cam_t"][:, 0], kp, "body25", masks=masks,
                                     prior=evaluation_prior(clip)))  # the bundled prior has seen every CMU clip
         truth.append({"poses": s["poses"][0], "trans": s["trans"][0], "betas": s["betas"][0], "swapped": swapped,
-                      "name": clip.stem})  # fmt: skip
+                      "kp_true": s["kp_true"][0], "name": clip.stem})  # fmt: skip
     return mv.stack(datas), truth
 
 
@@ -132,6 +142,16 @@ def legs_correct(pred, true, body, separation: float = 0.15):
     return ok, apart
 
 
+def visible_in_image(kp_true, names, separation: float) -> np.ndarray:
+    """(T, V) whether the true knees and ankles lie `separation` px apart or more in each
+    view: a swap of points closer than that moves nothing the detector noise does not."""
+    apart = np.ones(kp_true.shape[:2], bool)  # (V, T)
+    for a in ("knee", "ankle"):
+        i, j = names.index(f"left_{a}"), names.index(f"right_{a}")
+        apart &= np.linalg.norm(kp_true[:, :, i] - kp_true[:, :, j], axis=-1) >= separation
+    return apart.T
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--clips", type=int, default=10)
@@ -139,7 +159,8 @@ def main(argv=None):
     ap.add_argument("--views", type=int, nargs="+", default=[1, 2, 3, 4])
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", type=Path, default=Path("out/muvs_tables"))
-    ap.add_argument("--resolve-swaps", action="store_true", help="flip back swapped views first (resolve_left_right)")
+    ap.add_argument("--resolve-swaps", action="store_true",
+                    help="flip back swapped views first (resolve_left_right); writes muvs_tables_resolve_swaps.*")
     ap.add_argument("--weights", nargs="*", default=[], metavar="NAME=VALUE",
                     help="MuVSWeights overrides, e.g. sigma=100 silhouette_points=None steps=50,50,30")
     args = ap.parse_args(argv)
@@ -147,6 +168,7 @@ def main(argv=None):
     body = default_body("low")
     clips = pick_clips(args.clips, args.frames)
     t0 = time.perf_counter()
+    name = "muvs_tables" + ("_resolve_swaps" if args.resolve_swaps else "")
     data, truth = build(clips, args.frames, args.seed, body)
     timing = {"build_s": time.perf_counter() - t0}
     print(f"built {len(clips)} clips x {args.frames} frames x 4 views in {timing['build_s']:.1f} s", flush=True)
@@ -157,31 +179,38 @@ def main(argv=None):
     tables, shapes, swaps, sim = {}, {}, {}, {}
 
     def publish():
-        ev = sum(swaps[k]["S_T"]["events"] for k in swaps)
-        rep = sum(swaps[k]["S_T"]["repaired"] for k in swaps)
+        def rate(ks, kind=""):  # the share of swap events repaired after stage 2, pooled over view counts ks
+            return sum(swaps[k]["S_T"][kind + "repaired"] for k in ks) / max(sum(swaps[k]["S_T"][kind + "events"] for k in ks), 1)
+
+        multi = [k for k in swaps if k != "views_1"]
         directions = {k: {"S_lowers": r["S"] < r["stage1"], "T_lowers": r["S_T"] < r["S"], "H_lowers": r["S_T_H"] < r["S_T"]}
                       for k, r in tables.items()}  # fmt: skip
         result = {
             "clips": [t["name"] for t in truth], "frames": args.frames, "seed": args.seed,
-            "detector": DETECTOR.__dict__, "weights": {k: v for k, v in w.__dict__.items()},
+            "detector": DETECTOR.__dict__, "cameras": dataclasses.asdict(CAMERAS), "resolve_swaps": args.resolve_swaps,
+            "weights": {k: v for k, v in w.__dict__.items()},
             "mpjpe_mm": tables, "mpjpe_sim_mm": sim, "shape_error_mm": shapes,
-            "swap_repair_rate": rep / max(ev, 1), "swap_repair": swaps, "directions_hold": directions,
+            "swap_repair_rate": rate(swaps), "swap_repair_rate_multiview": rate(multi),
+            "swap_repair_rate_by_views": {k: rate([k]) for k in swaps},
+            "swap_repair_rate_visible": rate(swaps, "visible_"), "swap_repair_rate_visible_multiview": rate(multi, "visible_"),
+            "swap_repair_rate_visible_by_views": {k: rate([k], "visible_") for k in swaps},
+            "visible_separation_px": 2 * DETECTOR.pixel_noise, "swap_repair": swaps, "directions_hold": directions,
             "thesis": THESIS, "timing_s": timing,
             "machine": {"platform": platform.platform(), "device": str(jax.devices()[0]), "jax": jax.__version__},
         }  # fmt: skip
-        (args.out / "muvs_tables.json").write_text(json.dumps(result, indent=2, default=float))
+        (args.out / f"{name}.json").write_text(json.dumps(result, indent=2, default=float))
         md = ["| views | stage 1 | +S | +S,T | +S,T,H | shape error stage 1 / +S (mm) | swaps repaired (+S,T) |",
               "|---|---|---|---|---|---|---|"]  # fmt: skip
         for k in tables:
-            for name, r in ((k.split("_")[1], tables[k]), (k.split("_")[1] + " (Sim)", sim[k])):
-                md.append(f"| {name} | {r['stage1']:.1f} | {r['S']:.1f} | {r['S_T']:.1f} | {r['S_T_H']:.1f} | "
+            for row_name, r in ((k.split("_")[1], tables[k]), (k.split("_")[1] + " (Sim)", sim[k])):
+                md.append(f"| {row_name} | {r['stage1']:.1f} | {r['S']:.1f} | {r['S_T']:.1f} | {r['S_T_H']:.1f} | "
                           f"{shapes[k]['stage1']:.1f} / {shapes[k]['S']:.1f} | {swaps[k]['S_T']['rate']:.1%} |")  # fmt: skip
-        (args.out / "muvs_tables.md").write_text(
+        (args.out / f"{name}.md").write_text(
             "# Multi-view SMPLify on unseen CMU clips (MPJPE mm, 24 joints; no alignment, and (Sim) after per-frame "
             "similarity alignment, Table 4.5's protocol for one view)\n\n" + "\n".join(md) + "\n"
         )
         # one view: only the aligned error means anything (depth is not observed)
-        _plot({**tables, **({"views_1": sim["views_1"]} if "views_1" in sim else {})}, args.out / "muvs_tables.png")
+        _plot({**tables, **({"views_1": sim["views_1"]} if "views_1" in sim else {})}, args.out / f"{name}.png")
         return result, directions
 
     for n in args.views:
@@ -195,7 +224,7 @@ def main(argv=None):
         ph, _ = mv.stage_two(d, ps, w, silhouettes=True)
         timing[f"views_{n}_s"] = time.perf_counter() - t1
         fits = {"stage1": pj, "S": ps, "S_T": pt, "S_T_H": ph}
-        np.savez_compressed(args.out / f"muvs_fits_views_{n}.npz", **{f"{k}_{q}": v[q] for k, v in fits.items()
+        np.savez_compressed(args.out / f"{name}_fits_views_{n}.npz", **{f"{k}_{q}": v[q] for k, v in fits.items()
                                                                         for q in ("pose", "trans", "betas")})  # fmt: skip
         row, srow, wrow, mrow, legs_ok, legs_n = {}, {}, {}, {}, {}, {}
         for key, p in fits.items():
@@ -207,7 +236,7 @@ def main(argv=None):
             srow[key] = float(np.mean([shape_error(body, betas[b], truth[b]["betas"]) for b in range(len(truth))]))
             aligned = procrustes_align(jnp.asarray(pred), jnp.asarray(true_joints), scale=True)
             mrow[key] = float(jnp.mean(jnp.linalg.norm(aligned - true_joints, axis=-1)) * 1000)
-            events = repaired = 0
+            events = repaired = visible_events = visible_repaired = 0
             votes = {c: [0, 0] for c in ("outvoted", "tie", "majority_swapped")}
             for b, t in enumerate(truth):
                 ok, apart = legs_correct(pred[b], true_joints[b], body)
@@ -216,13 +245,17 @@ def main(argv=None):
                 legs_n[key] = legs_n.get(key, 0) + int(apart.sum())
                 events += int(swapped.sum())
                 repaired += int((swapped & ok[:, None]).sum())
+                seen = swapped & visible_in_image(t["kp_true"], names, 2 * DETECTOR.pixel_noise)[:, :n]
+                visible_events += int(seen.sum())
+                visible_repaired += int((seen & ok[:, None]).sum())
                 # Per event: do the clean views outnumber the swapped ones at that frame?
                 k = swapped.sum(1, keepdims=True)
                 kind = np.where(2 * k < n, 0, np.where(2 * k == n, 1, 2)) + 0 * swapped
-                for c, name in enumerate(votes):
-                    votes[name][0] += int((swapped & (kind == c)).sum())
-                    votes[name][1] += int((swapped & (kind == c) & ok[:, None]).sum())
+                for c, kind_name in enumerate(votes):
+                    votes[kind_name][0] += int((swapped & (kind == c)).sum())
+                    votes[kind_name][1] += int((swapped & (kind == c) & ok[:, None]).sum())
             wrow[key] = {"events": events, "repaired": repaired, "rate": repaired / max(events, 1),
+                         "visible_events": visible_events, "visible_repaired": visible_repaired,
                          "legs_correct_all_frames": legs_ok[key] / max(legs_n[key], 1),
                          "by_vote": {c: {"events": e, "repaired": r} for c, (e, r) in votes.items()}}
         tables[f"views_{n}"], shapes[f"views_{n}"], swaps[f"views_{n}"], sim[f"views_{n}"] = row, srow, wrow, mrow
@@ -231,7 +264,8 @@ def main(argv=None):
               f" ({timing[f'views_{n}_s']:.0f} s)", flush=True)  # fmt: skip
         publish()  # after every view count: an interrupted run keeps what it finished
     result, directions = publish()
-    print(json.dumps({"swap_repair_rate": result["swap_repair_rate"], "directions_hold": directions}, indent=1))
+    print(json.dumps({k: v for k, v in result.items() if k.startswith("swap_repair_rate")}
+                     | {"directions_hold": directions}, indent=1))  # fmt: skip
 
 
 def _override(text: str):

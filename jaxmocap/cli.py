@@ -287,6 +287,8 @@ def _configure_multiview(p: argparse.ArgumentParser) -> None:
     p.add_argument("--frames", type=_frame_slice, metavar="START:STOP", help="frame numbers to fit (default: all)")
     p.add_argument("--fps", type=_positive(float), default=30.0, help="frame rate of the recording (default: 30)")
     p.add_argument("--no-temporal", action="store_true", help="stop after stage 1 (no DCT temporal prior)")
+    p.add_argument("--keep-swaps", action="store_true",
+                   help="do not flip back views whose detector swapped the legs (MuVS as written)")
     p.add_argument("--masks", metavar="DIR", help="person masks: one folder of PNGs per camera (adds silhouettes)")
 
 
@@ -294,8 +296,8 @@ def _run_multiview(args) -> int:
     from .app.multiview import fit_recording
 
     r = fit_recording(args.keypoints, args.calib, args.out, layout=args.layout, body=args.body, views=args.views,
-                      frames=args.frames, temporal=not args.no_temporal, masks_dir=args.masks, fps=args.fps,
-                      progress=sys.stderr.isatty())
+                      frames=args.frames, temporal=not args.no_temporal, resolve_swaps=not args.keep_swaps,
+                      masks_dir=args.masks, fps=args.fps, progress=sys.stderr.isatty())
     final, out = r["reprojection"]["final"], Path(args.out)
     num = lambda x, spec: "-" if x is None else format(x, spec)  # noqa: E731 (None: nothing to measure)
     per_view = ", ".join(f"{v} {s['median_px']:.1f}" for v, s in final["per_view"].items() if s["count"])

@@ -318,6 +318,7 @@ def fit_recording(
     fps: float = 30.0,
     weights=None,
     progress: bool = True,
+    resolve_swaps: bool = True,
 ) -> dict:
     """Fit SMPL to a multi-camera OpenPose recording and write results to `out_dir`.
 
@@ -332,6 +333,8 @@ def fit_recording(
         views: camera folder names to use (default: all).
         frames: slice of frame numbers (as in the file names) to fit; default all.
         temporal: run stage 2 (DCT temporal prior); otherwise stop after stage 1.
+        resolve_swaps: flip back views whose detector swapped the legs before stage 1
+            (`methods.multiview.resolve_left_right`); False is MuVS as written.
         masks_dir: optional folder of per-camera PNG person masks (module docstring);
             they add the silhouette term to stage 1.
         fps: the recording's frame rate (OpenPose files do not store it).
@@ -344,7 +347,7 @@ def fit_recording(
         ValueError (KeypointFileError, CalibrationError) naming the file or argument.
     """
     from ..formats import align_views, load_calibration, read_openpose
-    from ..methods.multiview import MuVSWeights, camera_data, initialise, stage_one, stage_two
+    from ..methods.multiview import MuVSWeights, camera_data, initialise, resolve_left_right, stage_one, stage_two
     from ..sensors.keypoints import KEYPOINT_FORMATS, keypoint_regressor
     from ..sensors.triangulation import select_person
     from ..body.io import resolve_body
@@ -408,6 +411,7 @@ def fit_recording(
         masks = None if masks_dir is None else read_masks(masks_dir, recording.views, recording.frames, cameras)
         data = camera_data(body_model, K, np.stack([c.R for c in cameras]), np.stack([c.t for c in cameras]),
                            shifted, layout, masks=masks)  # fmt: skip
+        data = resolve_left_right(data) if resolve_swaps else data
         p0 = _fill_empty_frames(initialise(data, weights.num_betas), empty)
         done("initialise")
 
@@ -435,6 +439,7 @@ def fit_recording(
     finally:
         if bar is not None:
             bar.close()
+    report["resolve_swaps"] = resolve_swaps
     report["timings_s"] = {k: round(v, 3) for k, v in timings.items()}
     report["timings_s"]["total"] = round(sum(timings.values()), 3)
     _save_reports(out_dir, report)

@@ -12,8 +12,12 @@
   adds E_S here too.
 - **Monocular** (Table 4.5): the same code with one view.
 
-Left/right swaps (ours, opt-in): before stage 1, `resolve_left_right` can flip back the leg
-labels of any view that disagrees with the others (2^V assignments triangulated per frame).
+Left/right swaps (ours, on by default in `multiview_smplify` and the CLI): before stage 1,
+`resolve_left_right` flips back the leg labels of any view that disagrees with the others
+(2^V assignments triangulated per frame). On 10 unseen CMU clips (experiments/muvs_tables.py)
+it lowers MPJPE at every stage with 2-4 views (3 views after stage 2: 93.7 -> 88.4 mm) and
+raises the swaps repaired from 70 % to 87 % (2-4 views pooled); with one view it does
+nothing. `resolve_swaps=False` is MuVS as written.
 
 Initialisation (ours; MuVS reuses SMPLify's): per frame, the hips and shoulders are
 triangulated from every view that sees them (confidence-weighted DLT) and give the root
@@ -663,13 +667,13 @@ def multiview_smplify(
     temporal: bool = True,
     temporal_silhouettes: bool = False,
     params0: dict | None = None,
-    resolve_swaps: bool = False,
+    resolve_swaps: bool = True,
 ) -> MuVSResult:
     """MuVS on one sequence: stage 1 (+S if masks are given), then stage 2 (+T, +H).
 
-    With `resolve_swaps`, views that swapped the legs are flipped back first
-    (`resolve_left_right`; our addition, off by default until its effect on the fit is
-    measured: it flips back most swapped views, but also some unswapped ones)."""
+    With `resolve_swaps` (default), views that swapped the legs are flipped back first
+    (`resolve_left_right`, our addition, measured in the module docstring); False is MuVS
+    as written."""
     data = resolve_left_right(data) if resolve_swaps else data
     p0 = initialise(data, weights.num_betas) if params0 is None else params0
     p1, costs = stage_one(data, p0, weights, silhouettes)
