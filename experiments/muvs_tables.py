@@ -18,6 +18,8 @@ share whose fitted 3-D knees and ankles are on the correct side (and, for refere
 same share over all such frames, swapped or not); `by_vote` splits the events by whether
 the clean views outnumber the swapped ones at that frame ("outvoted"), match them ("tie":
 one of one or two views) or not: only the first can be settled by the views alone.
+Before stage 1 the views that swapped the legs are flipped back (`resolve_left_right`, the
+library's default, with its temporal labels); `--keep-swaps` is MuVS as written.
 `swap_repair_rate` pools the events of every view count; `swap_repair_rate_by_views` gives
 each, and `swap_repair_rate_multiview` pools 2-4 views (one view cannot place the legs in
 depth: its fits get the legs' sides wrong on ~25 % of frames with no swap at all). The
@@ -28,6 +30,7 @@ detector's noise changes nothing a fit could see.
 
     python experiments/muvs_tables.py                      # -> out/muvs_tables/
     python experiments/muvs_tables.py --out experiments/results   # publish
+    python experiments/muvs_tables.py --keep-swaps --out experiments/results   # MuVS as written
 """
 
 from __future__ import annotations
@@ -159,8 +162,8 @@ def main(argv=None):
     ap.add_argument("--views", type=int, nargs="+", default=[1, 2, 3, 4])
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", type=Path, default=Path("out/muvs_tables"))
-    ap.add_argument("--resolve-swaps", action="store_true",
-                    help="flip back swapped views first (resolve_left_right); writes muvs_tables_resolve_swaps.*")
+    ap.add_argument("--keep-swaps", action="store_true",
+                    help="MuVS as written: no resolve_left_right before stage 1; writes muvs_tables_as_written.*")
     ap.add_argument("--weights", nargs="*", default=[], metavar="NAME=VALUE",
                     help="MuVSWeights overrides, e.g. sigma=100 silhouette_points=None steps=50,50,30")
     args = ap.parse_args(argv)
@@ -168,7 +171,7 @@ def main(argv=None):
     body = default_body("low")
     clips = pick_clips(args.clips, args.frames)
     t0 = time.perf_counter()
-    name = "muvs_tables" + ("_resolve_swaps" if args.resolve_swaps else "")
+    name = "muvs_tables" + ("_as_written" if args.keep_swaps else "")
     data, truth = build(clips, args.frames, args.seed, body)
     timing = {"build_s": time.perf_counter() - t0}
     print(f"built {len(clips)} clips x {args.frames} frames x 4 views in {timing['build_s']:.1f} s", flush=True)
@@ -187,7 +190,7 @@ def main(argv=None):
                       for k, r in tables.items()}  # fmt: skip
         result = {
             "clips": [t["name"] for t in truth], "frames": args.frames, "seed": args.seed,
-            "detector": DETECTOR.__dict__, "cameras": dataclasses.asdict(CAMERAS), "resolve_swaps": args.resolve_swaps,
+            "detector": DETECTOR.__dict__, "cameras": dataclasses.asdict(CAMERAS), "resolve_swaps": not args.keep_swaps,
             "weights": {k: v for k, v in w.__dict__.items()},
             "mpjpe_mm": tables, "mpjpe_sim_mm": sim, "shape_error_mm": shapes,
             "swap_repair_rate": rate(swaps), "swap_repair_rate_multiview": rate(multi),
@@ -206,7 +209,8 @@ def main(argv=None):
                 md.append(f"| {row_name} | {r['stage1']:.1f} | {r['S']:.1f} | {r['S_T']:.1f} | {r['S_T_H']:.1f} | "
                           f"{shapes[k]['stage1']:.1f} / {shapes[k]['S']:.1f} | {swaps[k]['S_T']['rate']:.1%} |")  # fmt: skip
         (args.out / f"{name}.md").write_text(
-            "# Multi-view SMPLify on unseen CMU clips (MPJPE mm, 24 joints; no alignment, and (Sim) after per-frame "
+            "# Multi-view SMPLify on unseen CMU clips, " + ("MuVS as written" if args.keep_swaps else "swapped views flipped back first")
+            + " (MPJPE mm, 24 joints; no alignment, and (Sim) after per-frame "
             "similarity alignment, Table 4.5's protocol for one view)\n\n" + "\n".join(md) + "\n"
         )
         # one view: only the aligned error means anything (depth is not observed)
@@ -215,7 +219,7 @@ def main(argv=None):
 
     for n in args.views:
         d = mv.mask_views(data, range(n))
-        d = mv.resolve_left_right(d) if args.resolve_swaps else d  # views that swapped the legs
+        d = d if args.keep_swaps else mv.resolve_left_right(d)  # views that swapped the legs (library default)
         t1 = time.perf_counter()
         p0 = mv.initialise(d, w.num_betas)
         pj, _ = mv.stage_one(d, p0, w, silhouettes=False)
