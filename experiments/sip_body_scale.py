@@ -248,21 +248,22 @@ def markdown(res: dict) -> str:
     for t, v in res["scale_estimate"].items():
         L.append(f"| {t} | {v['mean']:.3f} | {v['std']:.3f} | {100 * v['relative_error_mean']:+.1f} % | {v['at_edge']} | "
                  + " | ".join(f"{b['mean']:.3f} ± {b['std']:.3f}" for b in v["by_criterion"].values()) + " |")
-    L += ["", "## Errors by true scale: default-size model / estimated scale", "",
-          "| true scale | MPJPE rigid [mm] | MPJPE Procrustes with scale [mm] | pose on the true body [mm] | MPJAE [°] |",
-          "| --- | --- | --- | --- | --- |"]  # fmt: skip
-    for t, v in res["errors_by_true_scale"].items():
-        a, b = v["default_size"], v["scale_estimated"]
-        L.append(f"| {t} | " + " | ".join(f"{a[k]:.1f} / {b[k]:.1f}" for k in a) + " |")
-    L += ["", "## Table 3.2 with the scale estimate (true body = model at 100 %): model size as given / estimated", "",
-          "| | MPJPE rigid [mm] | MPJPE Procrustes with scale [mm] | pose on the true body [mm] | MPJAE [°] |",
-          "| --- | --- | --- | --- | --- |"]  # fmt: skip
-    for name, v in res["table_3_2_with_scale_estimate"].items():
-        a, b = v["model_size_known"], v["scale_estimated"]
-        L.append(f"| {name} | " + " | ".join(f"{a[k]:.1f} / {b[k]:.1f}" for k in a) + " |")
+    L += _paired_table("Errors by true scale: default-size model / estimated scale", "true scale",
+                       res["errors_by_true_scale"], "default_size", "scale_estimated")
+    L += _paired_table("Table 3.2 with the scale estimate (true body = model at 100 %): model size as given / estimated", "",
+                       res["table_3_2_with_scale_estimate"], "model_size_known", "scale_estimated")
     L += ["", "The estimate does not depend on the size the user assumed (the candidates are the same bodies), "
           "so the three rows share one estimate.", ""]
     return "\n".join(L)
+
+
+def _paired_table(title: str, first: str, rows: dict, a: str, b: str) -> list[str]:
+    """Markdown rows "a / b" of the four errors for every row of `rows`."""
+    L = ["", f"## {title}", "", f"| {first} | MPJPE rigid [mm] | MPJPE Procrustes with scale [mm] | pose on the true body [mm] | MPJAE [°] |",
+         "| --- | --- | --- | --- | --- |"]  # fmt: skip
+    for name, v in rows.items():
+        L.append(f"| {name} | " + " | ".join(f"{v[a][k]:.1f} / {v[b][k]:.1f}" for k in v[a]) + " |")
+    return L
 
 
 def cache_key(args) -> str:
