@@ -39,6 +39,7 @@ sys.path.insert(0, str(ROOT))
 
 from jaxmocap.body.io import default_body  # noqa: E402
 from jaxmocap.methods import inertial  # noqa: E402
+from jaxmocap.methods.association import load_model  # noqa: E402
 from jaxmocap.methods import visual_inertial as vip  # noqa: E402
 from jaxmocap.metrics import pose_errors  # noqa: E402
 from jaxmocap.motion.corpus import find_cmu_cc_dir  # noqa: E402
@@ -137,10 +138,12 @@ def run(clips: int, frames: int, seed: int, steps: int, folder: Path, out: Path,
     body = default_body("low")
     files = held_out_clips(folder)[:clips]
     per_clip = []
+    window = load_model().penalty_window
     done = out / "vip_tables_per_clip"  # one file per finished clip: an interrupted run resumes
     done.mkdir(parents=True, exist_ok=True)
     for i, f in enumerate(files):
-        path = done / f"{i:02d}_{Path(f).stem}_{frames}_{seed}_{steps}.json"
+        # the association model's penalty window in the name: a result of another model is not reused
+        path = done / f"{i:02d}_{Path(f).stem}_{frames}_{seed}_{steps}_pw{window}.json"
         rng = np.random.default_rng([seed, i])  # per clip, so that a resumed run draws the same x0
         if path.exists():
             per_clip.append(json.loads(path.read_text()))
@@ -165,7 +168,7 @@ def run(clips: int, frames: int, seed: int, steps: int, folder: Path, out: Path,
     assigned, right, visible = (sum(c["association"][k] for c in per_clip) for k in ("assigned", "right", "visible"))
     return {
         "config": {"clips": len(per_clip), "requested_clips": clips, "frames": frames, "seed": seed, "lm_steps": steps, "body": "low",
-                   "weights": vars(vip.VIPWeights()), "data": str(folder)},  # fmt: skip
+                   "weights": vars(vip.VIPWeights()), "association_penalty_window": window, "data": str(folder)},  # fmt: skip
         "rows": rows,
         "vip_vs_it_relative_change_percent": {"mpjpe": 100.0 * (v - it) / it,
                                               "mpjae": 100.0 * (rows["VIP"]["mpjae_deg"] / rows["IT"]["mpjae_deg"] - 1)},
