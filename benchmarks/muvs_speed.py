@@ -12,7 +12,9 @@ the joint fit with the annealed prior (3 solves) + the silhouette solve; stage 2
 temporal solve. `stage1_s_per_frame` and `stage2_s_per_window` are the steady state on
 `--frames`; `*_steady` the steady state on a `--long` clip (default 300 frames), where
 fixed costs per call are spread over many frames: what a long sequence costs per frame.
-`baseline_engine_stage2_s_per_window`: the same stage-2 steps through the generic
+`resolve_swaps_s_per_frame(_steady)`: the check for views that swapped the legs, which
+`multiview_smplify` runs before stage 1 (`resolve_left_right`, NumPy on the host; not in
+the stage-1 times). `baseline_engine_stage2_s_per_window`: the same stage-2 steps through the generic
 structured engine (`stage_two(structured=False)`), in the same process.
 The thesis (Huang §4.3.3): ~70 s per frame (stage 1) and ~12 min per 30-frame unit
 (stage 2) on a 4-core PC with four 500 x 500 views; `*_vs_thesis` are our time / theirs.
@@ -67,12 +69,14 @@ def timed(fn, *args):
 
 
 def run_stages(data, w):
-    """Stage 1 (joints, silhouettes) and stage 2 timed: {name: (steady s, first-call s)}."""
+    """The swap check, stage 1 (joints, silhouettes) and stage 2 timed: {name: (steady s, first-call s)}."""
+    _, t_resolve, f_resolve = timed(lambda: mv.resolve_left_right(data))
     p0 = mv.initialise(data, w.num_betas)
     (pj, _), t_joints, f_joints = timed(lambda: mv.stage_one(data, p0, w, silhouettes=False))
     (ps, _), t_sil, f_sil = timed(lambda: mv.stage_one(data, pj, w.replace(anneal=()), silhouettes=True))
     (pt, _), t_temporal, f_temporal = timed(lambda: mv.stage_two(data, ps, w))
-    times = {"joints": (t_joints, f_joints), "silhouettes": (t_sil, f_sil), "temporal": (t_temporal, f_temporal)}
+    times = {"joints": (t_joints, f_joints), "silhouettes": (t_sil, f_sil), "temporal": (t_temporal, f_temporal),
+             "resolve": (t_resolve, f_resolve)}  # fmt: skip
     return p0, ps, times
 
 
@@ -91,7 +95,7 @@ def main(argv=None):
     windows = args.batch * -(-args.frames // w.window)
 
     p0, ps, times = run_stages(data, w)
-    (t_joints, f_joints), (t_sil, f_sil), (t_temporal, f_temporal) = times.values()
+    (t_joints, f_joints), (t_sil, f_sil), (t_temporal, f_temporal), (t_resolve, _) = times.values()
     _, t_engine, _ = timed(lambda: mv.stage_two(data, ps, w, structured=False))
     steady = {}
     if args.long:
@@ -105,6 +109,7 @@ def main(argv=None):
             "stage1_joints_s_per_frame_steady": ltimes["joints"][0] / n_long,
             "stage1_silhouettes_s_per_frame_steady": ltimes["silhouettes"][0] / n_long,
             "stage2_s_per_window_steady": ltimes["temporal"][0] / (args.batch * -(-args.long // w.window)),
+            "resolve_swaps_s_per_frame_steady": ltimes["resolve"][0] / n_long,
             "long_first_call_s": {k: v[1] for k, v in ltimes.items()},
         }  # fmt: skip
 
@@ -135,6 +140,7 @@ def main(argv=None):
         "steps": list(w.steps), "silhouette_points": w.silhouette_points,
         "stage1_s_per_frame": stage1 / n_frames,
         "stage2_s_per_window": t_temporal / windows,
+        "resolve_swaps_s_per_frame": t_resolve / n_frames,
         "baseline_engine_stage2_s_per_window": t_engine / windows,
         **steady,
         "frames_per_s_stage1": n_frames / stage1,
