@@ -210,3 +210,22 @@ def test_structured_temporal_solve_matches_the_generic_engine(scene):
     slow, c_slow = mv.stage_two(data, p1, w, max_steps=5, structured=False)
     np.testing.assert_allclose(c_fast["temporal"], c_slow["temporal"], rtol=0.02)
     assert _mpjpe(body, fast, fast["betas"], scene["joints"]) < 40.0
+
+
+def test_weights_follow_the_image_resolution(scene):
+    """The same views at twice the resolution (K and keypoints x 2) give the same fit:
+    MuVSWeights are in pixels of its reference focal length; raw pixels would not."""
+    body, R, t = scene["body"], scene["R"], scene["t"]
+    K2, kp2 = scene["K"].copy(), scene["kp"].copy()
+    K2[:, :2] *= 2.0
+    kp2[..., :2] *= 2.0
+    low = mv.camera_data(body, scene["K"], R, t, scene["kp"], "body25")
+    high = mv.camera_data(body, K2, R, t, kp2, "body25")
+    w = mv.MuVSWeights(anneal=(1.0,))
+    p0 = mv.initialise(low, w.num_betas)
+    a, _ = mv.stage_one(low, p0, w, silhouettes=False, max_steps=5)
+    b, _ = mv.stage_one(high, p0, w, silhouettes=False, max_steps=5)
+    np.testing.assert_allclose(b["pose"], a["pose"], atol=2e-3)
+    np.testing.assert_allclose(b["trans"], a["trans"], atol=2e-4)
+    raw, _ = mv.stage_one(high, p0, w.replace(reference_focal=None), silhouettes=False, max_steps=5)
+    assert np.abs(raw["betas"] - a["betas"]).max() > 1e-2  # the keypoints weigh 4x more against the priors

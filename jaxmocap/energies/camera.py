@@ -218,7 +218,8 @@ def mask_to_model(uv: Array, silhouettes: Silhouettes, slack: float = 2.0, loss=
     return per_point * loss(e * (jnp.maximum(d - slack, 0.0) / d))  # (T, V, M, 2)
 
 
-def silhouette_terms(w_model: float = 1.0, w_mask: float = 1.0, stride: int = 1, slack: float = 2.0) -> list[Term]:
+def silhouette_terms(w_model: float = 1.0, w_mask: float = 1.0, stride: int = 1, slack: float = 2.0,
+                     huber: float = 1.0) -> list[Term]:
     """E_S (eq. 4.5) as two terms: model→mask (squared) and mask→model (L1 tails).
 
     `stride` keeps every stride-th vertex as a model point (fewer residuals, faster),
@@ -226,9 +227,10 @@ def silhouette_terms(w_model: float = 1.0, w_mask: float = 1.0, stride: int = 1,
     `slack` (px): a mask point closer than this to a projected vertex counts as inside
     the model silhouette (l = 0). Projected vertices sample Ŝ with gaps of a few pixels;
     without the slack every mask point would pay for its gap and E_S would inflate the
-    body to shrink the gaps (measured: +20 mm shape error).
+    body to shrink the gaps (measured: +20 mm shape error). `huber` (px): δ of the Huber
+    loss of the mask→model distances.
     """
-    huber = Huber(1.0)
+    loss = Huber(huber)
 
     def model_points(params, data: CameraData):
         verts = _model_points(_posed(params, data).vertices, data, stride)
@@ -240,7 +242,7 @@ def silhouette_terms(w_model: float = 1.0, w_mask: float = 1.0, stride: int = 1,
     def mask_points(params, data: CameraData):
         verts = _model_points(_posed(params, data).vertices, data, stride)
         uv, _ = _views(data, verts)  # (T, V, N, 2)
-        return mask_to_model(uv, data.silhouettes, slack, huber)
+        return mask_to_model(uv, data.silhouettes, slack, loss)
 
     def has_mask(data: CameraData):
         return jnp.any(data.silhouettes.valid, -1)[..., None]  # (T, V, 1)

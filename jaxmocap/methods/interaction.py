@@ -483,7 +483,7 @@ def fit_human(obs: InteractionObservations, body: Body | None = None, weights: I
     dtype = jnp.float32
     cam = _cameras(obs, body, dtype, prior)
     muvs = MuVSWeights(keypoints=weights.keypoints, sigma=weights.sigma, pose_prior=weights.pose_prior,
-                       shape=weights.shape)  # fmt: skip
+                       shape=weights.shape, reference_focal=None)  # fmt: skip  (InterCap's weights are in its own pixels)
     p, _ = stage_one(cam, initialise(cam, muvs.num_betas), muvs, silhouettes=False, max_steps=max_steps)
     names = ("keypoints", "pose_prior", "shape", "body_depth", "bend", "self_penetration")
     problem = _weighted(names, weights, dtype)

@@ -65,12 +65,17 @@ from ..energies.camera import (
 )
 from ..priors.pose_prior import PosePrior, default_pose_prior
 from ..rotation import matrix_to_axis_angle
+from ..sensors.camera import intrinsics
 from ..sensors.keypoints import KEYPOINT_FORMATS, flip_pairs, keypoint_regressor
 from ..sensors.triangulation import triangulate
 from ..solve import Args, GemanMcClure, Problem, frame, linearise, solve, solve_batch, with_weights
 from ..solve.unknowns import from_manifold, retract, to_manifold
 
 __all__ = ["MuVSWeights", "MuVSResult", "camera_data", "compact", "initialise", "resolve_left_right", "stage_one", "stage_two", "multiview_smplify", "mask_views", "stack"]
+
+
+#: Focal length (px) of the cameras MuVSWeights were tuned with: 256 x 192 px, 55° vertical.
+REFERENCE_FOCAL = float(intrinsics(256, 192, 55.0)[1, 1])
 
 
 @dataclasses.dataclass(frozen=True)
@@ -95,6 +100,13 @@ class MuVSWeights:
         of 20 steps); E_2 falls slowly (10 / 20 / 40 steps: 86k / 73k / 42k on 02_01),
         and 10 steps of stage 2 left its MPJPE above stage 1's.
     temporal: λ_T; temporal_sigma: σ₂ (m); window, num_dct: DCT unit and basis size.
+    reference_focal: the focal length (px) the pixel quantities above are given for: σ₁,
+        the silhouette slack, and the px² scales of E_J and E_S. Each recording converts
+        them by s = its mean focal length / reference_focal (`_in_pixels`), so the same
+        scene filmed at 4x the resolution is fitted alike (without it, 3 CMU clips at
+        1024 x 768 instead of 256 x 192, noise in proportion: MPJPE 84 -> 168 mm).
+        Default: the 256 x 192, 55° cameras the weights were tuned with. None: raw
+        pixels (InterCap, whose weights were tuned on its own cameras).
     """
 
     keypoints: float = 1.0
@@ -114,6 +126,7 @@ class MuVSWeights:
     window: int = 30
     num_dct: int = 10
     num_betas: int = 10
+    reference_focal: float | None = REFERENCE_FOCAL
 
     def replace(self, **changes) -> MuVSWeights:
         return dataclasses.replace(self, **changes)
@@ -443,21 +456,21 @@ def _monocular_root(data, uv, conf, torso: float = 0.5):
 
 
 @functools.lru_cache(maxsize=None)
-def _stage_one_problem(sigma: float, stride: int, slack: float, silhouettes: bool) -> Problem:
+def _stage_one_problem(sigma: float, stride: int, slack: float, silhouettes: bool, huber: float = 1.0) -> Problem:
     # Cached: a term's function is static, so a new closure would mean a new compile.
     terms = [keypoint_term(sigma), pose_prior_term(), shape_term()]
     if silhouettes:
-        terms += silhouette_terms(stride=stride, slack=slack)
+        terms += silhouette_terms(stride=stride, slack=slack, huber=huber)
     return Problem(terms, {"pose": frame("so3"), "trans": frame(), "betas": frame()})
 
 
 @functools.lru_cache(maxsize=None)
 def _stage_two_problem(sigma: float, stride: int, slack: float, silhouettes: bool, length: int, num_dct: int,
-                       temporal_sigma: float) -> Problem:
+                       temporal_sigma: float, huber: float = 1.0) -> Problem:
     windows = dct_window(length)
     terms = [keypoint_term(sigma), pose_prior_term(), temporal_term(windows.windows, num_dct, temporal_sigma)]
     if silhouettes:
-        terms += silhouette_terms(stride=stride, slack=slack)
+        terms += silhouette_terms(stride=stride, slack=slack, huber=huber)
     return Problem(terms, {"pose": frame("so3"), "trans": frame(), "coef": windows})
 
 
@@ -485,6 +498,28 @@ def stack(datas: Sequence[CameraData]) -> CameraData:
     return jax.tree_util.tree_map(lambda *xs: jnp.stack(xs), *datas)
 
 
+def _in_pixels(weights: MuVSWeights, data: CameraData) -> tuple[MuVSWeights, float]:
+    """`weights` in the pixels of `data`'s cameras, and the Huber δ (px) of E_S.
+
+    With s = mean focal length / `reference_focal` (one s for a whole batch): lengths in
+    pixels scale by s (σ₁, slack, δ), and the weights of E_J and E_S by 1 / s², 1 / s⁴
+    (their squared residuals grow as s², s⁴: the Geman-McClure cost is σ²ρ, and E_S
+    multiplies each distance by the square root of a mask area), so every term's cost
+    is that of the reference camera. Exact for a scene whose images are scaled by s.
+    """
+    if weights.reference_focal is None:
+        return weights, 1.0
+    f = np.asarray(data.K, np.float64)[..., [0, 1], [0, 1]]
+    s = float(np.mean(f)) / weights.reference_focal
+    if abs(s - 1.0) < 1e-6:  # the reference cameras themselves (float32 K)
+        return weights, 1.0
+    return weights.replace(
+        keypoints=weights.keypoints / s**2, sigma=weights.sigma * s, sigma_monocular=weights.sigma_monocular * s,
+        silhouette_slack=weights.silhouette_slack * s, silhouette_model=weights.silhouette_model / s**4,
+        silhouette_mask=weights.silhouette_mask / s**4,
+    ), s  # fmt: skip
+
+
 def _sigma(data: CameraData, weights: MuVSWeights) -> float:
     """σ₁ for `data`: `weights.sigma_monocular` if no sequence (batch member) has
     detections in more than one view, else `weights.sigma`."""
@@ -509,8 +544,9 @@ def stage_one(data: CameraData, params0: dict, weights: MuVSWeights = MuVSWeight
     p = {k: jnp.asarray(v, dtype) for k, v in params0.items()}
     costs = {}
     steps = weights.steps if max_steps is None else (max_steps,) * 3
+    weights, delta = _in_pixels(weights, data)
     sigma = _sigma(data, weights)
-    joints_only = _stage_one_problem(sigma, weights.silhouette_stride, weights.silhouette_slack, False)
+    joints_only = _stage_one_problem(sigma, weights.silhouette_stride, weights.silhouette_slack, False, delta)
     joint_data = compact(data, 0)
     for i, factor in enumerate(weights.anneal):
         prob = _weighted(joints_only, weights, dtype, factor)
@@ -519,7 +555,8 @@ def stage_one(data: CameraData, params0: dict, weights: MuVSWeights = MuVSWeight
         costs[f"joints_{i}"] = np.asarray(sol.cost).tolist()
         costs[f"joints_{i}_steps"] = np.asarray(sol.num_steps).tolist()
     if silhouettes and data.silhouettes is not None:
-        prob = _weighted(_stage_one_problem(sigma, weights.silhouette_stride, weights.silhouette_slack, True), weights, dtype)
+        prob = _weighted(_stage_one_problem(sigma, weights.silhouette_stride, weights.silhouette_slack, True, delta),
+                         weights, dtype)  # fmt: skip
         sol = _solve(prob, p, compact(data, weights.silhouette_points, weights.silhouette_stride), steps[1])
         p = sol.value
         costs["silhouettes"] = np.asarray(sol.cost).tolist()
@@ -558,16 +595,16 @@ def stage_two(data: CameraData, params1: dict, weights: MuVSWeights = MuVSWeight
     use_sil = silhouettes and data.silhouettes is not None
     data2 = compact(data2, weights.silhouette_points if use_sil else 0, weights.silhouette_stride)
     max_steps = weights.steps[2] if max_steps is None else max_steps
-    w = weights
-    sigma = _sigma(data, weights)
+    w, delta = _in_pixels(weights, data)
+    sigma = _sigma(data, w)
     if not structured:
         prob = _stage_two_problem(sigma, w.silhouette_stride, w.silhouette_slack, use_sil, length, num_dct,
-                                  w.temporal_sigma)
+                                  w.temporal_sigma, delta)
         sol = _solve(_weighted(prob, w, dtype), p, data2, max_steps)
         out = {k: np.asarray(v) for k, v in sol.value.items()}
         out["betas"] = betas
         return out, {"temporal": np.asarray(sol.cost).tolist(), "temporal_steps": np.asarray(sol.num_steps).tolist()}
-    prob = _weighted(_stage_data_problem(sigma, w.silhouette_stride, w.silhouette_slack, use_sil), w, dtype)
+    prob = _weighted(_stage_data_problem(sigma, w.silhouette_stride, w.silhouette_slack, use_sil, delta), w, dtype)
     basis = dct_basis(length, num_dct)
 
     def run(pose, trans, coef, d):
@@ -582,10 +619,10 @@ def stage_two(data: CameraData, params1: dict, weights: MuVSWeights = MuVSWeight
 
 
 @functools.lru_cache(maxsize=None)
-def _stage_data_problem(sigma, stride, slack, silhouettes) -> Problem:
+def _stage_data_problem(sigma, stride, slack, silhouettes, huber: float = 1.0) -> Problem:
     terms = [keypoint_term(sigma), pose_prior_term()]
     if silhouettes:
-        terms += silhouette_terms(stride=stride, slack=slack)
+        terms += silhouette_terms(stride=stride, slack=slack, huber=huber)
     return Problem(terms, {"pose": frame("so3"), "trans": frame()})
 
 

@@ -1,0 +1,85 @@
+"""Does Multi-view SMPLify depend on the image resolution when nothing else changes?
+
+    python experiments/muvs_resolution.py                 # -> out/muvs_resolution.json (~6 min on 2 cores)
+    python experiments/muvs_resolution.py --out experiments/results
+
+The same 3 clips of ../shared/data/cmu (MuVS's training subjects: this checks the method,
+it reports no accuracy) filmed by the same 4 ring cameras with the same field of view,
+at 256 x 192 px and at `--scale` times that, the detector noise scaled alike (muvs_tables'
+detector, 3 px at 256 x 192): only the pixel units differ. Joints only (stage 1 with the
+annealed prior, then stage 2), `MuVSWeights()` with its reference focal length (weights
+converted to each recording's pixels) and with `reference_focal=None` (raw pixels).
+MPJPE over SMPL's 24 joints in mm, no alignment.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from muvs_tables import DETECTOR, joints_of  # noqa: E402
+
+from jaxmocap.body import default_body  # noqa: E402
+from jaxmocap.methods import multiview as mv  # noqa: E402
+from jaxmocap.motion.io import find_data_dir  # noqa: E402
+from jaxmocap.priors.build import evaluation_prior  # noqa: E402
+from jaxmocap.sensors import CameraConfig, ScenarioConfig, make_scenario  # noqa: E402
+from jaxmocap.sensors.keypoints import person_track  # noqa: E402
+
+CLIPS = ("02_04.amc", "02_06.amc", "131_01.bvh")
+
+
+def fit(body, clips, frames: int, scale: int, weights: mv.MuVSWeights) -> dict:
+    detector = DETECTOR.__class__(**{**DETECTOR.__dict__, "pixel_noise": DETECTOR.pixel_noise * scale})
+    cfg = ScenarioConfig(max_frames=frames, imu_set=None, betas_std=1.0, num_betas=10, keypoints="body25",
+                         detector=detector, cameras=CameraConfig(num_views=4, width=256 * scale, height=192 * scale),
+                         silhouettes=False)  # fmt: skip
+    datas, truth = [], []
+    for i, clip in enumerate(clips):
+        s = make_scenario([clip], cfg, seed=7 + i, body=body).sequence(0)
+        kp, _ = person_track(s["det_keypoints"], s["det_person"], 0, s["det_swapped"])
+        datas.append(mv.camera_data(body, s["cam_K"], s["cam_R"][:, 0], s["cam_t"][:, 0], kp, "body25",
+                                    prior=evaluation_prior(clip)))  # fmt: skip
+        truth.append(joints_of(body, s["poses"][0], s["betas"][0][:10], s["trans"][0]))
+    data = mv.stack(datas)
+    p1, _ = mv.stage_one(data, mv.initialise(data, weights.num_betas), weights, silhouettes=False)
+    p2, _ = mv.stage_two(data, p1, weights)
+    out = {}
+    for name, p in (("stage1", p1), ("stage2", p2)):
+        betas = p["betas"] if p["betas"].ndim == 3 else np.repeat(p["betas"][:, None], frames, 1)
+        pred = np.stack([joints_of(body, p["pose"][b], betas[b], p["trans"][b]) for b in range(len(clips))])
+        out[name] = float(np.linalg.norm(pred - np.stack(truth), axis=-1).mean() * 1000)
+    return out
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--frames", type=int, default=60)
+    ap.add_argument("--scale", type=int, default=4)
+    ap.add_argument("--out", type=Path, default=Path("out"))
+    args = ap.parse_args(argv)
+    folder = find_data_dir("JAXMOCAP_CMU", "cmu")
+    if folder is None:
+        raise SystemExit("../shared/data/cmu not found (set JAXMOCAP_CMU).")
+    clips = [Path(folder) / c for c in CLIPS]
+    body = default_body("low")
+    rows = {}
+    for key, scale, w in (("low_resolution", 1, mv.MuVSWeights()), ("high_resolution", args.scale, mv.MuVSWeights()),
+                          ("high_resolution_raw_pixels", args.scale, mv.MuVSWeights(reference_focal=None))):  # fmt: skip
+        rows[key] = fit(body, clips, args.frames, scale, w)
+        print(f"{key:28s} MPJPE stage 1 {rows[key]['stage1']:.1f}  stage 2 {rows[key]['stage2']:.1f} mm", flush=True)
+    result = {"clips": list(CLIPS), "frames": args.frames, "scale": args.scale, "image_low": [256, 192],
+              "reference_focal": mv.REFERENCE_FOCAL, "mpjpe_mm": rows}  # fmt: skip
+    args.out.mkdir(parents=True, exist_ok=True)
+    (args.out / "muvs_resolution.json").write_text(json.dumps(result, indent=1) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
