@@ -23,31 +23,21 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from muvs_tables import DETECTOR, joints_of  # noqa: E402
+from muvs_tables import DETECTOR, build, joints_of  # noqa: E402
 
 from jaxmocap.body import default_body  # noqa: E402
 from jaxmocap.methods import multiview as mv  # noqa: E402
 from jaxmocap.motion.io import find_data_dir  # noqa: E402
-from jaxmocap.priors.build import evaluation_prior  # noqa: E402
-from jaxmocap.sensors import CameraConfig, ScenarioConfig, make_scenario  # noqa: E402
-from jaxmocap.sensors.keypoints import person_track  # noqa: E402
+from jaxmocap.sensors import CameraConfig  # noqa: E402
 
 CLIPS = ("02_04.amc", "02_06.amc", "131_01.bvh")
 
 
 def fit(body, clips, frames: int, scale: int, weights: mv.MuVSWeights) -> dict:
     detector = DETECTOR.__class__(**{**DETECTOR.__dict__, "pixel_noise": DETECTOR.pixel_noise * scale})
-    cfg = ScenarioConfig(max_frames=frames, imu_set=None, betas_std=1.0, num_betas=10, keypoints="body25",
-                         detector=detector, cameras=CameraConfig(num_views=4, width=256 * scale, height=192 * scale),
-                         silhouettes=False)  # fmt: skip
-    datas, truth = [], []
-    for i, clip in enumerate(clips):
-        s = make_scenario([clip], cfg, seed=7 + i, body=body).sequence(0)
-        kp, _ = person_track(s["det_keypoints"], s["det_person"], 0, s["det_swapped"])
-        datas.append(mv.camera_data(body, s["cam_K"], s["cam_R"][:, 0], s["cam_t"][:, 0], kp, "body25",
-                                    prior=evaluation_prior(clip)))  # fmt: skip
-        truth.append(joints_of(body, s["poses"][0], s["betas"][0][:10], s["trans"][0]))
-    data = mv.stack(datas)
+    cameras = CameraConfig(num_views=4, width=256 * scale, height=192 * scale)
+    data, truth = build(clips, frames, 7, body, cameras, detector, silhouettes=False)
+    truth = [joints_of(body, t["poses"], t["betas"][:10], t["trans"]) for t in truth]
     p1, _ = mv.stage_one(data, mv.initialise(data, weights.num_betas), weights, silhouettes=False)
     p2, _ = mv.stage_two(data, p1, weights)
     out = {}

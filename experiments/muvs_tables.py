@@ -94,16 +94,18 @@ def segmentation_errors(masks, rng):
     return out
 
 
-def build(clips, frames, seed, body):
+def build(clips, frames, seed, body, cameras=CAMERAS, detector=DETECTOR, silhouettes=True):
+    """The clips filmed and detected: batched `CameraData` and per clip its truth."""
     cfg = ScenarioConfig(
-        max_frames=frames, imu_set=None, betas_std=1.0, num_betas=10, keypoints="body25", detector=DETECTOR,
-        cameras=CAMERAS, silhouettes=True,
+        max_frames=frames, imu_set=None, betas_std=1.0, num_betas=10, keypoints="body25", detector=detector,
+        cameras=cameras, silhouettes=silhouettes,
     )  # fmt: skip
     datas, truth = [], []
     for i, clip in enumerate(clips):
         s = make_scenario([clip], cfg, seed=seed + i, body=body).sequence(0)
         kp, swapped = person_track(s["det_keypoints"], s["det_person"], 0, s["det_swapped"])
-        masks = segmentation_errors(np.moveaxis(s["labels"] == 0, 0, 1), np.random.default_rng(seed + 1000 + i))
+        masks = segmentation_errors(np.moveaxis(s["labels"] == 0, 0, 1), np.random.default_rng(seed + 1000 + i)) \
+            if silhouettes else None  # fmt: skip
         datas.append(mv.camera_data(body, s["cam_K"], s["cam_R"][:, 0], s["cam_t"][:, 0], kp, "body25", masks=masks,
                                     prior=evaluation_prior(clip)))  # the bundled prior has seen every CMU clip
         truth.append({"poses": s["poses"][0], "trans": s["trans"][0], "betas": s["betas"][0], "swapped": swapped,
@@ -178,6 +180,7 @@ def main(argv=None):
     names = KEYPOINT_FORMATS["body25"]
     leg_kp = [i for i, n in enumerate(names) if any(p in n for p in ("hip", "knee", "ankle", "toe", "heel"))]
     true_joints = np.stack([joints_of(body, t["poses"], t["betas"][:10], t["trans"]) for t in truth])
+    visible = [visible_in_image(t["kp_true"], names, 2 * DETECTOR.pixel_noise) for t in truth]  # (T, V) per clip
     w = mv.MuVSWeights().replace(**dict(_override(x) for x in args.weights))
     tables, shapes, swaps, sim = {}, {}, {}, {}
 
@@ -249,7 +252,7 @@ def main(argv=None):
                 legs_n[key] = legs_n.get(key, 0) + int(apart.sum())
                 events += int(swapped.sum())
                 repaired += int((swapped & ok[:, None]).sum())
-                seen = swapped & visible_in_image(t["kp_true"], names, 2 * DETECTOR.pixel_noise)[:, :n]
+                seen = swapped & visible[b][:, :n]
                 visible_events += int(seen.sum())
                 visible_repaired += int((seen & ok[:, None]).sum())
                 # Per event: do the clean views outnumber the swapped ones at that frame?

@@ -53,7 +53,6 @@ import argparse
 import fcntl
 import hashlib
 import json
-import os
 import sys
 import time
 import zlib
@@ -67,6 +66,7 @@ import numpy as np  # noqa: E402
 from sip_tables import DTYPE, THESIS_W_MAHAL, TOL, Fold, item, mean_errors, with_starts  # noqa: E402  (sets jax_enable_x64)
 
 from jaxmocap import metrics  # noqa: E402
+from jaxmocap.app.sweep import atomic_write  # noqa: E402
 from jaxmocap.app.sweep_methods import InertialItem, InertialMethod  # noqa: E402
 from jaxmocap.body import default_body, forward, scaled_body  # noqa: E402
 from jaxmocap.methods import inertial as I  # noqa: E402
@@ -99,13 +99,6 @@ def eligible_clips(frames: int, cache: Path) -> list:
             lengths[str(c.path)] = int(load_motion(c.path, fps=FPS).num_frames)
         atomic_write(path, json.dumps(lengths))
     return [c for c in clips if lengths[str(c.path)] >= frames + MARGIN]
-
-
-def atomic_write(path: Path, text: str) -> None:
-    """Write to a temporary file of this process, then rename: readers never see half a file."""
-    tmp = path.with_name(f"{path.name}.{os.getpid()}.tmp")
-    tmp.write_text(text)
-    tmp.replace(path)
 
 
 def held_out_prior(folds: Fold, subject: str):

@@ -42,7 +42,7 @@ from .sweep_methods import Cell, resolve_method
 
 __all__ = [
     "SweepConfigError", "load_config", "validate_config", "config_hash", "variants", "run_sweep", "Store",
-    "join_distributed",
+    "join_distributed", "atomic_write",
 ]  # fmt: skip
 
 _SWEEP_KEYS = {
@@ -270,7 +270,7 @@ class Store:
                 )
             return
         self.cells.mkdir(parents=True, exist_ok=True)
-        _atomic_write(manifest, json.dumps({"hash": self.hash, "config": _identity(self.config)}, indent=1))
+        atomic_write(manifest, json.dumps({"hash": self.hash, "config": _identity(self.config)}, indent=1))
 
     def path(self, cell: Cell) -> Path:
         digest = hashlib.sha1(cell.key.encode()).hexdigest()[:20]
@@ -280,7 +280,7 @@ class Store:
         return self.path(cell).exists()
 
     def write(self, cell: Cell, record: dict) -> None:
-        _atomic_write(self.path(cell), json.dumps({"config_hash": self.hash, "cell": cell.key, **record}))
+        atomic_write(self.path(cell), json.dumps({"config_hash": self.hash, "cell": cell.key, **record}))
 
     def records(self) -> list[dict]:
         out = []
@@ -292,7 +292,9 @@ class Store:
         return out
 
 
-def _atomic_write(path: Path, text: str) -> None:
+def atomic_write(path: Path, text: str) -> None:
+    """Write `text` to a temporary file of this process, then rename it onto `path`:
+    readers (and a resumed run) never see half a file, even with writers in parallel."""
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
     with open(tmp, "w") as f:
         f.write(text)
@@ -353,7 +355,7 @@ def run_sweep(config: dict, out=None, *, prepare_only: bool = False, summary: bo
             if hasattr(m, "prepare"):
                 m.prepare(spec, errors, cache)
                 prepared.append(cache / f".{d}__{e}.ready")
-                _atomic_write(prepared[-1], "")
+                atomic_write(prepared[-1], "")
     if prepare_only:
         log(f"prepared datasets in {cache}")
         return root

@@ -18,11 +18,12 @@ from __future__ import annotations
 import csv
 import io
 import json
-import os
 from collections import defaultdict
 from pathlib import Path
 
 import numpy as np
+
+from .sweep import atomic_write
 
 __all__ = ["write_summary", "paired_stats", "FLAT_TOLERANCE"]
 
@@ -144,8 +145,8 @@ def write_summary(root, config: dict, records: list[dict], variants: dict, log=p
         _plots(root, config, values, variants, metric, analysis[metric], primary=k == 0)
     _write_csv(root / "summary.csv", all_rows)
     _write_csv(root / "cells.csv", [_cell_row(r) for r in records])
-    _atomic(root / "summary.md", "\n".join(text))
-    _atomic(root / "summary.json", json.dumps(analysis, indent=1, default=float))
+    atomic_write(root / "summary.md", "\n".join(text))
+    atomic_write(root / "summary.json", json.dumps(analysis, indent=1, default=float))
     log(f"summary: {root / 'summary.md'}")
     return analysis
 
@@ -167,13 +168,9 @@ def _write_csv(path: Path, rows: list[dict]) -> None:
     w.writeheader()
     for r in rows:
         w.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in r.items()})
-    _atomic(path, buf.getvalue())
+    atomic_write(path, buf.getvalue())
 
 
-def _atomic(path: Path, text: str) -> None:
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(text)
-    os.replace(tmp, path)
 
 
 def _markdown(config, analysis, metric, n_records, primary=True) -> str:

@@ -458,9 +458,7 @@ def _monocular_root(data, uv, conf, torso: float = 0.5):
 @functools.lru_cache(maxsize=None)
 def _stage_one_problem(sigma: float, stride: int, slack: float, silhouettes: bool, huber: float = 1.0) -> Problem:
     # Cached: a term's function is static, so a new closure would mean a new compile.
-    terms = [keypoint_term(sigma), pose_prior_term(), shape_term()]
-    if silhouettes:
-        terms += silhouette_terms(stride=stride, slack=slack, huber=huber)
+    terms = [keypoint_term(sigma), pose_prior_term(), shape_term()] + _silhouettes(silhouettes, stride, slack, huber)
     return Problem(terms, {"pose": frame("so3"), "trans": frame(), "betas": frame()})
 
 
@@ -469,9 +467,13 @@ def _stage_two_problem(sigma: float, stride: int, slack: float, silhouettes: boo
                        temporal_sigma: float, huber: float = 1.0) -> Problem:
     windows = dct_window(length)
     terms = [keypoint_term(sigma), pose_prior_term(), temporal_term(windows.windows, num_dct, temporal_sigma)]
-    if silhouettes:
-        terms += silhouette_terms(stride=stride, slack=slack, huber=huber)
+    terms += _silhouettes(silhouettes, stride, slack, huber)
     return Problem(terms, {"pose": frame("so3"), "trans": frame(), "coef": windows})
+
+
+def _silhouettes(on: bool, stride: int, slack: float, huber: float) -> list:
+    """E_S's two terms when `on`, else none."""
+    return silhouette_terms(stride=stride, slack=slack, huber=huber) if on else []
 
 
 def _weighted(problem: Problem, w: MuVSWeights, dtype, prior_factor: float = 1.0) -> Problem:
@@ -620,9 +622,7 @@ def stage_two(data: CameraData, params1: dict, weights: MuVSWeights = MuVSWeight
 
 @functools.lru_cache(maxsize=None)
 def _stage_data_problem(sigma, stride, slack, silhouettes, huber: float = 1.0) -> Problem:
-    terms = [keypoint_term(sigma), pose_prior_term()]
-    if silhouettes:
-        terms += silhouette_terms(stride=stride, slack=slack, huber=huber)
+    terms = [keypoint_term(sigma), pose_prior_term()] + _silhouettes(silhouettes, stride, slack, huber)
     return Problem(terms, {"pose": frame("so3"), "trans": frame()})
 
 
