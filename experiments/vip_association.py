@@ -85,7 +85,7 @@ def main(argv=None) -> int:
     p.add_argument("--penalty-window", type=int, default=None,
                    help="override the shipped model's penalty_window (frames; results cached apart)")
     p.add_argument("--dev-seed", type=int, default=None, help="also summarise the cached whole-method results of "
-                   "this development seed, at penalty windows 30 and the shipped one (how the window was chosen)")
+                   "this development seed: the models before f_cross (penalty windows 30, 90) and the shipped one")
     p.add_argument("--only", default="", help="comma-separated scene indices: compute and cache only these (e.g. one "
                    "process per scene); a run without it then gathers the cached scenes into the tables")
     a = p.parse_args(argv)
@@ -98,7 +98,7 @@ def main(argv=None) -> int:
     model = A.load_model()
     if a.penalty_window is not None:
         model = dataclasses.replace(model, penalty_window=a.penalty_window)
-    variant = f"_pw{model.penalty_window}"
+    variant = f"_{model.tag}"
     cache = Path(a.cache)
     cache.mkdir(parents=True, exist_ok=True)
     per_scene, t_start = [], time.time()
@@ -166,7 +166,7 @@ def main(argv=None) -> int:
         "per_scene": per_scene,
     }  # fmt: skip
     if a.dev_seed is not None:
-        out["development"] = development(cache, a, sorted({30, model.penalty_window}))
+        out["development"] = development(cache, a, ["pw30", "pw90", model.tag])
     if a.fusion:
         fr = {k: sum(s["first_round"][k] for s in per_scene) for k in ("assigned", "right", "wearer_detections")}
         out["association_first_round"] = {"precision": fr["right"] / max(fr["assigned"], 1),
@@ -182,16 +182,17 @@ def main(argv=None) -> int:
     return 0
 
 
-def development(cache: Path, a, windows) -> dict:
-    """Precision and recall of the cached whole-method results of seed `a.dev_seed`, per penalty window."""
+def development(cache: Path, a, tags) -> dict:
+    """Precision and recall of the cached whole-method results of seed `a.dev_seed`, per model tag."""
     out = {"seed": a.dev_seed, "note": "development scenes: they chose the shipped penalty_window "
-           "(experiments/train_association.py, PENALTY_WINDOW); the headline numbers are the test seed's"}
-    for w in windows:
+           "(experiments/train_association.py, PENALTY_WINDOW) and checked f_cross; the headline numbers are the "
+           "test seed's"}
+    for w in tags:
         rs = [json.loads(f.read_text()) for i in range(a.scenes)
-              if (f := cache / f"result_{a.dev_seed}_{i}_{a.frames}_fusion_pw{w}.json").exists()]
+              if (f := cache / f"result_{a.dev_seed}_{i}_{a.frames}_fusion_{w}.json").exists()]
         n = {k: sum(r[k] for r in rs) for k in ("assigned", "right", "wrong", "wearer_detections")}
-        out[f"penalty_window_{w}"] = {"scenes": len(rs), "precision": n["right"] / max(n["assigned"], 1),
-                                      "recall": n["right"] / max(n["wearer_detections"], 1), **n}  # fmt: skip
+        out[f"model_{w}"] = {"scenes": len(rs), "precision": n["right"] / max(n["assigned"], 1),
+                              "recall": n["right"] / max(n["wearer_detections"], 1), **n}  # fmt: skip
     return out
 
 
@@ -209,9 +210,9 @@ def markdown(r: dict) -> str:
          *([f"| ours (synthetic, first round) | {100 * r['association_first_round']['precision']:.1f} % | "
             f"{100 * r['association_first_round']['recall']:.1f} % |"] if "association_first_round" in r else []),
          "| thesis (3DPW, real) | 99.3 % | 92.2 % |",
-         *[f"| development scenes (seed {r['development']['seed']}), penalty window {k.split('_')[-1]} "
+         *[f"| development scenes (seed {r['development']['seed']}), model {k[len('model_'):]} "
            f"| {100 * v['precision']:.1f} % | {100 * v['recall']:.1f} % |"
-           for k, v in r.get("development", {}).items() if k.startswith("penalty_window_")], "",
+           for k, v in r.get("development", {}).items() if k.startswith("model_") and v["scenes"]], "",
          f"Assigned {n['assigned']}: {n['right']} right, {n['wrong']} wrong ({n['wrong_to_other_wearer']} to the other "
          f"wearer, {n['wrong_to_bystander']} to a bystander, {n['wrong_to_false_detection']} to a false detection). "
          f"Association time {t['association_seconds_total']} s in all ({t['association_seconds_per_100_frames']} s "

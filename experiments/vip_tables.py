@@ -138,12 +138,12 @@ def run(clips: int, frames: int, seed: int, steps: int, folder: Path, out: Path,
     body = default_body("low")
     files = held_out_clips(folder)[:clips]
     per_clip = []
-    window = load_model().penalty_window
+    model = load_model()
     done = out / "vip_tables_per_clip"  # one file per finished clip: an interrupted run resumes
     done.mkdir(parents=True, exist_ok=True)
     for i, f in enumerate(files):
-        # the association model's penalty window in the name: a result of another model is not reused
-        path = done / f"{i:02d}_{Path(f).stem}_{frames}_{seed}_{steps}_pw{window}.json"
+        # the association model in the name: a result of another model is not reused
+        path = done / f"{i:02d}_{Path(f).stem}_{frames}_{seed}_{steps}_{model.tag}.json"
         rng = np.random.default_rng([seed, i])  # per clip, so that a resumed run draws the same x0
         if path.exists():
             per_clip.append(json.loads(path.read_text()))
@@ -168,7 +168,7 @@ def run(clips: int, frames: int, seed: int, steps: int, folder: Path, out: Path,
     assigned, right, visible = (sum(c["association"][k] for c in per_clip) for k in ("assigned", "right", "visible"))
     return {
         "config": {"clips": len(per_clip), "requested_clips": clips, "frames": frames, "seed": seed, "lm_steps": steps, "body": "low",
-                   "weights": vars(vip.VIPWeights()), "association_penalty_window": window, "data": str(folder)},  # fmt: skip
+                   "weights": vars(vip.VIPWeights()), "association_penalty_window": model.penalty_window, "association_model": model.tag, "data": str(folder)},  # fmt: skip
         "rows": rows,
         "vip_vs_it_relative_change_percent": {"mpjpe": 100.0 * (v - it) / it,
                                               "mpjae": 100.0 * (rows["VIP"]["mpjae_deg"] / rows["IT"]["mpjae_deg"] - 1)},

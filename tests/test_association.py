@@ -75,7 +75,7 @@ def test_pair_features_match_a_numpy_derivation(exact):
         (l, ta, _), (_, tb, _) = np.unravel_index(a, shape), np.unravel_index(b, shape)
         rel = body_frame(l, ta).T @ body_frame(l, tb)
         angle = np.arccos(np.clip((np.trace(rel) - 1) / 2, -1, 1))
-        np.testing.assert_allclose(f, [np.linalg.norm(root(l, ta) - root(l, tb)), angle, abs(tb - ta)], atol=1e-6)
+        np.testing.assert_allclose(f, [np.linalg.norm(root(l, ta) - root(l, tb)), angle, abs(tb - ta), 0.0], atol=1e-6)
     assert len(inter["a"]) == 2 * 3  # 3 frame pairs per person
     # eq. 4.18 on exact detections: the meta camera is the true one, both centre offsets 0
     assert len(intra["a"]) == 3 and np.abs(intra["f"]).max() < 1e-6
@@ -192,3 +192,43 @@ def test_pairs_beyond_the_window_are_penalties_only():
     assert extra.any() and (far.pair_z[extra] < 0).all()
     key = lambda g, m: set(map(tuple, g.pairs[m]))  # noqa: E731
     assert key(far, ~extra) == key(near, np.ones(len(near.pairs), bool))
+
+
+def _box_rows(boxes):
+    """Detections whose keypoints span the given (x0, y0, x1, y1) boxes: (D, 18, 3)."""
+    out = np.zeros((len(boxes), 18, 3))
+    for d, (x0, y0, x1, y1) in enumerate(boxes):
+        out[d, :, 0] = np.linspace(x0, x1, 18)
+        out[d, :, 1] = np.linspace(y0, y1, 18)[::-1]
+        out[d, :, 2] = 1.0
+    return out
+
+
+def test_detection_tracks_follow_people_not_slots_and_end_where_ambiguous():
+    T = 12
+    a = [(10 + 2 * t, 10, 40 + 2 * t, 90) for t in range(T)]  # walks right
+    b = [(200 - 2 * t, 10, 230 - 2 * t, 90) for t in range(T)]  # walks left
+    det = np.zeros((T, 3, 18, 3))
+    for t in range(T):
+        rows = _box_rows([a[t], b[t]] if t % 2 else [b[t], a[t]])  # the slot order changes every frame
+        det[t, :2] = rows
+    det[6] = 0.0  # an empty frame: the tracks bridge it
+    det[8, 2] = np.nan  # a NaN row is no detection
+    det[9, 2] = _box_rows([(11 + 2 * 9, 11, 41 + 2 * 9, 91)])[0]  # a near-duplicate of a: ambiguous
+    track, first, last = A.detection_tracks(det)
+    slot = lambda t, name: [d for d in range(2) if (det[t, d, 0, 0] < 100) == (name == "a")][0]  # noqa: E731
+    for t in range(1, T):
+        if t == 6:
+            continue
+        for name in "ab":
+            before = t - 1 - (t == 7)
+            linked = track[t, slot(t, name)] == track[before, slot(before, name)]
+            # a's two near-identical boxes in frame 9 make a's links into and out of frame 9 ambiguous
+            assert linked == (name == "b" or t not in (9, 10)), (t, name)
+    assert len(first) == 2 + 2  # a, b and frame 9's two look-alike boxes
+    assert track[10, slot(10, "a")] == track[8, slot(8, "a")]  # a's track resumes across the ambiguous frame
+    assert (track[6] == -1).all() and track[8, 2] == -1
+    assert len(first) == len(last) == track.max() + 1 and (first <= last).all()
+    # f_cross: inter-frame pairs of one wearer across two tracks that share a frame
+    for t in range(T):
+        assert len(set(track[t][track[t] >= 0])) == (track[t] >= 0).sum()  # one detection per track and frame

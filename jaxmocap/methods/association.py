@@ -8,6 +8,7 @@ Tracker's) against v, and three kinds of features:
     inter-frame (eq. 4.15-4.17), same person, 0 < |t − t'| <= window:
                               f_trans = ‖M_H r_t − M_H' r_t'‖, f_ori = ‖log((R_H R_t)ᵀ R_H' R_t')‖,
                               f_time = |t − t'|
+                              (+ f_cross, ours: see below)
     intra-frame (eq. 4.18), two people in one frame: f_intra(H, H̲), f_intra(H', H̲), the
                               camera centre of each hypothesis against the meta camera H̲
                               fitted to both.
@@ -46,6 +47,12 @@ Choices that are ours (the thesis leaves them open):
     bounded (about window²/2 pairs): measured on held-out scenes, a wearer who left the view
     was replaced by a bystander whose pose fits the IMUs about as well. Trained with the
     other scales (`experiments/train_association.py`; the shipped weights keep 30: off).
+  - A fifth inter-frame feature, f_cross ∈ {0, 1}: the two detections lie on different 2D
+    tracks (`detection_tracks`: boxes linked frame to frame where the link is unambiguous)
+    that share a frame, so they are two people whatever their poses. Measured on held-out
+    scenes: a wearer who left the view was replaced by a bystander who had walked beside
+    them all along, and f_trans cannot tell (the hand-held camera moves between the
+    frames). Its weight is trained with the others; a model of 4 inter weights ignores it.
   - Each assignment costs a trained `assignment_cost` on top of −log-odds, against a
     failure measured on held-out scenes (most wrong assignments there): a bystander's
     consistent track collects pair rewards of its own and a wearer who has left the view
@@ -57,6 +64,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import hashlib
 import json
 import time
 import warnings
@@ -69,9 +77,11 @@ import scipy.optimize
 import scipy.sparse
 
 from ..rotation import axis_angle_to_matrix
+from ..sensors.keypoints import COCO18_NAMES, flip_pairs
 
 __all__ = ["AssociationModel", "Association", "AssociationGraph", "HypothesisFeatures", "load_model", "associate",
-           "association_graph", "solve_graph", "hypothesis_features", "pair_features", "solve_labelling", "camera_fit"]  # fmt: skip
+           "association_graph", "solve_graph", "hypothesis_features", "pair_features", "solve_labelling", "camera_fit",
+           "detection_tracks"]  # fmt: skip
 
 WEIGHTS_FILE = Path(__file__).with_name("association_weights.json")
 N_JOINTS = 18
@@ -104,6 +114,15 @@ class AssociationModel:
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
+
+    @property
+    def tag(self) -> str:
+        """A short name of the weights for result caches: "pw<penalty_window>", and for models
+        with f_cross a hash of the weights (a result of another model is never reused)."""
+        if len(self.inter) == 4:
+            return f"pw{self.penalty_window}"
+        w = {k: v for k, v in self.to_dict().items() if k != "provenance"}
+        return f"pw{self.penalty_window}_{hashlib.sha1(json.dumps(w, sort_keys=True).encode()).hexdigest()[:6]}"
 
 
 def load_model(path=None) -> AssociationModel:
@@ -300,6 +319,57 @@ def hypothesis_features(joints3d, K, cam_orientation, detections) -> HypothesisF
     return HypothesisFeatures(valid, f_un, Rs, ts, root, frame)
 
 
+def detection_tracks(detections, link_distance: float = 0.15, ambiguity: float = 0.5, max_gap: int = 5):
+    """2D tracks: detections linked to the tracks seen in the last `max_gap` frames by their keypoints.
+
+    The distance of a detection to a track is the median keypoint offset from the track's
+    last detection (left and right as labelled or exchanged, whichever is nearer: detectors
+    swap them) over the keypoints both have, in units of that detection's size (box
+    diagonal). A link needs distance <= link_distance × frames since the track was seen, and
+    no rival (another detection for the track, another track for the detection) nearer
+    than distance / ambiguity: people who overlap in the image end their tracks instead
+    of swapping them, so a track errs towards short. Returns (track (T, D) ids, −1 where no
+    detection; first (n,), last (n,) frame of each track).
+    """
+    det = np.asarray(detections, np.float64)
+    T, D = det.shape[:2]
+    seen = np.isfinite(det).all(-1) & (np.nan_to_num(det[..., 2]) > 0)
+    xy = np.nan_to_num(det[..., :2])
+    present = seen.sum(-1) >= 3
+    swap = np.arange(N_JOINTS)
+    for a, b in flip_pairs(COCO18_NAMES):
+        swap[a], swap[b] = b, a
+    track = np.full((T, D), -1)
+    last_row, last_t, first, last = [], [], [], []  # per track: its latest (t, d)
+    for t in range(T):
+        for gap in range(1, max_gap + 1):  # the tracks seen last frame first, then older ones
+            cur = np.flatnonzero(present[t] & (track[t] < 0))
+            live = [k for k in range(len(last_t)) if t - last_t[k] == gap]
+            if not len(cur) or not live:
+                continue
+            dist = np.full((len(live), len(cur)), np.inf)
+            for a, k in enumerate(live):
+                tk, dk = last_row[k]
+                size = np.linalg.norm(np.ptp(xy[tk, dk][seen[tk, dk]], 0)) + 1e-9
+                for b, d in enumerate(cur):
+                    for order in (slice(None), swap):
+                        both = seen[tk, dk] & seen[t, d][order]
+                        if both.sum() >= 3:
+                            off = np.linalg.norm(xy[tk, dk][both] - xy[t, d][order][both], axis=-1)
+                            dist[a, b] = min(dist[a, b], np.median(off) / size)
+            for a, b in sorted(zip(*np.nonzero(dist <= link_distance * gap)), key=lambda ab: dist[ab]):
+                rivals = np.r_[np.delete(dist[a], b), np.delete(dist[:, b], a)]
+                if not (rivals < dist[a, b] / ambiguity).any() and track[t, cur[b]] < 0 and last_t[live[a]] < t:
+                    k = live[a]
+                    track[t, cur[b]] = k
+                    last_row[k], last_t[k], last[k] = (t, cur[b]), t, t
+        cur = np.flatnonzero(present[t])
+        for d in cur[track[t, cur] < 0]:
+            track[t, d] = len(last_t)
+            last_row.append((t, d)), last_t.append(t), first.append(t), last.append(t)
+    return track, np.asarray(first, int), np.asarray(last, int)
+
+
 def _log(f):
     return np.log(np.asarray(f) + _EPS)
 
@@ -334,8 +404,13 @@ def pair_features(hyp: HypothesisFeatures, keep, joints3d, K, detections, window
     f_trans = np.linalg.norm(root[a] - root[b], axis=-1)
     cos = (np.einsum("nab,nab->n", frame[a], frame[b]) - 1.0) / 2.0
     f_ori = np.arccos(np.clip(cos, -1.0, 1.0))
-    f_time = np.abs(np.unravel_index(a, (P, T, D))[1] - np.unravel_index(b, (P, T, D))[1]).astype(float)
-    inter = {"a": a, "b": b, "f": np.stack([f_trans, f_ori, f_time], -1)}
+    _, ta, va = np.unravel_index(a, (P, T, D))
+    _, tb, vb = np.unravel_index(b, (P, T, D))
+    f_time = np.abs(ta - tb).astype(float)
+    track, first, last = detection_tracks(detections)
+    ka, kb = track[ta, va], track[tb, vb]
+    f_cross = ((ka != kb) & (ka >= 0) & (kb >= 0) & (first[ka] <= last[kb]) & (first[kb] <= last[ka])).astype(float)
+    inter = {"a": a, "b": b, "f": np.stack([f_trans, f_ori, f_time, f_cross], -1)}
 
     A, B = [], []
     for l in range(P):  # eq. 4.18: two people, one frame, two different detections
@@ -363,8 +438,9 @@ def pair_features(hyp: HypothesisFeatures, keep, joints3d, K, detections, window
     return inter, intra
 
 
-def inter_design(f, window: int):
-    return np.stack([np.ones(len(f)), _log(f[:, 0]), _log(f[:, 1]), f[:, 2] / window], -1)
+def inter_design(f, window: int, terms: int = 5):
+    """[1, log f_trans, log f_ori, f_time / window, f_cross][:terms] (4: models trained without f_cross)."""
+    return np.stack([np.ones(len(f)), _log(f[:, 0]), _log(f[:, 1]), f[:, 2] / window, f[:, 3]], -1)[:, :terms]
 
 
 def intra_design(f):
@@ -491,7 +567,7 @@ def association_graph(joints3d, K, cam_orientation, detections, model: Associati
     keep = hyp.valid & (z >= np.log(model.min_probability / (1 - model.min_probability)))
     inter, intra = pair_features(hyp, keep, joints3d, K, detections, max(window, model.penalty_window),
                                  positions_known, cam_orientation is not None)  # fmt: skip
-    inter_z = _logit(inter_design(inter["f"], window), model.inter)
+    inter_z = _logit(inter_design(inter["f"], window, len(model.inter)), model.inter)
     near = (inter["f"][:, 2] <= window) | (inter_z < 0)  # beyond the window: penalties only
     pairs = np.concatenate([np.stack([inter["a"][near], inter["b"][near]], -1), np.stack([intra["a"], intra["b"]], -1)])
     pair_z = np.concatenate([inter_z[near], _logit(intra_design(intra["f"]), model.intra)])
