@@ -232,3 +232,28 @@ def test_detection_tracks_follow_people_not_slots_and_end_where_ambiguous():
     # f_cross: inter-frame pairs of one wearer across two tracks that share a frame
     for t in range(T):
         assert len(set(track[t][track[t] >= 0])) == (track[t] >= 0).sum()  # one detection per track and frame
+
+
+def test_a_bystander_seen_beside_the_wearer_never_takes_over():
+    """The wearer leaves the view at frame 20; the bystander, who walked beside them from the
+    start in nearly the same pose, stays. Detections on two tracks that shared a frame are two
+    people (cross_tracks): the bystander is never assigned. Without it, the bystander's
+    detections fit the wearer's keypoints as well as the wearer's own did."""
+    rng = np.random.default_rng(4)
+    T, leave = 40, 20
+    base = _person(rng, np.array([0.0, 1.0, 0.0]))
+    J = np.stack([base + [0.01 * t, 0, 0] for t in range(T)])[None]  # one wearer
+    R = np.stack([host_exp([0.0, np.pi + 0.01 * t, 0.0]) for t in range(T)])
+    t_wc = -np.einsum("tab,tb->ta", R, np.array([[0.02 * t, 1.4, 4.0] for t in range(T)]))
+    other = J[0] + rng.normal(scale=0.04, size=(18, 3))  # the bystander's pose: alike, not the same
+    det = np.zeros((T, 2, 18, 3))
+    for t in range(T):
+        det[t, 0] = _project(other[t] + [0.6, 0, 0], R[t], t_wc[t])  # the bystander, 0.6 m beside
+        if t < leave:
+            det[t, 1] = _project(J[0, t], R[t], t_wc[t])
+    det[..., :2] += rng.normal(scale=0.5, size=det[..., :2].shape) * (det[..., 2:] > 0)
+    cam = np.swapaxes(R, -1, -2)
+    on = A.associate(J, K, cam, det)
+    off = A.associate(J, K, cam, det, model=A.dataclasses.replace(A.load_model(), cross_tracks=False))
+    assert (on.index[0, :leave] == 1).all() and (on.index[0, leave:] == -1).all(), on.index
+    assert (off.index[0, leave:] == 0).any(), off.index  # the failure the constraint prevents

@@ -8,7 +8,7 @@ Tracker's) against v, and three kinds of features:
     inter-frame (eq. 4.15-4.17), same person, 0 < |t − t'| <= window:
                               f_trans = ‖M_H r_t − M_H' r_t'‖, f_ori = ‖log((R_H R_t)ᵀ R_H' R_t')‖,
                               f_time = |t − t'|
-                              (+ f_cross, ours: see below)
+                              (+ two detections on one 2D track: see cross_tracks below)
     intra-frame (eq. 4.18), two people in one frame: f_intra(H, H̲), f_intra(H', H̲), the
                               camera centre of each hypothesis against the meta camera H̲
                               fitted to both.
@@ -47,12 +47,15 @@ Choices that are ours (the thesis leaves them open):
     bounded (about window²/2 pairs): measured on held-out scenes, a wearer who left the view
     was replaced by a bystander whose pose fits the IMUs about as well. Trained with the
     other scales (`experiments/train_association.py`; the shipped weights keep 30: off).
-  - A fifth inter-frame feature, f_cross ∈ {0, 1}: the two detections lie on different 2D
-    tracks (`detection_tracks`: boxes linked frame to frame where the link is unambiguous)
-    that share a frame, so they are two people whatever their poses. Measured on held-out
-    scenes: a wearer who left the view was replaced by a bystander who had walked beside
-    them all along, and f_trans cannot tell (the hand-held camera moves between the
-    frames). Its weight is trained with the others; a model of 4 inter weights ignores it.
+  - Detections on different 2D tracks that share a frame are two people (`cross_tracks`,
+    on by default): their inter-frame pairs get log-odds −CROSS_LOG_ODDS, so one wearer
+    never takes both, up to `penalty_window` frames apart. Tracks (`detection_tracks`) link
+    detections frame to frame by their keypoints, only where the link is unambiguous
+    (people who overlap in the image end their tracks), so they err towards short. Measured
+    on held-out scenes: a wearer who left the view was replaced by a bystander who had
+    walked beside them, and f_trans cannot tell (the hand-held camera moves between the
+    frames); a learned weight for the feature instead (logistic regression, jointly or on
+    top of the thesis's four) was outweighed at long range by f_time's extrapolation.
   - Each assignment costs a trained `assignment_cost` on top of −log-odds, against a
     failure measured on held-out scenes (most wrong assignments there): a bystander's
     consistent track collects pair rewards of its own and a wearer who has left the view
@@ -94,6 +97,7 @@ _MIN_DEPTH = 0.05  # m: a point behind the camera projects as if 5 cm in front
 # (recall 0.18-0.45 on 8 of 12 scenes at 30 s with 3 processes per core), so results would
 # depend on the load. Reaching it warns.
 TIME_LIMIT_S = 600.0
+CROSS_LOG_ODDS = 1e4  # log-odds of an inter-frame pair on two tracks that share a frame (cross_tracks)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -110,6 +114,7 @@ class AssociationModel:
     min_probability: float = 0.01
     assignment_cost: float = 0.0
     penalty_window: int = 30
+    cross_tracks: bool = True
     provenance: dict = dataclasses.field(default_factory=dict)
 
     def to_dict(self) -> dict:
@@ -117,9 +122,9 @@ class AssociationModel:
 
     @property
     def tag(self) -> str:
-        """A short name of the weights for result caches: "pw<penalty_window>", and for models
-        with f_cross a hash of the weights (a result of another model is never reused)."""
-        if len(self.inter) == 4:
+        """A short name of the weights for result caches: "pw<penalty_window>", and with
+        cross_tracks a hash of the weights (a result of another model is never reused)."""
+        if not self.cross_tracks:
             return f"pw{self.penalty_window}"
         w = {k: v for k, v in self.to_dict().items() if k != "provenance"}
         return f"pw{self.penalty_window}_{hashlib.sha1(json.dumps(w, sort_keys=True).encode()).hexdigest()[:6]}"
@@ -382,8 +387,9 @@ def pair_features(hyp: HypothesisFeatures, keep, joints3d, K, detections, window
                   positions_known: bool = False, imu_rotation: bool = True):
     """Inter- and intra-frame pairs among the kept hypotheses (keep (P, T, D) bool).
 
-    Returns (inter, intra): inter {a, b: flat hypothesis indices into (P, T, D), f (n, 3)
-    (f_trans, f_ori, f_time) eq. 4.15-4.17}; intra {a, b, f (m, 2)} eq. 4.18.
+    Returns (inter, intra): inter {a, b: flat hypothesis indices into (P, T, D), f (n, 4)
+    (f_trans, f_ori, f_time) eq. 4.15-4.17 and f_cross (1: the two detections lie on
+    different `detection_tracks` that share a frame)}; intra {a, b, f (m, 2)} eq. 4.18.
     """
     P, T, D = keep.shape
     flat = np.arange(P * T * D).reshape(P, T, D)
@@ -438,9 +444,8 @@ def pair_features(hyp: HypothesisFeatures, keep, joints3d, K, detections, window
     return inter, intra
 
 
-def inter_design(f, window: int, terms: int = 5):
-    """[1, log f_trans, log f_ori, f_time / window, f_cross][:terms] (4: models trained without f_cross)."""
-    return np.stack([np.ones(len(f)), _log(f[:, 0]), _log(f[:, 1]), f[:, 2] / window, f[:, 3]], -1)[:, :terms]
+def inter_design(f, window: int):
+    return np.stack([np.ones(len(f)), _log(f[:, 0]), _log(f[:, 1]), f[:, 2] / window], -1)
 
 
 def intra_design(f):
@@ -567,7 +572,9 @@ def association_graph(joints3d, K, cam_orientation, detections, model: Associati
     keep = hyp.valid & (z >= np.log(model.min_probability / (1 - model.min_probability)))
     inter, intra = pair_features(hyp, keep, joints3d, K, detections, max(window, model.penalty_window),
                                  positions_known, cam_orientation is not None)  # fmt: skip
-    inter_z = _logit(inter_design(inter["f"], window, len(model.inter)), model.inter)
+    inter_z = _logit(inter_design(inter["f"], window), model.inter)
+    if model.cross_tracks:  # two people for certain: a pair that costs more than any assignment gains
+        inter_z = np.where(inter["f"][:, 3] > 0, -CROSS_LOG_ODDS, inter_z)
     near = (inter["f"][:, 2] <= window) | (inter_z < 0)  # beyond the window: penalties only
     pairs = np.concatenate([np.stack([inter["a"][near], inter["b"][near]], -1), np.stack([intra["a"], intra["b"]], -1)])
     pair_z = np.concatenate([inter_z[near], _logit(intra_design(intra["f"]), model.intra)])
