@@ -244,7 +244,7 @@ def main(argv=None) -> int:
                      f"penalty_window {reach}: see PENALTY_WINDOW in the script (development scenes)",
         "design": "unary [1, log(f_un+1e-3)]; inter [1, log(f_trans+1e-3), log(f_ori+1e-3), f_time/window]; "
                   "intra [1, log(f_a+1e-3), log(f_b+1e-3)]; cost = -pair_scale * <design, alpha> for pairs; "
-                  "cross_tracks: inter pairs on two 2D tracks that share a frame get log-odds -CROSS_LOG_ODDS",
+                  "cross_tracks: a wearer takes at most one of any 2D tracks that share a frame (a constraint)",
         "seconds": {"scenes": round(t1 - t0, 1), "training": round(time.time() - t1, 1)},
     }  # fmt: skip
     model = A.AssociationModel(**{**model.to_dict(), "pair_scale": scale, "assignment_cost": cost,

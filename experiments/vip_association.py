@@ -10,6 +10,11 @@ subjects 2, 131 and the procedural library). Persons 0 and 1 wear IMUs, 2 and 3 
 bystanders. Hypotheses: each wearer's Inertial Tracker (eq. 4.10, the prior built without
 the clip's subject, x₀ with 10° (1σ) error per joint), as in VIP's first association.
 
+Seeds: 0 develops (it chose the penalty window and checked cross_tracks); the shipped
+results use seed 51. Seed 50, the test before cross_tracks, was examined to find why a
+wearer who left the view lost their track, so it no longer tests anything (its numbers,
+with the model before, are kept under `earlier_test_seed_50`).
+
 precision: of the assigned detections, the fraction that is that wearer's (identity
 labels); recall: of the wearers' detections (every detection the simulator made of them),
 the fraction assigned to the right wearer. Thesis (3DPW, real video): 99.3 % / 92.2 %.
@@ -161,12 +166,14 @@ def main(argv=None) -> int:
                    "data": "../shared/data/cmu_cc (CMU subjects 5, 6, 7; held out from training)",
                    "hypotheses": "Inertial Tracker keypoints, x0 with 10 deg (1 sigma) error per joint",
                    "weights": str(A.WEIGHTS_FILE.relative_to(ROOT)), "window": 30,
-                   "penalty_window": model.penalty_window,
+                   "penalty_window": model.penalty_window, "model": model.tag, "cross_tracks": model.cross_tracks,
                    "command": "python experiments/vip_association.py " + " ".join(argv if argv is not None else sys.argv[1:])},
         "per_scene": per_scene,
     }  # fmt: skip
     if a.dev_seed is not None:
         out["development"] = development(cache, a, ["pw30", "pw90", model.tag])
+    if a.seed != 50:
+        out["earlier_test_seed_50"] = EARLIER_TEST
     if a.fusion:
         fr = {k: sum(s["first_round"][k] for s in per_scene) for k in ("assigned", "right", "wearer_detections")}
         out["association_first_round"] = {"precision": fr["right"] / max(fr["assigned"], 1),
@@ -180,6 +187,13 @@ def main(argv=None) -> int:
     (res_dir / "vip_association.md").write_text(markdown(out))
     print(markdown(out))
     return 0
+
+
+# The previous model's test (penalty window 90, no cross_tracks; `--seed 50`, 2026-11-25):
+# examined afterwards, so no longer a test.
+EARLIER_TEST = {"seed": 50, "model": "pw90", "precision": 0.983, "recall": 0.969, "wrong": 59,
+                "note": "55 of the 59 wrong in one scene: a wearer who left the view was replaced by a bystander "
+                        "seen beside them before; cross_tracks was built against it"}
 
 
 def development(cache: Path, a, tags) -> dict:
@@ -210,6 +224,9 @@ def markdown(r: dict) -> str:
          *([f"| ours (synthetic, first round) | {100 * r['association_first_round']['precision']:.1f} % | "
             f"{100 * r['association_first_round']['recall']:.1f} % |"] if "association_first_round" in r else []),
          "| thesis (3DPW, real) | 99.3 % | 92.2 % |",
+         *([f"| earlier test (seed 50), model before cross_tracks, examined since | "
+            f"{100 * r['earlier_test_seed_50']['precision']:.1f} % | {100 * r['earlier_test_seed_50']['recall']:.1f} % |"]
+           if "earlier_test_seed_50" in r else []),
          *[f"| development scenes (seed {r['development']['seed']}), model {k[len('model_'):]} "
            f"| {100 * v['precision']:.1f} % | {100 * v['recall']:.1f} % |"
            for k, v in r.get("development", {}).items() if k.startswith("model_") and v["scenes"]], "",

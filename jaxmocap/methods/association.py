@@ -48,8 +48,9 @@ Choices that are ours (the thesis leaves them open):
     was replaced by a bystander whose pose fits the IMUs about as well. Trained with the
     other scales (`experiments/train_association.py`; the shipped weights keep 30: off).
   - Detections on different 2D tracks that share a frame are two people (`cross_tracks`,
-    on by default): their inter-frame pairs get log-odds −CROSS_LOG_ODDS, so one wearer
-    never takes both, up to `penalty_window` frames apart. Tracks (`detection_tracks`) link
+    on by default): a wearer takes detections of at most one of any tracks that share a
+    frame, a constraint of the binary program (`solve_labelling`), at any distance in time
+    (their inter-frame pairs are dropped). Tracks (`detection_tracks`) link
     detections frame to frame by their keypoints, only where the link is unambiguous
     (people who overlap in the image end their tracks), so they err towards short. Measured
     on held-out scenes: a wearer who left the view was replaced by a bystander who had
@@ -97,7 +98,6 @@ _MIN_DEPTH = 0.05  # m: a point behind the camera projects as if 5 cm in front
 # (recall 0.18-0.45 on 8 of 12 scenes at 30 s with 3 processes per core), so results would
 # depend on the load. Reaching it warns.
 TIME_LIMIT_S = 600.0
-CROSS_LOG_ODDS = 1e4  # log-odds of an inter-frame pair on two tracks that share a frame (cross_tracks)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -455,12 +455,15 @@ def intra_design(f):
 # ----------------------------------------------------------------------------- labelling
 
 
-def solve_labelling(shape, nodes, unary, pairs, pair_costs, chunk: int = 100, time_limit: float = TIME_LIMIT_S):
+def solve_labelling(shape, nodes, unary, pairs, pair_costs, chunk: int = 100, time_limit: float = TIME_LIMIT_S,
+                    tracks=None):
     """Minimise eq. 4.11 subject to eq. 4.12 with HiGHS, chunk frames at a time.
 
     shape (P, T, D); nodes: flat indices of the candidate hypotheses; unary: their costs
-    c_v^l; pairs (m, 2) flat indices, pair_costs (m,) c_{v,v'}^{l,l'}. Returns the chosen
-    flat indices, the objective and the HiGHS messages.
+    c_v^l; pairs (m, 2) flat indices, pair_costs (m,) c_{v,v'}^{l,l'}; tracks: None or
+    (track (T, D), first, last) of `detection_tracks`: then a person takes detections of at
+    most one of any tracks that share a frame (cross_tracks). Returns the chosen flat
+    indices, the objective and the HiGHS messages.
 
     Linearisation: y = x_a x_b is needed only on the side the objective pushes against,
     so y is continuous in [0, 1]: for c < 0 (a reward) y <= x_a, y <= x_b; for c > 0 (a
@@ -469,8 +472,16 @@ def solve_labelling(shape, nodes, unary, pairs, pair_costs, chunk: int = 100, ti
     chunks become linear terms on the new node (x_old is known), pairs to undecided later
     frames wait for their chunk. The first chunk ignores the future, a documented loss
     against one global program (which HiGHS needs minutes for at 300 frames × 5 × 2).
+    Tracks: u_lk in [0, 1] says person l takes track k, x_lv <= u_l,track(v), and for
+    every frame the u of the tracks there sum to <= 1 (tracks are intervals, so these
+    frame cliques are all the conflicts, and their LP relaxation is tight: pair penalties
+    of the same meaning made HiGHS hit its time limit). A track person l took in an
+    earlier chunk keeps u_lk = 1.
     """
     P, T, D = shape
+    track_of, span0, span1 = (np.full(P * T * D, -1), np.zeros(0, int), np.zeros(0, int)) if tracks is None else (
+        np.broadcast_to(np.asarray(tracks[0])[None], shape).reshape(-1), np.asarray(tracks[1]), np.asarray(tracks[2]))
+    taken = [set() for _ in range(P)]
     nodes = np.asarray(nodes, int)
     frame_of = lambda f: np.unravel_index(f, shape)[1]  # noqa: E731
     chosen = np.zeros(P * T * D, bool)
@@ -521,10 +532,30 @@ def solve_labelling(shape, nodes, unary, pairs, pair_costs, chunk: int = 100, ti
         vals += [np.ones(len(k)), np.ones(len(k)), -np.ones(len(k))]
         ub.append(np.ones(len(k)))
         r += len(k)
-        A = scipy.sparse.csr_array((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(r, n + m))
+        lb_u, nu = [], n + m
+        for li in range(P):  # cross_tracks: u per (person, track), frame cliques
+            mine = np.flatnonzero((l_ == li) & (track_of[here] >= 0))
+            ks = sorted(set(track_of[here[mine]].tolist()) | taken[li])
+            if not ks:
+                continue
+            col = dict(zip(ks, nu + np.arange(len(ks))))
+            rows += [r + np.arange(len(mine))] * 2  # x_lv − u_lk <= 0
+            cols += [mine, np.array([col[k] for k in track_of[here[mine]]], int)]
+            vals += [np.ones(len(mine)), -np.ones(len(mine))]
+            ub.append(np.zeros(len(mine)))
+            r += len(mine)
+            kk = np.array(ks)
+            cliques = {tuple(kk[(span0[kk] <= span0[k]) & (span0[k] <= span1[kk])]) for k in ks}
+            for q in (q for q in cliques if len(q) > 1):
+                rows.append(np.full(len(q), r)), cols.append(np.array([col[k] for k in q])), vals.append(np.ones(len(q)))
+                ub.append(np.ones(1))
+                r += 1
+            lb_u += [1.0 if k in taken[li] else 0.0 for k in ks]
+            nu += len(ks)
+        A = scipy.sparse.csr_array((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(r, nu))
         res = scipy.optimize.milp(
-            np.concatenate([c, pc]), integrality=np.r_[np.ones(n), np.zeros(m)],
-            bounds=scipy.optimize.Bounds(0, 1),
+            np.concatenate([c, pc, np.zeros(nu - n - m)]), integrality=np.r_[np.ones(n), np.zeros(nu - n)],
+            bounds=scipy.optimize.Bounds(np.r_[np.zeros(n + m), lb_u], 1),
             constraints=scipy.optimize.LinearConstraint(A, -np.inf, np.concatenate(ub)),
             options={"time_limit": time_limit},
         )  # fmt: skip
@@ -537,6 +568,9 @@ def solve_labelling(shape, nodes, unary, pairs, pair_costs, chunk: int = 100, ti
             continue
         pick = here[res.x[:n] > 0.5]
         chosen[pick] = True
+        for li, k in zip(np.unravel_index(pick, shape)[0], track_of[pick]):
+            if k >= 0:
+                taken[li].add(int(k))
         objective += float(res.fun)
     return np.flatnonzero(chosen), objective, tuple(status)
 
@@ -557,6 +591,7 @@ class AssociationGraph:
     pairs: np.ndarray
     pair_z: np.ndarray
     seconds: float
+    tracks: tuple | None = None  # `detection_tracks` when cross_tracks (solve_labelling's constraint)
 
 
 def association_graph(joints3d, K, cam_orientation, detections, model: AssociationModel | None = None,
@@ -573,13 +608,14 @@ def association_graph(joints3d, K, cam_orientation, detections, model: Associati
     inter, intra = pair_features(hyp, keep, joints3d, K, detections, max(window, model.penalty_window),
                                  positions_known, cam_orientation is not None)  # fmt: skip
     inter_z = _logit(inter_design(inter["f"], window), model.inter)
-    if model.cross_tracks:  # two people for certain: a pair that costs more than any assignment gains
-        inter_z = np.where(inter["f"][:, 3] > 0, -CROSS_LOG_ODDS, inter_z)
     near = (inter["f"][:, 2] <= window) | (inter_z < 0)  # beyond the window: penalties only
+    if model.cross_tracks:  # two people for certain: solve_labelling's track constraint, not a pair
+        near &= inter["f"][:, 3] == 0
     pairs = np.concatenate([np.stack([inter["a"][near], inter["b"][near]], -1), np.stack([intra["a"], intra["b"]], -1)])
     pair_z = np.concatenate([inter_z[near], _logit(intra_design(intra["f"]), model.intra)])
     nodes = np.flatnonzero(keep)
-    return AssociationGraph(keep.shape, nodes, z.reshape(-1)[nodes], pairs, pair_z, time.perf_counter() - t0)
+    tracks = detection_tracks(detections) if model.cross_tracks else None
+    return AssociationGraph(keep.shape, nodes, z.reshape(-1)[nodes], pairs, pair_z, time.perf_counter() - t0, tracks)
 
 
 def _check_chunk(chunk):
@@ -596,7 +632,7 @@ def solve_graph(graph: AssociationGraph, detections, model: AssociationModel | N
     P, T, D = graph.shape
     t1 = time.perf_counter()
     chosen, objective, status = solve_labelling(graph.shape, graph.nodes, model.assignment_cost - graph.z, graph.pairs,
-                                                -model.pair_scale * graph.pair_z, chunk, time_limit)  # fmt: skip
+                                                -model.pair_scale * graph.pair_z, chunk, time_limit, graph.tracks)  # fmt: skip
     index = np.full((P, T), -1)
     l, t, v = np.unravel_index(chosen, graph.shape)
     index[l, t] = v
