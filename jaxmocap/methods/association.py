@@ -126,7 +126,7 @@ class AssociationModel:
         cross_tracks a hash of the weights (a result of another model is never reused)."""
         if not self.cross_tracks:
             return f"pw{self.penalty_window}"
-        w = {k: v for k, v in self.to_dict().items() if k != "provenance"}
+        w = {k: v for k, v in self.to_dict().items() if k != "provenance"} | {"cross_tracks_form": "frame cliques"}
         return f"pw{self.penalty_window}_{hashlib.sha1(json.dumps(w, sort_keys=True).encode()).hexdigest()[:6]}"
 
 
