@@ -196,7 +196,8 @@ def markdown(res: dict) -> str:
     L += ["", f"VIP vs IT, MPJPE: {res['vip_vs_it_relative_change_percent']['mpjpe']:+.1f} % (thesis −53 %). "
           f"Mean heading error after VIP: {res['heading_error_deg']:.2f}°. Orderings: {res['orderings_hold']}.",
           f"Association (the wearer among 0-3 bystanders): precision {100 * res['association']['precision']:.1f} %, "
-          f"recall {100 * res['association']['recall']:.1f} %.", ""]  # fmt: skip
+          f"recall {100 * res['association']['recall']:.1f} % (association model {c.get('association_model', '?')}).",
+          ""]  # fmt: skip
     return "\n".join(L)
 
 
