@@ -46,7 +46,7 @@ Choices that are ours (the thesis leaves them open):
     length while the penalties where a wearer's detections switch to a bystander's are
     bounded (about window²/2 pairs): measured on held-out scenes, a wearer who left the view
     was replaced by a bystander whose pose fits the IMUs about as well. Trained with the
-    other scales (`experiments/train_association.py`; the shipped weights keep 30: off).
+    other scales (`experiments/train_association.py`; the shipped weights use 90).
   - Detections on different 2D tracks that share a frame are two people (`cross_tracks`,
     on by default): a wearer takes detections of at most one of any tracks that share a
     frame, a constraint of the binary program (`solve_labelling`), at any distance in time
@@ -384,12 +384,13 @@ def unary_design(f_un):
 
 
 def pair_features(hyp: HypothesisFeatures, keep, joints3d, K, detections, window: int = 30,
-                  positions_known: bool = False, imu_rotation: bool = True):
+                  positions_known: bool = False, imu_rotation: bool = True, tracks=None):
     """Inter- and intra-frame pairs among the kept hypotheses (keep (P, T, D) bool).
 
     Returns (inter, intra): inter {a, b: flat hypothesis indices into (P, T, D), f (n, 4)
     (f_trans, f_ori, f_time) eq. 4.15-4.17 and f_cross (1: the two detections lie on
-    different `detection_tracks` that share a frame)}; intra {a, b, f (m, 2)} eq. 4.18.
+    different `detection_tracks` that share a frame; `tracks`: theirs, if computed
+    already)}; intra {a, b, f (m, 2)} eq. 4.18.
     """
     P, T, D = keep.shape
     flat = np.arange(P * T * D).reshape(P, T, D)
@@ -413,7 +414,7 @@ def pair_features(hyp: HypothesisFeatures, keep, joints3d, K, detections, window
     _, ta, va = np.unravel_index(a, (P, T, D))
     _, tb, vb = np.unravel_index(b, (P, T, D))
     f_time = np.abs(ta - tb).astype(float)
-    track, first, last = detection_tracks(detections)
+    track, first, last = detection_tracks(detections) if tracks is None else tracks
     ka, kb = track[ta, va], track[tb, vb]
     f_cross = ((ka != kb) & (ka >= 0) & (kb >= 0) & (first[ka] <= last[kb]) & (first[kb] <= last[ka])).astype(float)
     inter = {"a": a, "b": b, "f": np.stack([f_trans, f_ori, f_time, f_cross], -1)}
@@ -605,8 +606,9 @@ def association_graph(joints3d, K, cam_orientation, detections, model: Associati
     hyp = hypothesis_features(joints3d, K, cam_orientation, detections)
     z = np.where(hyp.valid, _logit(unary_design(np.where(hyp.valid, hyp.f_un, 1.0)), model.unary), -np.inf)
     keep = hyp.valid & (z >= np.log(model.min_probability / (1 - model.min_probability)))
+    tracks = detection_tracks(detections)
     inter, intra = pair_features(hyp, keep, joints3d, K, detections, max(window, model.penalty_window),
-                                 positions_known, cam_orientation is not None)  # fmt: skip
+                                 positions_known, cam_orientation is not None, tracks)  # fmt: skip
     inter_z = _logit(inter_design(inter["f"], window), model.inter)
     near = (inter["f"][:, 2] <= window) | (inter_z < 0)  # beyond the window: penalties only
     if model.cross_tracks:  # two people for certain: solve_labelling's track constraint, not a pair
@@ -614,8 +616,8 @@ def association_graph(joints3d, K, cam_orientation, detections, model: Associati
     pairs = np.concatenate([np.stack([inter["a"][near], inter["b"][near]], -1), np.stack([intra["a"], intra["b"]], -1)])
     pair_z = np.concatenate([inter_z[near], _logit(intra_design(intra["f"]), model.intra)])
     nodes = np.flatnonzero(keep)
-    tracks = detection_tracks(detections) if model.cross_tracks else None
-    return AssociationGraph(keep.shape, nodes, z.reshape(-1)[nodes], pairs, pair_z, time.perf_counter() - t0, tracks)
+    return AssociationGraph(keep.shape, nodes, z.reshape(-1)[nodes], pairs, pair_z, time.perf_counter() - t0,
+                            tracks if model.cross_tracks else None)  # fmt: skip
 
 
 def _check_chunk(chunk):
