@@ -90,7 +90,9 @@ def main(argv=None) -> int:
     p.add_argument("--penalty-window", type=int, default=None,
                    help="override the shipped model's penalty_window (frames; results cached apart)")
     p.add_argument("--dev-seed", type=int, default=None, help="also summarise the cached whole-method results of "
-                   "this development seed: the models before f_cross (penalty windows 30, 90) and the shipped one")
+                   "this development seed, for the models in --dev-models (tags; cached results only)")
+    p.add_argument("--dev-models", default="pw30,pw90,pw90_d8990f",
+                   help="model tags of the development summary (the shipped model's is added); see DEV_MODELS")
     p.add_argument("--only", default="", help="comma-separated scene indices: compute and cache only these (e.g. one "
                    "process per scene); a run without it then gathers the cached scenes into the tables")
     a = p.parse_args(argv)
@@ -171,7 +173,7 @@ def main(argv=None) -> int:
         "per_scene": per_scene,
     }  # fmt: skip
     if a.dev_seed is not None:
-        out["development"] = development(cache, a, ["pw30", "pw90", model.tag])
+        out["development"] = development(cache, a, [*a.dev_models.split(","), model.tag])
     if a.seed != 50:
         out["earlier_test_seed_50"] = EARLIER_TEST
     if a.fusion:
@@ -196,16 +198,23 @@ EARLIER_TEST = {"seed": 50, "model": "pw90", "precision": 0.983, "recall": 0.969
                         "seen beside them before; cross_tracks was built against it"}
 
 
+# What the development tags were (AssociationModel.tag of earlier models).
+DEV_MODELS = {"pw30": "the thesis's 30-frame window, no cross_tracks",
+              "pw90": "penalties up to 90 frames apart, no cross_tracks",
+              "pw90_d8990f": "90 frames and cross_tracks as -1e4 pair penalties within them (before the frame cliques)"}
+
+
 def development(cache: Path, a, tags) -> dict:
     """Precision and recall of the cached whole-method results of seed `a.dev_seed`, per model tag."""
     out = {"seed": a.dev_seed, "note": "development scenes: they chose the shipped penalty_window "
-           "(experiments/train_association.py, PENALTY_WINDOW) and checked f_cross; the headline numbers are the "
-           "test seed's"}
+           "(experiments/train_association.py, PENALTY_WINDOW) and checked cross_tracks; the headline numbers are "
+           "the test seed's"}
     for w in tags:
         rs = [json.loads(f.read_text()) for i in range(a.scenes)
               if (f := cache / f"result_{a.dev_seed}_{i}_{a.frames}_fusion_{w}.json").exists()]
         n = {k: sum(r[k] for r in rs) for k in ("assigned", "right", "wrong", "wearer_detections")}
-        out[f"model_{w}"] = {"scenes": len(rs), "precision": n["right"] / max(n["assigned"], 1),
+        out[f"model_{w}"] = {"scenes": len(rs), "model": DEV_MODELS.get(w, "shipped" if w == tags[-1] else w),
+                              "precision": n["right"] / max(n["assigned"], 1),
                               "recall": n["right"] / max(n["wearer_detections"], 1), **n}  # fmt: skip
     return out
 
@@ -227,7 +236,7 @@ def markdown(r: dict) -> str:
          *([f"| earlier test (seed 50), model before cross_tracks, examined since | "
             f"{100 * r['earlier_test_seed_50']['precision']:.1f} % | {100 * r['earlier_test_seed_50']['recall']:.1f} % |"]
            if "earlier_test_seed_50" in r else []),
-         *[f"| development scenes (seed {r['development']['seed']}), model {k[len('model_'):]} "
+         *[f"| development scenes (seed {r['development']['seed']}), {v['model']} "
            f"| {100 * v['precision']:.1f} % | {100 * v['recall']:.1f} % |"
            for k, v in r.get("development", {}).items() if k.startswith("model_") and v["scenes"]], "",
          f"Assigned {n['assigned']}: {n['right']} right, {n['wrong']} wrong ({n['wrong_to_other_wearer']} to the other "
