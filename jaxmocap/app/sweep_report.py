@@ -171,8 +171,6 @@ def _write_csv(path: Path, rows: list[dict]) -> None:
     atomic_write(path, buf.getvalue())
 
 
-
-
 def _markdown(config, analysis, metric, n_records, primary=True) -> str:
     if not primary:
         L = [f"# {metric}", "", "The same comparisons for this metric.", ""]
