@@ -351,11 +351,11 @@ def detection_tracks(detections, link_distance: float = 0.15, ambiguity: float =
     for a, b in flip_pairs(COCO18_NAMES):
         swap[a], swap[b] = b, a
     track = np.full((T, D), -1)
-    last_row, last_t, first, last = [], [], [], []  # per track: its latest (t, d)
+    last_row, first, last = [], [], []  # per track: its latest (t, d), first and last frame
     for t in range(T):
         for gap in range(1, max_gap + 1):  # the tracks seen last frame first, then older ones
             cur = np.flatnonzero(present[t] & (track[t] < 0))
-            live = [k for k in range(len(last_t)) if t - last_t[k] == gap]
+            live = [k for k in range(len(last)) if t - last[k] == gap]
             if not len(cur) or not live:
                 continue
             dist = np.full((len(live), len(cur)), np.inf)
@@ -370,14 +370,14 @@ def detection_tracks(detections, link_distance: float = 0.15, ambiguity: float =
                             dist[a, b] = min(dist[a, b], np.median(off) / size)
             for a, b in sorted(zip(*np.nonzero(dist <= link_distance * gap)), key=lambda ab: dist[ab]):
                 rivals = np.r_[np.delete(dist[a], b), np.delete(dist[:, b], a)]
-                if not (rivals < dist[a, b] / ambiguity).any() and track[t, cur[b]] < 0 and last_t[live[a]] < t:
+                if not (rivals < dist[a, b] / ambiguity).any() and track[t, cur[b]] < 0 and last[live[a]] < t:
                     k = live[a]
                     track[t, cur[b]] = k
-                    last_row[k], last_t[k], last[k] = (t, cur[b]), t, t
+                    last_row[k], last[k] = (t, cur[b]), t
         cur = np.flatnonzero(present[t])
         for d in cur[track[t, cur] < 0]:
-            track[t, d] = len(last_t)
-            last_row.append((t, d)), last_t.append(t), first.append(t), last.append(t)
+            track[t, d] = len(last)
+            last_row.append((t, d)), first.append(t), last.append(t)
     return track, np.asarray(first, int), np.asarray(last, int)
 
 
