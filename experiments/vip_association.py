@@ -91,8 +91,11 @@ def main(argv=None) -> int:
                    help="override the shipped model's penalty_window (frames; results cached apart)")
     p.add_argument("--dev-seed", type=int, default=None, help="also summarise the cached whole-method results of "
                    "this development seed, for the models in --dev-models (tags; cached results only)")
-    p.add_argument("--dev-models", default="pw30,pw90,pw90_d8990f",
-                   help="model tags of the development summary (the shipped model's is added); see DEV_MODELS")
+    p.add_argument("--dev-models", default="pw90_151a14",
+                   help="method tags of the development summary besides the run's own (cached results); see "
+                        "DEV_MODELS; earlier ones measured on another machine are in DEV_RECORDED")
+    p.add_argument("--no-identity-check", action="store_true",
+                   help="whole method without `video_inertial_scene`'s identity check (results cached apart)")
     p.add_argument("--only", default="", help="comma-separated scene indices: compute and cache only these (e.g. one "
                    "process per scene); a run without it then gathers the cached scenes into the tables")
     a = p.parse_args(argv)
@@ -105,7 +108,9 @@ def main(argv=None) -> int:
     model = A.load_model()
     if a.penalty_window is not None:
         model = dataclasses.replace(model, penalty_window=a.penalty_window)
-    variant = f"_{model.tag}"
+    # the method's tag names cached results: the association model, and the identity check of the whole method
+    tag = model.tag if (a.no_identity_check or not a.fusion) else f"xc_{model.tag}"
+    variant = f"_{tag}"
     cache = Path(a.cache)
     cache.mkdir(parents=True, exist_ok=True)
     per_scene, t_start = [], time.time()
@@ -134,8 +139,10 @@ def main(argv=None) -> int:
         if a.fusion:  # the method's own association: the second round, from the fused people
             datas, bones = scene_vip_data(motions, 3, a.frames, a.seed + 1000 + i, body,
                                           priors=[evaluation_prior(motions[k]) for k in WEARERS])  # fmt: skip
-            scene = vip.video_inertial_scene(datas, bones, s["detections"], model=model)
+            scene = vip.video_inertial_scene(datas, bones, s["detections"], model=model,
+                                             identity_check=not a.no_identity_check)  # fmt: skip
             r = {**evaluate(s, scene.associations[-1]), "first_round": r,
+                 "exchanges": [[{**x, "wearers": list(x["wearers"])} for x in e] for e in scene.exchanges],
                  "seconds_whole_method": {k: round(v, 1) for k, v in scene.seconds.items()}}  # fmt: skip
         r.update({"clips": [Path(str(m)).name for m in s["names"]], "frames": int(len(s["detections"])),
                   "seconds_scene_and_tracker": round(t1 - t0, 1), "seconds_association": round(t2 - t1, 2),
@@ -169,11 +176,12 @@ def main(argv=None) -> int:
                    "hypotheses": "Inertial Tracker keypoints, x0 with 10 deg (1 sigma) error per joint",
                    "weights": str(A.WEIGHTS_FILE.relative_to(ROOT)), "window": 30,
                    "penalty_window": model.penalty_window, "model": model.tag, "cross_tracks": model.cross_tracks,
+                   "identity_check": bool(a.fusion and not a.no_identity_check), "method": tag,
                    "command": "python experiments/vip_association.py " + " ".join(argv if argv is not None else sys.argv[1:])},
         "per_scene": per_scene,
     }  # fmt: skip
     if a.dev_seed is not None:
-        out["development"] = development(cache, a, [*a.dev_models.split(","), model.tag])
+        out["development"] = development(cache, a, [*a.dev_models.split(","), tag])
     if a.seed != 50:
         out["earlier_test_seed_50"] = EARLIER_TEST
     if a.fusion:
@@ -198,10 +206,18 @@ EARLIER_TEST = {"seed": 50, "model": "pw90", "precision": 0.983, "recall": 0.969
                         "seen beside them before; cross_tracks was built against it"}
 
 
-# What the development tags were (AssociationModel.tag of earlier models).
+# What the development tags are (AssociationModel.tag, "xc_" with the identity check).
 DEV_MODELS = {"pw30": "the thesis's 30-frame window, no cross_tracks",
               "pw90": "penalties up to 90 frames apart, no cross_tracks",
-              "pw90_d8990f": "90 frames and cross_tracks as -1e4 pair penalties within them (before the frame cliques)"}
+              "pw90_d8990f": "90 frames and cross_tracks as -1e4 pair penalties within them (before the frame cliques)",
+              "pw90_151a14": "90 frames, cross_tracks as frame cliques, no identity check",
+              "xc_pw90_151a14": "90 frames, cross_tracks as frame cliques and the identity check"}
+
+# Development results of earlier models, measured 2026-11-24/25 on the device (their caches
+# are not kept): scenes, precision, recall, assigned, right, wrong, wearer_detections.
+DEV_RECORDED = {"pw30": (12, 0.9843269821757836, 0.9726692985119951, 3254, 3203, 51, 3293),
+                "pw90": (12, 0.9962674961119751, 0.9726692985119951, 3215, 3203, 12, 3293),
+                "pw90_d8990f": (12, 0.9981132075471698, 0.9638627391436381, 3180, 3174, 6, 3293)}
 
 
 def development(cache: Path, a, tags) -> dict:
@@ -209,6 +225,10 @@ def development(cache: Path, a, tags) -> dict:
     out = {"seed": a.dev_seed, "note": "development scenes: they chose the shipped penalty_window "
            "(experiments/train_association.py, PENALTY_WINDOW) and checked cross_tracks; the headline numbers are "
            "the test seed's"}
+    for w, v in DEV_RECORDED.items():
+        out[f"model_{w}"] = {"model": DEV_MODELS[w], "recorded": True,
+                              **dict(zip(("scenes", "precision", "recall", "assigned", "right", "wrong",
+                                          "wearer_detections"), v))}  # fmt: skip
     for w in tags:
         rs = [json.loads(f.read_text()) for i in range(a.scenes)
               if (f := cache / f"result_{a.dev_seed}_{i}_{a.frames}_fusion_{w}.json").exists()]
