@@ -179,5 +179,5 @@ def test_identity_check_mends_exchanged_wearers():
         assert bool(exchanges) == exchanged, exchanges
         if exchanged:
             x = exchanges[0]
-            assert x["wearers"] == (0, 1) and x["cost_after"] < 0.8 * x["cost_before"], x
+            assert x["wearers"] == (0, 1) and x["cost_after"] < vip.EXCHANGE_RATIO * x["cost_before"], x
             assert float(people[0].solution.cost + people[1].solution.cost) == pytest.approx(x["cost_after"])
