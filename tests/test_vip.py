@@ -150,34 +150,3 @@ def test_whole_method_assigns_and_fuses(scene):
     assert err(res.poses) < 0.7 * err(scene["it"])
     assert abs(err(res.poses) - err(scene["res"].poses)) < 5.0  # mm: the same fit as from identity labels
     assert set(out.seconds) == {"tracker", "association", "fusion"}
-
-
-def test_identity_check_mends_exchanged_wearers():
-    """Two IMU wearers (a walk and squats) whose detections were given to each other: the
-    fusion fits each wearer's IMUs to the other's motion at a higher cost, and the check
-    exchanges them back; the right assignment is kept."""
-    from jaxmocap.methods.association import Association
-
-    body = default_body("low")
-    cfg = vip_config(bystanders=1, max_frames=24, imu_errors=IMUErrorModel.off(), detector=DetectorErrorModel.off())
-    sc = make_scenario(["walk", "squats"], cfg, seed=5, body=body)
-    datas, bones = [], None
-    for p in (0, 1):
-        data, _, bones = vip.from_scenario(sc, 0, body, person=p)
-        datas.append(data)
-    seq = sc.sequence(0)
-    det, labels = seq["det_keypoints"][0], seq["det_person"][0]
-    index = np.stack([np.where((labels == p).any(1), (labels == p).argmax(1), -1) for p in (0, 1)])
-    assert (index >= 0).all()  # both are seen in every frame of this scene
-    rows = det[np.arange(len(det))[None], index]
-    right = Association(index, rows, 0.0, (), {})
-    wrong = vip._exchanged(right, 0, 1)
-    for assoc, exchanged in ((wrong, True), (right, False)):
-        fused = vip._fuse(datas, bones, list(enumerate(assoc.keypoints)), vip.VIPWeights(), 30)
-        out, people, exchanges = vip.check_identities(datas, bones, assoc, fused)
-        assert (out.index == right.index).all()
-        assert bool(exchanges) == exchanged, exchanges
-        if exchanged:
-            x = exchanges[0]
-            assert x["wearers"] == (0, 1) and x["cost_after"] < vip.EXCHANGE_RATIO * x["cost_before"], x
-            assert float(people[0].solution.cost + people[1].solution.cost) == pytest.approx(x["cost_after"])

@@ -64,7 +64,7 @@ from .association import Association, AssociationModel, associate
 
 __all__ = ["VIPWeights", "VIPResult", "vip_data", "from_scenario", "inertial_tracker", "initial_camera",
            "video_inertial_poser", "tracker_keypoints", "associated_keypoints", "with_keypoints", "world_keypoints",
-           "VIPScene", "video_inertial_scene", "check_identities", "EXCHANGE_RATIO"]  # fmt: skip
+           "VIPScene", "video_inertial_scene"]  # fmt: skip
 
 
 @dataclasses.dataclass(frozen=True)
@@ -460,80 +460,15 @@ def world_keypoints(data: VIPData, poses, trans) -> np.ndarray:
 @dataclasses.dataclass(frozen=True)
 class VIPScene:
     """`video_inertial_scene`'s answer: people, one `VIPResult` per IMU wearer after the last
-    round; associations, one per round (after its identity check); seconds, the wall time of
-    each stage; exchanges, per round the wearer pairs (l, m) whose detections the identity
-    check exchanged, with the fusion costs before and after."""
+    round; associations, one per round; seconds, the wall time of each stage."""
 
     people: tuple
     associations: tuple
     seconds: dict
-    exchanges: tuple = ()
-
-
-def _exchanged(assoc: Association, l: int, m: int) -> Association:
-    """`assoc` with wearers l and m's assigned detections exchanged."""
-    order = np.arange(len(assoc.index))
-    order[[l, m]] = [m, l]
-    return dataclasses.replace(assoc, index=assoc.index[order], keypoints=assoc.keypoints[order])
-
-
-def _fuse(datas, bones, problems, weights, max_steps, starts=None, **fusion):
-    """One batched fusion of `problems`, (wearer k, keypoints (T, 18, 3)) each, every one
-    from wearer k's entry of `starts` (None: the Inertial Tracker) -> [VIPResult]."""
-    setups = [_fusion_setup(with_keypoints(datas[k], kp), bones, weights, fusion.get("free_heading", True),
-                            fusion.get("free_x0", True), None, True, None, None, fusion.get("sigma", 100.0),
-                            None if starts is None else starts[k]) for k, kp in problems]  # fmt: skip
-    if len(setups) == 1:  # the program `video_inertial_poser` compiles
-        return [_result(solve(*setups[0][:3], max_steps=max_steps), setups[0][2], *setups[0][3])]
-    stack = lambda *xs: jnp.stack(xs)  # noqa: E731
-    params = jax.tree.map(stack, *[s[1] for s in setups])
-    data = jax.tree.map(stack, *[s[2] for s in setups])
-    sol = solve_batch(setups[0][0], params, data, max_steps=max_steps)
-    return [_result(jax.tree.map(lambda x, k=k: x[k], sol), s[2], *s[3]) for k, s in enumerate(setups)]
-
-
-# The identity check exchanges two wearers only where the exchange cuts their summed fusion
-# cost to below this fraction. The costs of two local solves from different starts are not
-# comparable to a few per cent: on a development scene a right assignment lost to an exchange
-# that cost 2.3 % less (138.9 -> 135.8); the exchange that mended a held-out scene cut the
-# cost to 0.41 of it (153.9 -> 62.4). Two thirds lies between, with room on both sides.
-EXCHANGE_RATIO = 2.0 / 3.0
-
-
-def check_identities(datas, bones, assoc: Association, fused, weights: VIPWeights = VIPWeights(), max_steps: int = 30,
-                     starts=None, ratio: float = EXCHANGE_RATIO, **fusion):
-    """The identity check of `video_inertial_scene` (ours): fuse every pair of wearers (l, m)
-    again with their assigned detections exchanged (one batch of P(P−1) problems) and keep
-    an exchange where it cuts the pair's summed fusion cost (eq. 4.19) to below `ratio` of
-    it (`EXCHANGE_RATIO`), largest cut first, each wearer in at most one exchange.
-
-    assoc: the `Association` that `fused` (one `VIPResult` per wearer) was fitted to;
-    starts: the fusions' start (as `fused`'s). Returns (association, people, exchanges):
-    exchanges a list of {wearers (l, m), cost_before, cost_after}.
-    """
-    P = len(datas)
-    pairs = [(l, m) for l in range(P) for m in range(l + 1, P)]
-    if not pairs:
-        return assoc, list(fused), []
-    bones = _bones(datas[0], bones)
-    swapped = _fuse(datas, bones, [x for l, m in pairs for x in ((l, assoc.keypoints[m]), (m, assoc.keypoints[l]))],
-                    weights, max_steps, starts, **fusion)  # fmt: skip
-    cost = [float(x.solution.cost) for x in fused]
-    after = [float(swapped[2 * i].solution.cost + swapped[2 * i + 1].solution.cost) for i in range(len(pairs))]
-    fused, exchanges, used = list(fused), [], set()
-    for i in sorted(range(len(pairs)), key=lambda i: after[i] / (cost[pairs[i][0]] + cost[pairs[i][1]])):
-        l, m = pairs[i]
-        if after[i] < ratio * (cost[l] + cost[m]) and not {l, m} & used:
-            used |= {l, m}
-            exchanges.append({"wearers": (l, m), "cost_before": cost[l] + cost[m], "cost_after": after[i]})
-            fused[l], fused[m] = swapped[2 * i], swapped[2 * i + 1]
-            assoc = _exchanged(assoc, l, m)
-    return assoc, fused, exchanges
 
 
 def video_inertial_scene(datas, bones, detections, weights: VIPWeights = VIPWeights(), rounds: int = 2,
-                         model: AssociationModel | None = None, max_steps: int = 30, log=None,
-                         identity_check: bool = True, **fusion) -> VIPScene:
+                         model: AssociationModel | None = None, max_steps: int = 30, log=None, **fusion) -> VIPScene:
     """The whole Video Inertial Poser (§4.3) for the IMU wearers of one recording.
 
     Inertial Tracker per wearer (eq. 4.10) → association of the detections with the wearers
@@ -545,27 +480,12 @@ def video_inertial_scene(datas, bones, detections, weights: VIPWeights = VIPWeig
         detections are assigned here), all of the same length and the same camera.
     detections: (T, D, 18, 3) every person detected per frame (u, v, confidence), rows of
         zeros or NaN where a frame has fewer than D; an empty frame is fine.
-    identity_check: after the first fusion, fuse every pair of wearers once more with their
-        assigned detections exchanged and keep the exchange where it cuts the pair's fusion
-        cost (eq. 4.19) by a third (`check_identities`; ours, not in the thesis: see below).
     fusion: options of `video_inertial_poser` (free_heading, free_x0, sigma, ...).
 
     The wearers are solved as one batch (`solve_batch`: one compiled program). Ours: each
     wearer keeps their own camera unknowns (the camera is shared in the thesis's joint
     problem); the second association maps every wearer into the first wearer's camera
     world, so that the intra-frame costs compare one camera (positions known, eq. 4.18).
-
-    Identity check (ours). The first association's hypotheses are Inertial Tracker poses,
-    whose keypoints carry the errors of x₀ (a constant offset per bone, eq. 4.7-4.9):
-    measured on a held-out scene with x₀ 10° (1σ) off per joint, the trackers' torsos
-    leaned 29° and 33° against the true 5° and 11°, each wearer's keypoints fitted both
-    wearers' detections alike (median f_un 0.156 / 0.148 and 0.260 / 0.255), and the
-    association exchanged the two wearers throughout; the fusion, fitted to the exchanged
-    detections, kept it. Fusion estimates x₀ and the headings, so it can fit a wearer's own
-    detections but not another person's motion: there, the pair's fusion cost was 153.9 with
-    the exchanged detections and 62.4 with the right ones. The check costs one more batched fusion of
-    P(P−1) problems in the first round; it mends exchanges of whole wearers, not of parts
-    of a sequence.
     """
     datas = list(datas)
     if not datas:
@@ -585,28 +505,29 @@ def video_inertial_scene(datas, bones, detections, weights: VIPWeights = VIPWeig
     clock = time.perf_counter()
     hyp = tracker_hypotheses(datas, bones)
     seconds["tracker"] += time.perf_counter() - clock
-    cam_R, results, associations, exchanges = np.asarray(d0.cam_orientation), None, [], []
-
+    cam_R, results, associations = np.asarray(d0.cam_orientation), None, []
     for r in range(rounds):
         clock = time.perf_counter()
         assoc = associate(hyp, d0.K, cam_R, detections, model=model, positions_known=r > 0)
         seconds["association"] += time.perf_counter() - clock
+        associations.append(assoc)
         say(f"round {r + 1}: {int((assoc.index >= 0).sum())} detections assigned to {len(datas)} wearer(s)")
         lacking = [k for k in range(len(datas)) if not (assoc.keypoints[k][..., 2] > 0).any()]
         if lacking:
             raise ValueError(f"wearer(s) {lacking} were assigned no detection in any frame: VIP cannot place them "
                              "in the image; check the detections, or fit them with the Inertial Tracker alone.")  # fmt: skip
         clock = time.perf_counter()
-        fused = _fuse(datas, bones, list(enumerate(assoc.keypoints)), weights, max_steps, results, **fusion)
-        done = []
-        if identity_check and r == 0:
-            assoc, fused, done = check_identities(datas, bones, assoc, fused, weights, max_steps, results, **fusion)
-            for x in done:
-                say(f"round {r + 1}: wearers {x['wearers']} exchanged (fusion cost {x['cost_before']:.4g} -> "
-                    f"{x['cost_after']:.4g})")  # fmt: skip
-        results = fused
-        associations.append(assoc)
-        exchanges.append(tuple(done))
+        setups = [_fusion_setup(with_keypoints(d, assoc.keypoints[k]), bones, weights, fusion.get("free_heading", True),
+                                fusion.get("free_x0", True), None, True, None, None, fusion.get("sigma", 100.0),
+                                None if results is None else results[k]) for k, d in enumerate(datas)]  # fmt: skip
+        if len(setups) == 1:  # the program `video_inertial_poser` compiles
+            results = [_result(solve(*setups[0][:3], max_steps=max_steps), setups[0][2], *setups[0][3])]
+        else:
+            stack = lambda *xs: jnp.stack(xs)  # noqa: E731
+            params = jax.tree.map(stack, *[s[1] for s in setups])
+            data = jax.tree.map(stack, *[s[2] for s in setups])
+            sol = solve_batch(setups[0][0], params, data, max_steps=max_steps)
+            results = [_result(jax.tree.map(lambda x, k=k: x[k], sol), s[2], *s[3]) for k, s in enumerate(setups)]
         seconds["fusion"] += time.perf_counter() - clock
         say(f"round {r + 1}: fused, costs {[float(x.solution.cost) for x in results]}")
         # Next hypotheses: each wearer's fused keypoints seen from the first wearer's camera.
@@ -614,7 +535,7 @@ def video_inertial_scene(datas, bones, detections, weights: VIPWeights = VIPWeig
         hyp = np.stack([into_camera(world_keypoints(d, x.poses, x.trans), cams[k], cams[0])
                         for k, (d, x) in enumerate(zip(datas, results))])  # fmt: skip
         cam_R = cams[0][:, :3, :3]
-    return VIPScene(tuple(results), tuple(associations), seconds, tuple(exchanges))
+    return VIPScene(tuple(results), tuple(associations), seconds)
 
 
 def into_camera(X, cam_from, cam_to):
