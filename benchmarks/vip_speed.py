@@ -40,6 +40,7 @@ from _common import machine, peak_memory_bytes, write_json  # noqa: E402
 
 from jaxmocap.body import default_body  # noqa: E402
 from jaxmocap.methods import visual_inertial as vip  # noqa: E402
+from jaxmocap.methods.association import load_model  # noqa: E402
 from jaxmocap.motion import library  # noqa: E402
 from jaxmocap.sensors import make_scenario  # noqa: E402
 from jaxmocap.sensors.scenario import vip_config  # noqa: E402
@@ -116,7 +117,7 @@ def main(argv=None):
     stage = {k: round(v, 3) for k, v in steady.items()}
     result = {
         "benchmark": "vip_speed", "frames": T, "imus": len(scenes[0][1]), "lm_steps": args.steps, "rounds": 2,
-        "scene_setup_s": setup_s, "dtype": "float64",
+        "scene_setup_s": setup_s, "dtype": "float64", "association_model": load_model().tag,
         "first_call_stage_s": {k: round(v, 3) for k, v in first.items()}, "first_call_total_s": first_total,
         "compile_stage_s": {k: round(max(0.0, first[k] - steady[k]), 3) for k in steady},
         "detections_per_frame": int(scenes[0][2].shape[1]),
