@@ -14,8 +14,9 @@ batch sizes, compile time reported separately, against baselines in the same pro
 
 Variants of our forward are timed in the same run (`--variants`, `--variant-batches`):
 skinning dense (`_skin_dense`) or over each vertex's non-zero weights (`_skin_sparse`),
-shape and pose blend shapes as one product or two, and bfloat16 blend-shape bases (with
-their error against full float32, in mm).
+shape and pose blend shapes as one product or two, bfloat16 blend-shape bases (with
+their error against full float32, in mm), and the stacked product without the zero
+columns that accelerators add (`unpadded_blend`, the path before 2026-11-26).
 `passes_per_s_6890` is the library forward's best over the batches on the 6890-vertex
 model. A batch that does not fit in memory is recorded as such, not fatal. Writes
 benchmarks/results/body_forward[_<suffix>].json.
@@ -58,10 +59,11 @@ VARIANTS = {
     "split_blend": {"joint_blend": False},
     "joint_blend": {"joint_blend": True},
     "bf16_blend": {"blend_dtype": jnp.bfloat16},
+    "unpadded_blend": {"pad_columns": False},
 }
 # The library's own choices are not repeated: on accelerators it skins sparsely with one
 # blend product (from 256 samples), on the CPU densely.
-GPU_VARIANTS = ["dense", "split_blend", "bf16_blend"]
+GPU_VARIANTS = ["dense", "split_blend", "bf16_blend", "unpadded_blend"]
 CPU_VARIANTS = ["sparse"]
 ERROR_SAMPLES = 64
 

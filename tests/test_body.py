@@ -285,3 +285,16 @@ def test_compact_body_poses_exactly_like_the_mesh():
     np.testing.assert_allclose(cut.vertices[:, :3], full.vertices[:, keep], atol=1e-9)
     np.testing.assert_allclose(regress_keypoints(small_reg, cut.vertices), regress_keypoints(reg, full.vertices), atol=1e-9)
     assert small.num_vertices == 3 + int((np.abs(np.asarray(reg) @ np.asarray(body.weights)) > 1e-12).sum()) + 24
+
+
+@pytest.mark.parametrize("columns", [0, 66])
+def test_padded_blend_product_is_the_same(random_body, columns):
+    """Accelerators widen the stacked blend product with zero columns (`_stacked_blend`):
+    the padded vertices are sliced off and the rest are unchanged."""
+    V = random_body.num_vertices
+    coeffs = jnp.asarray(rng.normal(size=(5, 32)))
+    bases = jnp.asarray(rng.normal(size=(32, 3 * V)))
+    template = random_body.v_template.reshape(-1)
+    out = kinematics._stacked_blend(coeffs, bases, template, columns)
+    assert out.shape == (5, V, 3)
+    np.testing.assert_allclose(out, (template + coeffs @ bases).reshape(5, V, 3), atol=1e-12)

@@ -300,15 +300,17 @@ def _skin(body: Body, transforms: Array, v_posed: Array, skinning: str = "auto")
     )
 
 
-def _blend_shapes(body: Body, betas: Array, pose_feature: Array | None, joint: bool | None = None, blend_dtype=None) -> Array:
+def _blend_shapes(body: Body, betas: Array, pose_feature: Array | None, joint: bool | None = None, blend_dtype=None,
+                  pad_columns: bool = True) -> Array:
     """Rest-pose vertices T(β, θ) = T̄ + B_s(β) + B_p(θ) (Huang eq. 2.2-2.3), (N, V, 3).
 
     The offsets are matrix products in the default precision (TF32 on GPUs); the template
     is added afterwards in full precision (TF32 on a ~1 m template would cost ~1 mm).
     `joint` (default: from the batch size) stacks [β, pose feature] against the stacked
     bases for one product instead of two; `blend_dtype` (e.g. bfloat16, a benchmark
-    variant) multiplies in that dtype with float32 accumulation. `pose_feature` None:
-    B_p ≡ 0 (a body whose posedirs are all zero), the product skipped.
+    variant) multiplies in that dtype with float32 accumulation; `pad_columns` widens the
+    stacked product on accelerators (below; False is a benchmark variant). `pose_feature`
+    None: B_p ≡ 0 (a body whose posedirs are all zero), the product skipped.
     """
     N, nb, V = betas.shape[0], betas.shape[-1], body.num_vertices
     dtype = body.v_template.dtype
@@ -323,15 +325,31 @@ def _blend_shapes(body: Body, betas: Array, pose_feature: Array | None, joint: b
     product = lambda a, b: jnp.matmul(a, b, preferred_element_type=dtype)  # noqa: E731
     if joint is None:
         joint = N >= _JOINT_BLEND_MIN_BATCH
-    if joint:
-        # Zero rows up to a multiple of 32 coefficients: cuBLAS ran the odd 217-deep
-        # product 1.35x slower on an H200 (unaligned rows keep it off its fast kernels).
-        pad = -(nb + posedirs.shape[0]) % 32
-        coeffs = jnp.concatenate([betas, pose_feature, jnp.zeros((N, pad), betas.dtype)], -1)
-        offsets = product(coeffs, jnp.concatenate([shapedirs, posedirs, jnp.zeros((pad, 3 * V), posedirs.dtype)]))
-    else:
+    if not joint:
         offsets = product(betas, shapedirs) + product(pose_feature, posedirs)
-    return (body.v_template.reshape(-1) + offsets).reshape(N, V, 3)
+        return (body.v_template.reshape(-1) + offsets).reshape(N, V, 3)
+    # Zero rows up to a multiple of 32 coefficients: cuBLAS ran the odd 217-deep
+    # product 1.35x slower on an H200 (unaligned rows keep it off its fast kernels).
+    pad = -(nb + posedirs.shape[0]) % 32
+    coeffs = jnp.concatenate([betas, pose_feature, jnp.zeros((N, pad), betas.dtype)], -1)
+    bases = jnp.concatenate([shapedirs, posedirs, jnp.zeros((pad, 3 * V), posedirs.dtype)])
+    # On accelerators, zero columns up to a multiple of 384 (3 coordinates x 128): an
+    # H200 ran the (16384, 224) x (224, 20670) TF32 product of the 6890-vertex body in
+    # 1.68 ms and the 20736-wide one in 1.07 ms. The slice fuses into skinning's loop.
+    return jax.lax.platform_dependent(
+        coeffs, bases, body.v_template.reshape(-1), cpu=functools.partial(_stacked_blend, columns=0),
+        default=functools.partial(_stacked_blend, columns=-3 * V % 384 if pad_columns else 0),
+    )  # fmt: skip
+
+
+def _stacked_blend(coeffs: Array, bases: Array, template: Array, columns: int) -> Array:
+    """template + coeffs @ bases as (N, V, 3), the product `columns` zero columns (padded
+    vertices) wider than the 3V real ones, which are sliced off after."""
+    V = template.shape[0] // 3
+    bases = jnp.concatenate([bases, jnp.zeros((len(bases), columns), bases.dtype)], -1)
+    template = jnp.concatenate([template, jnp.zeros((columns,), template.dtype)])
+    offsets = jnp.matmul(coeffs, bases, preferred_element_type=template.dtype)
+    return (template + offsets).reshape(len(coeffs), -1, 3)[:, :V]
 
 
 def forward(body: Body, pose, betas=None, trans=None) -> BodyOutput:
@@ -390,10 +408,10 @@ def forward_rotations(body: Body, local_rotations, betas=None, trans=None) -> Bo
 
 def _forward_rotations(
     body: Body, local_rotations, betas=None, trans=None, skinning: str = "auto", joint_blend=None, blend_dtype=None,
-    pose_blend: bool = True,
+    pose_blend: bool = True, pad_columns: bool = True,
 ) -> BodyOutput:
     """`forward_rotations` with its implementation choices open (tests and benchmarks):
-    `skinning` as in `_skin`, `joint_blend` and `blend_dtype` as in `_blend_shapes`;
+    `skinning` as in `_skin`, `joint_blend`, `blend_dtype` and `pad_columns` as in `_blend_shapes`;
     `pose_blend=False` skips B_p (exact only for a body whose posedirs are zero: the
     caller checks that on the host, e.g. `methods.multiview`'s compact body)."""
     local, betas, trans = _check_inputs(body, local_rotations, betas, trans)
@@ -406,7 +424,7 @@ def _forward_rotations(
     local, betas, trans = local.reshape(-1, body.num_joints, 3, 3), betas.reshape(-1, nb), trans.reshape(-1, 3)
 
     pose_feature = (local[:, 1:] - jnp.eye(3, dtype=dtype)).reshape(len(local), -1) if pose_blend else None
-    v_posed = _blend_shapes(body, betas, pose_feature, joint_blend, blend_dtype)
+    v_posed = _blend_shapes(body, betas, pose_feature, joint_blend, blend_dtype, pad_columns)
 
     rest = shaped_joints(body, betas)
     global_rot, global_pos = forward_kinematics(body.parents, local, rest)
