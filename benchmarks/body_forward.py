@@ -16,7 +16,8 @@ Variants of our forward are timed in the same run (`--variants`, `--variant-batc
 skinning dense (`_skin_dense`) or over each vertex's non-zero weights (`_skin_sparse`),
 shape and pose blend shapes as one product or two, bfloat16 blend-shape bases (with
 their error against full float32, in mm), and the stacked product without the zero
-columns that accelerators add (`unpadded_blend`, the path before 2026-11-26).
+columns that accelerators add (`unpadded_blend`, the path before 2026-11-26); and the
+library forward with the body closed over by jit (`closure_body`, how users write it).
 `passes_per_s_6890` is the library forward's best over the batches on the 6890-vertex
 model. A batch that does not fit in memory is recorded as such, not fatal. Writes
 benchmarks/results/body_forward[_<suffix>].json.
@@ -63,7 +64,7 @@ VARIANTS = {
 }
 # The library's own choices are not repeated: on accelerators it skins sparsely with one
 # blend product (from 256 samples), on the CPU densely.
-GPU_VARIANTS = ["dense", "split_blend", "bf16_blend", "unpadded_blend"]
+GPU_VARIANTS = ["dense", "split_blend", "bf16_blend", "unpadded_blend", "closure_body"]
 CPU_VARIANTS = ["sparse"]
 ERROR_SAMPLES = 64
 
@@ -112,6 +113,19 @@ def _variant(options: dict):
         return out.vertices, out.joints
 
     return jax.jit(run)
+
+
+def _closure_variant():
+    """The library forward jitted with the body closed over (a constant of the program), as
+    users write it; one compiled function per body."""
+    compiled = {}
+
+    def run(body, pose, betas, trans):
+        if id(body) not in compiled:
+            compiled[id(body)] = jax.jit(lambda p, s, t: (lambda o: (o.vertices, o.joints))(jaxmocap.forward(body, p, s, t)))
+        return compiled[id(body)](pose, betas, trans)
+
+    return run
 
 
 def _bf16_bases(body):
@@ -223,7 +237,7 @@ def run(
     ours = jax.jit(lambda b, p, s, t: (lambda o: (o.vertices, o.joints))(jaxmocap.forward(b, p, s, t)))
     base = jax.jit(jax.vmap(baseline_forward, in_axes=(None, 0, 0, 0)))
     exact_fn = _variant({"skinning": "dense"})  # compiled once per model (ERROR_SAMPLES shapes)
-    variant_fns = {name: _variant(VARIANTS[name]) for name in VARIANTS}
+    variant_fns = {name: _variant(VARIANTS[name]) for name in VARIANTS} | {"closure_body": _closure_variant()}
     rows = []
     for name in models:
         body = bodies[name]()
@@ -339,7 +353,7 @@ def main():
     parser.add_argument("--min-seconds", type=float, default=1.0)
     parser.add_argument("--variant-seconds", type=float, default=0.3, help="timing per variant (after its compile)")
     parser.add_argument(
-        "--variants", nargs="*", choices=list(VARIANTS), default=None,
+        "--variants", nargs="*", choices=[*VARIANTS, "closure_body"], default=None,
         help=f"variants to time (default: {' '.join(GPU_VARIANTS)} on accelerators, {' '.join(CPU_VARIANTS)} on the CPU)",
     )
     parser.add_argument(
