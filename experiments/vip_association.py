@@ -262,10 +262,7 @@ def development(cache: Path, a, tags) -> dict:
     for w in tags:
         rs = [json.loads(f.read_text()) for i in range(a.scenes)
               if (f := cache / f"result_{a.dev_seed}_{i}_{a.frames}_fusion_{w}.json").exists()]
-        n = {k: sum(r[k] for r in rs) for k in ("assigned", "right", "wrong", "wearer_detections")}
-        out[f"model_{w}"] = {"scenes": len(rs), "model": DEV_MODELS.get(w, "shipped" if w == tags[-1] else w),
-                              "precision": n["right"] / max(n["assigned"], 1),
-                              "recall": n["right"] / max(n["wearer_detections"], 1), **n}  # fmt: skip
+        out[f"model_{w}"] = {"model": DEV_MODELS.get(w, "shipped" if w == tags[-1] else w), **rates(rs)}
     return out
 
 

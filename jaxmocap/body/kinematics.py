@@ -346,8 +346,9 @@ def _stacked_blend(coeffs: Array, bases: Array, template: Array, columns: int) -
     """template + coeffs @ bases as (N, V, 3), the product `columns` zero columns (padded
     vertices) wider than the 3V real ones, which are sliced off after."""
     V = template.shape[0] // 3
-    bases = jnp.concatenate([bases, jnp.zeros((len(bases), columns), bases.dtype)], -1)
-    template = jnp.concatenate([template, jnp.zeros((columns,), template.dtype)])
+    if columns:
+        bases = jnp.concatenate([bases, jnp.zeros((len(bases), columns), bases.dtype)], -1)
+        template = jnp.concatenate([template, jnp.zeros((columns,), template.dtype)])
     offsets = jnp.matmul(coeffs, bases, preferred_element_type=template.dtype)
     return (template + offsets).reshape(len(coeffs), -1, 3)[:, :V]
 
