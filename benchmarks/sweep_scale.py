@@ -24,12 +24,20 @@ Parts (keys of results/sweep_scale.json):
 - `speedup_2_gpus`, `speedup_4_gpus`, `speedup_8_gpus` (those the machine has): the batch on
   the first 2, 4, 8 local GPUs over the batch on one (same process,
   same data). null when fewer than 2 devices are visible (recorded in
-  `speedup_2_gpus_note`).
+  `speedup_2_gpus_note`). Timed before the one-chunk baseline, whose out-of-memory
+  failure leaves the first device's allocator fragmented. `multi_gpu[n]` names the
+  machine it ran on and the one-device time it is divided by.
+
+`--multi-gpu-only` times the one-device batch and the multi-GPU speed-ups alone and
+updates those keys of an existing result file, keeping its one-GPU `batch`, baseline
+and `sweep` (each says the machine it ran on): the two-GPU kinds are lent on other
+days than the one-GPU kind, and the speed-up is a ratio within one machine.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import shutil
 import sys
@@ -40,8 +48,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+import jaxmocap  # noqa: F401 - before JAX's CPU backend starts: it widens the thread pool (jaxmocap._threads)
+
 sys.path.insert(0, str(Path(__file__).parent))
-from _common import machine, peak_memory_bytes, write_json  # noqa: E402
+from _common import RESULTS, machine, peak_memory_bytes, write_json  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -110,19 +120,32 @@ def main(argv=None) -> int:
     p.add_argument("--sweep-out", default="out/sweeps/sip_ablation", help="the sweep's store (may hold cached data)")
     p.add_argument("--sweep-summary", help="copy the sweep's summary files here")
     p.add_argument("--suffix", default="")
+    p.add_argument("--multi-gpu-only", action="store_true",
+                   help="time the one-device batch and the multi-GPU speed-ups alone; update those keys of the result file")
     args = p.parse_args(argv)
     B, T, it = args.sequences, args.frames, args.iters
     out = {"benchmark": "sweep_scale", "machine": machine(), "dtype": "float32", "sequences": B, "frames": T,
            "lm_iterations": it}  # fmt: skip
 
+    name = f"sweep_scale{'_' + args.suffix if args.suffix else ''}.json"
+    if args.multi_gpu_only:
+        earlier = RESULTS / name
+        if not earlier.exists():
+            p.error(f"--multi-gpu-only updates {earlier}, which does not exist; run without it first")
+        kept = json.loads(earlier.read_text())
+        if (kept["sequences"], kept["frames"], kept["lm_iterations"]) != (B, T, it):
+            p.error(f"{earlier} is for B={kept['sequences']} T={kept['frames']} x {kept['lm_iterations']}; "
+                    "give the same --sequences, --frames and --iters")  # fmt: skip
+        out = {**kept, "multi_gpu": {}}
+
     def save():
-        name = f"sweep_scale{'_' + args.suffix if args.suffix else ''}.json"
         return write_json(name, out)
 
     t0 = time.perf_counter()
     pool, pool_init = _pool(T, min(args.pool, B))
     jax.block_until_ready(pool_init)
-    out["data_and_sop_init_s"] = time.perf_counter() - t0
+    if not args.multi_gpu_only:
+        out["data_and_sop_init_s"] = time.perf_counter() - t0
     stacked, init = _tile(pool, B), _tile(pool_init, B)
     one = jax.local_devices()[:1]
     plan = _plan(stacked, init, devices=one)
@@ -131,29 +154,20 @@ def main(argv=None) -> int:
     work = B * T * it
     peak = peak_memory_bytes()
     steps = np.asarray(sol.num_steps)
-    out["batch"] = {
-        "plan": plan.to_dict(), "first_call_s": first, "wall_s": wall, "frame_iterations_per_s": work / wall,
-        "frames_per_s": B * T / wall, "peak_memory_bytes": peak,
-        "measured_bytes_per_sequence": None if peak is None else peak / plan.chunk_size,
-        "estimated_bytes_per_sequence": plan.bytes_per_sequence, "num_steps_min_max": [int(steps.min()), int(steps.max())],
-        "finite_costs": int(np.isfinite(np.asarray(sol.cost)).sum()), "out_of_memory": False,
-    }  # fmt: skip
+    one_device = {"wall_s": wall, "first_call_s": first, "plan": plan.to_dict()}
+    if not args.multi_gpu_only:
+        out["batch"] = {
+            "plan": plan.to_dict(), "first_call_s": first, "wall_s": wall, "frame_iterations_per_s": work / wall,
+            "frames_per_s": B * T / wall, "peak_memory_bytes": peak,
+            "measured_bytes_per_sequence": None if peak is None else peak / plan.chunk_size,
+            "estimated_bytes_per_sequence": plan.bytes_per_sequence, "num_steps_min_max": [int(steps.min()), int(steps.max())],
+            "finite_costs": int(np.isfinite(np.asarray(sol.cost)).sum()), "out_of_memory": False,
+        }  # fmt: skip
     print(f"SIP B={B} T={T} x {it}: {wall:.1f} s ({work / wall:.3g} frame-iterations/s), chunks of "
           f"{plan.chunk_size} ({plan.num_chunks}), estimate {plan.bytes_per_sequence / 2**20:.0f} MiB/seq, "
           f"peak {0 if peak is None else peak / 2**30:.1f} GiB", flush=True)  # fmt: skip
     del sol
     save()
-
-    if not args.no_baseline:
-        try:
-            base, bt = _timed(lambda: _solve(stacked, init, it, devices=one, chunk_size=None))
-            out["baseline_one_chunk"] = {"wall_s_including_compile": bt, "error": None}
-            del base
-        except Exception as e:  # noqa: BLE001 - the out-of-memory failure is the point
-            msg = str(e).splitlines()[0][:400]
-            out["baseline_one_chunk"] = {"error": f"{type(e).__name__}: {msg}"}
-        print(f"one chunk of {B}: {out['baseline_one_chunk']}", flush=True)
-        save()
 
     devices = jax.local_devices()
     counts = [n for n in (2, 4, 8) if n <= len(devices)]
@@ -165,7 +179,8 @@ def main(argv=None) -> int:
         out[f"speedup_{n}_gpus"] = wall / wall_n
         stats = [d.memory_stats() or {} for d in subset]
         out["multi_gpu"][str(n)] = {
-            "wall_s": wall_n, "one_device_wall_s": wall, "plan": _plan(stacked, init, devices=subset).to_dict(),
+            "machine": machine(), "wall_s": wall_n, "one_device": one_device,
+            "plan": _plan(stacked, init, devices=subset).to_dict(),
             "peak_bytes_per_device": [st.get("peak_bytes_in_use") for st in stats],
         }  # fmt: skip
         print(f"{n} devices: {wall_n:.1f} s, speed-up {wall / wall_n:.2f}", flush=True)
@@ -175,7 +190,23 @@ def main(argv=None) -> int:
             f"unmeasured: {len(devices)} device visible ({devices[0].device_kind}); run this script on a "
             "2-GPU machine (nvidia-h200-x2) to fill it in"
         )
+    if args.multi_gpu_only and "speedup_2_gpus" in out:
+        out.setdefault("speedup_2_gpus_history", {})[f"{len(devices)}x {devices[0].device_kind}"] = out["speedup_2_gpus"]
     save()
+    if args.multi_gpu_only:
+        print(f"updated {save()}")
+        return 0
+
+    if not args.no_baseline:
+        try:
+            base, bt = _timed(lambda: _solve(stacked, init, it, devices=one, chunk_size=None))
+            out["baseline_one_chunk"] = {"wall_s_including_compile": bt, "error": None}
+            del base
+        except Exception as e:  # noqa: BLE001 - the out-of-memory failure is the point
+            msg = str(e).splitlines()[0][:400]
+            out["baseline_one_chunk"] = {"error": f"{type(e).__name__}: {msg}"}
+        print(f"one chunk of {B}: {out['baseline_one_chunk']}", flush=True)
+        save()
 
     if not args.no_sweep:
         from jaxmocap.app import load_config, run_sweep
