@@ -24,9 +24,9 @@ Parts (keys of results/sweep_scale.json):
 - `speedup_2_gpus`, `speedup_4_gpus`, `speedup_8_gpus` (those the machine has): the batch on
   the first 2, 4, 8 local GPUs over the batch on one (same process,
   same data). null when fewer than 2 devices are visible (recorded in
-  `speedup_2_gpus_note`). Timed before the one-chunk baseline, whose out-of-memory
-  failure leaves the first device's allocator fragmented. `multi_gpu[n]` names the
-  machine it ran on and the one-device time it is divided by.
+  `speedup_2_gpus_note`). Timed before the one-chunk baseline, so that its deliberate
+  out-of-memory failure cannot disturb them. `multi_gpu[n]` names the machine it ran
+  on and the one-device time it is divided by.
 
 `--multi-gpu-only` times the one-device batch and the multi-GPU speed-ups alone and
 updates those keys of an existing result file, keeping its one-GPU `batch`, baseline
