@@ -143,6 +143,44 @@ def test_block_tridiagonal_solves_match_dense(K):
         tridiagonal_factor(jnp.asarray(D), jnp.asarray(U), "lu")
 
 
+@pytest.mark.parametrize("n", [1, 16, 17, 40, 102])
+def test_inverse_cholesky_matches_numpy(n):
+    """The recursive inverse Cholesky factor equals numpy's inv(cholesky(S)), batched, on
+    either side of the recursion's base (16) and at SIP's block size (102)."""
+    from jaxmocap.solve.tridiagonal import inverse_cholesky
+
+    rng = np.random.default_rng(n)
+    A = rng.normal(size=(3, n, n))
+    S = A @ np.swapaxes(A, 1, 2) + n * np.eye(n)
+    ref = np.linalg.inv(np.linalg.cholesky(S))
+    for base in (4, 16, 32):
+        L_inv = np.asarray(inverse_cholesky(jnp.asarray(S), base))
+        np.testing.assert_allclose(L_inv, ref, atol=1e-12 * np.abs(ref).max(), err_msg=f"base {base}")
+        assert np.all(np.triu(L_inv, 1) == 0.0)
+
+
+def test_block_tridiagonal_recursive_blocks_match_dense():
+    """Scan and cyclic reduction on blocks of 40 (past both recursion bases) against numpy."""
+    from jaxmocap.solve.tridiagonal import tridiagonal_factor, tridiagonal_solve
+
+    rng = np.random.default_rng(40)
+    K, N = 5, 40
+    D = rng.normal(size=(K, N, N))
+    D = D @ np.swapaxes(D, 1, 2) + 2 * N * np.eye(N)
+    U = rng.normal(size=(K, N, N))
+    A = np.zeros((K * N, K * N))
+    for k in range(K):
+        A[k * N : (k + 1) * N, k * N : (k + 1) * N] = D[k]
+        if k + 1 < K:
+            A[k * N : (k + 1) * N, (k + 1) * N : (k + 2) * N] = U[k]
+            A[(k + 1) * N : (k + 2) * N, k * N : (k + 1) * N] = U[k].T
+    b = rng.normal(size=(K, N, 1))
+    ref = np.linalg.solve(A, b.reshape(K * N, 1)).reshape(K, N, 1)
+    for method in ("scan", "cyclic"):
+        x = tridiagonal_solve(tridiagonal_factor(jnp.asarray(D), jnp.asarray(U), method), jnp.asarray(b))
+        np.testing.assert_allclose(np.asarray(x), ref, atol=1e-10 * np.abs(ref).max(), err_msg=method)
+
+
 def test_solves_use_full_float32_products():
     """Every matrix product of a solve and of its adjoint is traced at HIGHEST precision:
     GPUs' default TF32 products left SIP at 2.5x the cost (structured.full_precision)."""

@@ -47,7 +47,6 @@ from typing import Any
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-import jax.scipy.linalg as jsl
 import jax.tree_util as jtu
 import lineax as lx
 import numpy as np
@@ -55,7 +54,7 @@ from jax import Array
 
 from ..timeseries import shift_frames
 
-from .tridiagonal import CyclicFactor, ScanFactor, tridiagonal_factor, tridiagonal_solve
+from .tridiagonal import CyclicFactor, ScanFactor, inverse_cholesky, tridiagonal_factor, tridiagonal_solve
 from .unknowns import Layout, Windows
 
 __all__ = [
@@ -490,7 +489,7 @@ class Factor(eqx.Module):
     sF: Array
     sW: Array | None
     sG: Array | None
-    L_local: Array | None  # (T, n_l, n_l)
+    L_local_inv: Array | None  # (T, n_l, n_l) inverse Cholesky factors of H_ll
     X: Array | None  # (T, n_l, nc + K m + g): L_ll⁻¹ [H_lc | H_lW | H_lG]
     tri: ScanFactor | CyclicFactor | None  # the coupled block-tridiagonal part
     Y: Array | None  # (Kb, N, g) A⁻¹ C
@@ -646,16 +645,16 @@ def factor(
             WW = WW.at[:, 0].add(_F32_SHIFT * jnp.eye(m, dtype=dtype))
         if g:
             GG = GG + _F32_SHIFT * jnp.eye(g, dtype=dtype)
-    L_local = X = None
+    L_local_inv = X = None
     if nc < n:
         H0 = FF[0]
-        L_local = jnp.linalg.cholesky(H0[:, nc:, nc:])
+        L_local_inv = inverse_cholesky(H0[:, nc:, nc:])
         right = [H0[:, nc:, :nc]]
         if st.W:
             right.append(jnp.swapaxes(FW[:, :, nc:, :], 1, 2).reshape(T, n - nc, K * m))
         if g:
             right.append(FG[:, nc:])
-        X = jsl.solve_triangular(L_local, jnp.concatenate(right, -1), lower=True)
+        X = L_local_inv @ jnp.concatenate(right, -1)
         Xc, Xw, Xg = _split_X(X, st)
         FF[0] = H0[:, :nc, :nc] - jnp.einsum("tla,tlb->tab", Xc, Xc)
         if st.W:
@@ -680,8 +679,8 @@ def factor(
             S = GG - jnp.einsum("kna,knb->ab", C, Y)
         else:
             S = GG
-        S_inv = jsl.solve_triangular(jnp.linalg.cholesky(S), jnp.eye(g, dtype=dtype), lower=True)
-    return Factor(sF, sW, sG, L_local, X, tri, Y, S_inv, st)
+        S_inv = inverse_cholesky(S)
+    return Factor(sF, sW, sG, L_local_inv, X, tri, Y, S_inv, st)
 
 
 def _split_X(X: Array, st: Structure):
@@ -703,7 +702,7 @@ def solve_factored(f: Factor, bF: Array, bW: Array | None = None, bG: Array | No
     bG = None if bG is None else bG.astype(dtype) * f.sG
     if f.X is not None:
         Xc, Xw, Xg = _split_X(f.X, st)
-        z_local = jsl.solve_triangular(f.L_local, bF[:, nc:, None], lower=True)[..., 0]
+        z_local = jnp.einsum("tlk,tk->tl", f.L_local_inv, bF[:, nc:])
         cF = bF[:, :nc] - jnp.einsum("tla,tl->ta", Xc, z_local)
         if st.W:
             for j in range(K):
@@ -732,7 +731,7 @@ def solve_factored(f: Factor, bF: Array, bW: Array | None = None, bG: Array | No
                 rest = rest - jnp.einsum("tla,ta->tl", Xw[:, j], _window_of_slot(xW, j, st))
         if g:
             rest = rest - jnp.einsum("tlk,k->tl", Xg, xG)
-        x_local = jsl.solve_triangular(jnp.swapaxes(f.L_local, -1, -2), rest[..., None], lower=False)[..., 0]
+        x_local = jnp.einsum("tkl,tk->tl", f.L_local_inv, rest)
         xF = jnp.concatenate([xF_c, x_local], 1) if nc else x_local
     else:
         xF = xF_c

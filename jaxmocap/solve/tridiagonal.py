@@ -32,9 +32,14 @@ import jax.numpy as jnp
 import jax.scipy.linalg as jsl
 from jax import Array
 
-__all__ = ["TRIDIAGONAL_METHODS", "tridiagonal_factor", "tridiagonal_solve", "default_tridiagonal_method"]
+__all__ = ["TRIDIAGONAL_METHODS", "tridiagonal_factor", "tridiagonal_solve", "default_tridiagonal_method", "inverse_cholesky"]
 
 TRIDIAGONAL_METHODS = ("scan", "cyclic")
+
+#: `inverse_cholesky`'s base size in the scan, where each step factorises one block and
+#: every extra operation costs its dispatch: SIP's 500 blocks of 102, 2-core CPU: 70 ms
+#: with 32, 87 ms with 16, 107 ms with none (one triangular solve against I).
+SCAN_BASE = 32
 
 
 def default_tridiagonal_method() -> str:
@@ -45,14 +50,31 @@ def default_tridiagonal_method() -> str:
     return "scan" if jax.default_backend() == "cpu" else "cyclic"
 
 
-def _inverse_cholesky(S: Array) -> Array:
-    """L⁻¹ for S = L Lᵀ, batched over leading axes."""
-    eye = jnp.broadcast_to(jnp.eye(S.shape[-1], dtype=S.dtype), S.shape)
-    return jsl.solve_triangular(jnp.linalg.cholesky(S), eye, lower=True)
-
-
 def _t(x: Array) -> Array:
     return jnp.swapaxes(x, -1, -2)
+
+
+def inverse_cholesky(S: Array, base: int = 16) -> Array:
+    """L⁻¹ for S = L Lᵀ, batched over leading axes, by recursive halving.
+
+    With S = [[A, Bᵀ], [B, C]], A = L₁ L₁ᵀ, L₂₁ = B L₁⁻ᵀ and C - L₂₁ L₂₁ᵀ = L₂ L₂ᵀ:
+    L⁻¹ = [[L₁⁻¹, 0], [-L₂⁻¹ L₂₁ L₁⁻¹, L₂⁻¹]], each half the same way down to `base`
+    (LAPACK-style Cholesky and a triangular solve against I). The same flops as that
+    solve done whole, but nearly all of them in matrix products, which run several
+    times faster than batched triangular solves (measured on 102 × 102 blocks:
+    19.6 → 9.8 ms for 31 250 of them on one H100, 104 → 36 ms for 500 on this 2-core
+    CPU; benchmarks/results/inverse_cholesky*.json).
+    """
+    n = S.shape[-1]
+    if n <= base:
+        eye = jnp.broadcast_to(jnp.eye(n, dtype=S.dtype), S.shape)
+        return jsl.solve_triangular(jnp.linalg.cholesky(S), eye, lower=True)
+    k = n // 2
+    L1_inv = inverse_cholesky(S[..., :k, :k], base)
+    L21 = S[..., k:, :k] @ _t(L1_inv)
+    L2_inv = inverse_cholesky(S[..., k:, k:] - L21 @ _t(L21), base)
+    top = jnp.concatenate([L1_inv, jnp.zeros(L1_inv.shape[:-1] + (n - k,), S.dtype)], -1)
+    return jnp.concatenate([top, jnp.concatenate([-(L2_inv @ (L21 @ L1_inv)), L2_inv], -1)], -2)
 
 
 class ScanFactor(eqx.Module):
@@ -80,7 +102,7 @@ class CyclicFactor(eqx.Module):
 def _scan_factor(D: Array, U: Array) -> ScanFactor:
     def step(W_prev, DU):
         Dk, Uk = DU
-        Lk_inv = _inverse_cholesky(Dk - W_prev.T @ W_prev)
+        Lk_inv = inverse_cholesky(Dk - W_prev.T @ W_prev, SCAN_BASE)
         Wk = Lk_inv @ Uk
         return Wk, (Lk_inv, Wk)
 
@@ -124,7 +146,7 @@ def _cyclic_factor(D: Array, U: Array) -> CyclicFactor:
     while D.shape[0] > 1:
         K = D.shape[0]
         Ke, Ko = (K + 1) // 2, K // 2
-        L = _inverse_cholesky(D[1::2])
+        L = inverse_cholesky(D[1::2])
         P = L @ _t(U[0::2][:Ko])  # A_{o,o-1} = U_{o-1}ᵀ
         Q = L @ U[1::2]  # A_{o,o+1} = U_o (zero for the last block)
         levels.append(CyclicLevel(L, P, Q))
@@ -132,7 +154,7 @@ def _cyclic_factor(D: Array, U: Array) -> CyclicFactor:
         PtP = _t(P) @ P  # ... and before it
         D = D[0::2] - _shift_down(QtQ, Ke) - _pad(PtP, Ke)
         U = _pad(-(_t(P) @ Q), Ke)
-    return CyclicFactor(tuple(levels), _inverse_cholesky(D))
+    return CyclicFactor(tuple(levels), inverse_cholesky(D))
 
 
 def _cyclic_solve(f: CyclicFactor, b: Array) -> Array:
