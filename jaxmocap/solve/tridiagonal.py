@@ -61,9 +61,9 @@ def inverse_cholesky(S: Array, base: int = 16) -> Array:
     L⁻¹ = [[L₁⁻¹, 0], [-L₂⁻¹ L₂₁ L₁⁻¹, L₂⁻¹]], each half the same way down to `base`
     (LAPACK-style Cholesky and a triangular solve against I). The same flops as that
     solve done whole, but nearly all of them in matrix products, which run several
-    times faster than batched triangular solves (measured on 102 × 102 blocks:
-    19.6 → 9.8 ms for 31 250 of them on one H100, 104 → 36 ms for 500 on this 2-core
-    CPU; benchmarks/results/inverse_cholesky*.json).
+    times faster than batched triangular solves (102 × 102 blocks: 19.6 → 9.8 ms for
+    31 250 of them on one H100, 67 → 19 ms for 250 on a 2-core CPU;
+    benchmarks/inverse_cholesky.py).
     """
     n = S.shape[-1]
     if n <= base:
