@@ -37,6 +37,11 @@ run's engine, `sip_single.median_s`), `optx_default_vs_v1_ratio` = current / v1,
 v1's end point under this engine's cost function; `v1`: the subprocess's own record).
 `--no-v1` skips it.
 
+`--before COMMIT`: the same single-sequence solve with the engine at COMMIT (extracted
+like v1 into build/engine_COMMIT, which a machine without .git needs carried), key
+`before` (time, final cost, `ratio` = now / before): a speed-up measured on one machine,
+whichever card it is.
+
 Baseline (same process, same problem and start): the engine without the SIP terms'
 analytic Jacobians and `reads`, i.e. Jacobian blocks by forward-mode AD over all 75
 unknowns per frame and no per-frame elimination (`--no-baseline` skips it).
@@ -171,6 +176,8 @@ def main(argv=None) -> int:
     p.add_argument("--no-v1", action="store_true", help="skip the v1-engine (commit d67d910) baseline")
     p.add_argument("--long", default="", help="comma-separated long sequence lengths to time once each (e.g. 5000,20000)")
     p.add_argument("--big-batch", type=int, default=0, help="time this many sequences of --frames frames at once")
+    p.add_argument("--before", help="also time the single sequence with the engine at this commit (subprocess, same "
+                   "machine; build/engine_<commit>, extracted from git or carried): key `before`")
     p.add_argument("--engine-only", action="store_true", help="internal: time the single SIP solve only")
     p.add_argument("--init", help="internal (--engine-only): .npz with the setup's arrays and the SOP start")
     p.add_argument("--json-out", help="internal (--engine-only): where to write time and final cost")
@@ -297,6 +304,16 @@ def main(argv=None) -> int:
         print(f"batch {args.big_batch} x {args.frames} frames x {args.iters} steps: {big['median_s']:.2f} s "
               f"(compile + first {big['compile_and_first_call_s']:.1f} s)")
 
+    before = None
+    if args.before:  # an earlier engine on this machine: a ratio that survives a change of card
+        from _v1 import ROOT, v1_path
+
+        package = v1_path(args.before, ROOT / "build" / f"engine_{args.before}")
+        child, _ = _run_v1(args, setup, sop, package=package)
+        before = {"commit": args.before, "time_s": child["time"]["median_s"], "final_cost": child["final_cost"],
+                  "ratio": single["median_s"] / child["time"]["median_s"], "run": child}  # fmt: skip
+        print(f"engine at {args.before}: {before['time_s']:.3f} s; now/before = {before['ratio']:.3f}")
+
     batches = {}
     if args.batches:
         short = _setup(args.batch_frames, seed=1)
@@ -324,6 +341,7 @@ def main(argv=None) -> int:
         **{f"sip_t{T}_s": v["median_s"] for T, v in long.items()},
         "long": {str(T): v for T, v in long.items()},
         "big_batch": big,
+        "before": before,
         **v1,
         "baseline_ad_jacobians": baseline,
         "batch_frames": args.batch_frames,
@@ -350,7 +368,7 @@ def _gpu_keys(gpu_run: dict) -> dict:
     """A GPU run's issue-20 keys and, under "gpu", its machine and details."""
     keys = {k: gpu_run.get(k) for k in ("gpu_single_s", "gpu_1000x1000_s")}
     keys["gpu"] = {"machine": gpu_run["machine"], "tridiagonal": gpu_run.get("tridiagonal"),
-                   "big_batch": gpu_run.get("big_batch")}  # fmt: skip
+                   "big_batch": gpu_run.get("big_batch"), "before": gpu_run.get("before")}  # fmt: skip
     return keys
 
 

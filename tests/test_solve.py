@@ -160,11 +160,13 @@ def test_inverse_cholesky_matches_numpy(n):
 
 
 def test_block_tridiagonal_recursive_blocks_match_dense():
-    """Scan and cyclic reduction on blocks of 40 (past both recursion bases) against numpy."""
-    from jaxmocap.solve.tridiagonal import tridiagonal_factor, tridiagonal_solve
+    """Scan and cyclic reduction on blocks of 40 (past both recursion bases) against numpy,
+    with enough blocks (65) for cyclic reduction's first level to recurse."""
+    from jaxmocap.solve.tridiagonal import CYCLIC_BASE, CYCLIC_RECURSIVE_BLOCKS, SCAN_BASE, tridiagonal_factor, tridiagonal_solve
 
     rng = np.random.default_rng(40)
-    K, N = 5, 40
+    K, N = 65, 40
+    assert K // 2 >= CYCLIC_RECURSIVE_BLOCKS and N > max(SCAN_BASE, CYCLIC_BASE)
     D = rng.normal(size=(K, N, N))
     D = D @ np.swapaxes(D, 1, 2) + 2 * N * np.eye(N)
     U = rng.normal(size=(K, N, N))
