@@ -190,12 +190,12 @@ def main(argv=None) -> int:
             f"unmeasured: {len(devices)} device visible ({devices[0].device_kind}); run this script on a "
             "2-GPU machine (nvidia-h200-x2) to fill it in"
         )
-    if args.multi_gpu_only and "speedup_2_gpus" in out:
-        out.setdefault("speedup_2_gpus_history", {})[f"{len(devices)}x {devices[0].device_kind}"] = out["speedup_2_gpus"]
-    save()
     if args.multi_gpu_only:
+        if "speedup_2_gpus" in out:
+            out.setdefault("speedup_2_gpus_history", {})[f"{len(devices)}x {devices[0].device_kind}"] = out["speedup_2_gpus"]
         print(f"updated {save()}")
         return 0
+    save()
 
     if not args.no_baseline:
         try:

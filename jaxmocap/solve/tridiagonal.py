@@ -37,8 +37,8 @@ __all__ = ["TRIDIAGONAL_METHODS", "tridiagonal_factor", "tridiagonal_solve", "de
 TRIDIAGONAL_METHODS = ("scan", "cyclic")
 
 #: `inverse_cholesky`'s base size in the scan, where each step factorises one block and
-#: every extra operation costs its dispatch: SIP's 500 blocks of 102, 2-core CPU: 70 ms
-#: with 32, 87 ms with 16, 107 ms with none (one triangular solve against I).
+#: every extra operation costs its dispatch: the whole scan factorisation of SIP's 500
+#: blocks of 102 on a 2-core CPU took 70 ms with 32, 87 ms with 16, 107 ms with none.
 SCAN_BASE = 32
 
 #: Its base in cyclic reduction, on levels of at least `CYCLIC_RECURSIVE_BLOCKS` odd blocks
@@ -60,16 +60,16 @@ def _t(x: Array) -> Array:
     return jnp.swapaxes(x, -1, -2)
 
 
-def inverse_cholesky(S: Array, base: int = 16) -> Array:
+def inverse_cholesky(S: Array, base: int = CYCLIC_BASE) -> Array:
     """L⁻¹ for S = L Lᵀ, batched over leading axes, by recursive halving.
 
     With S = [[A, Bᵀ], [B, C]], A = L₁ L₁ᵀ, L₂₁ = B L₁⁻ᵀ and C - L₂₁ L₂₁ᵀ = L₂ L₂ᵀ:
     L⁻¹ = [[L₁⁻¹, 0], [-L₂⁻¹ L₂₁ L₁⁻¹, L₂⁻¹]], each half the same way down to `base`
     (LAPACK-style Cholesky and a triangular solve against I). The same flops as that
     solve done whole, but nearly all of them in matrix products, which run several
-    times faster than batched triangular solves (102 × 102 blocks: 19.6 → 9.8 ms for
+    times faster than batched triangular solves (102 × 102 blocks: 20.2 → 8.7 ms for
     31 250 of them on one H100, 67 → 19 ms for 250 on a 2-core CPU;
-    benchmarks/inverse_cholesky.py).
+    benchmarks/inverse_cholesky.py). `base` ≥ n: no recursion.
     """
     n = S.shape[-1]
     if n <= base:
