@@ -140,6 +140,64 @@ def test_track_constraint_matches_brute_force(seed, chunk):
         assert not any(tracks[1][a] <= tracks[2][b] and tracks[1][b] <= tracks[2][a] for a in u for b in u if a != b)
 
 
+def test_chunks_that_exchange_the_wearers_are_exchanged_back():
+    """Frames 0-1 (the first chunk) favour the wearers exchanged a little, frames 2-3 the right
+    labelling a lot; one track per detection slot spans all frames, so the first chunk's
+    choice holds in the second (seed 51 scene 5 of experiments/vip_association.py in
+    small). The exchange after the chunks reaches eq. 4.11's optimum."""
+    shape = (2, 4, 2)
+    n = int(np.prod(shape))
+    unary = np.zeros(shape)
+    for t in range(4):
+        right, other = (-1.0, -1.1) if t < 2 else (-3.0, -1.0)
+        for p in range(2):
+            unary[p, t, p], unary[p, t, 1 - p] = right, other
+    flat = np.arange(n).reshape(shape)
+    pairs = np.array([(flat[p, t, v], flat[p, u, v]) for p in range(2) for v in range(2)
+                      for t in range(4) for u in range(t + 1, 4)])  # fmt: skip
+    pair_costs = np.full(len(pairs), -2.0)
+    tracks = (np.array([[0, 1]] * 4), np.array([0, 0]), np.array([3, 3]))
+    chosen, objective, status = A.solve_labelling(shape, np.arange(n), unary.ravel(), pairs, pair_costs, chunk=2,
+                                                  tracks=tracks, mip_rel_gap=0.0)  # fmt: skip
+    best = _brute_force(shape, unary.ravel(), pairs, pair_costs, tracks)
+    assert objective == pytest.approx(best, abs=1e-6) and best == pytest.approx(-40.0), status
+    p, _, v = np.unravel_index(chosen, shape)
+    assert len(chosen) == 8 and (p == v).all()
+    assert any("exchanged people 0 and 1 in frames 0-3" in m for m in status), status
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_the_exchange_takes_the_best_suffix_exchange(seed):
+    """One exchange step (its changes of every frame s summed in one pass) against evaluating
+    eq. 4.11 for every pair of people and every s, on random labellings and pruned nodes."""
+    rng = np.random.default_rng(20 + seed)
+    shape = P, T, D = (3, 7, 3)
+    n = int(np.prod(shape))
+    is_node = rng.random(n) < 0.8
+    cost = np.where(is_node, rng.normal(size=n), 0.0)
+    pairs = np.array([(a, b) for a in range(n) for b in range(a + 1, n) if rng.random() < 0.2])
+    pair_costs = rng.normal(scale=1.5, size=len(pairs))
+    X = np.zeros(shape, bool)
+    for t in range(T):  # a feasible labelling: a detection per person or none, each detection once
+        X[np.arange(P), t, rng.permutation(D)] = rng.random(P) < 0.8
+    chosen = X.reshape(-1) & is_node
+
+    def value(c):
+        return cost[c].sum() + pair_costs[c[pairs[:, 0]] & c[pairs[:, 1]]].sum()
+
+    best = value(chosen)
+    for li, m, s in itertools.product(range(P), range(P), range(T)):
+        if li < m:
+            Y = chosen.reshape(shape).copy()
+            Y[[li, m], s:] = Y[[m, li], s:]
+            best = min(best, value(Y.reshape(-1) & is_node))
+    empty = np.zeros(0, int)
+    got, gain, moves = A._exchange_wearers(shape, cost, pairs, pair_costs, chosen, is_node, np.full(n, -1), empty,
+                                           empty, max_moves=1)  # fmt: skip
+    assert value(got) == pytest.approx(best, abs=1e-9) and gain == pytest.approx(best - value(chosen), abs=1e-9)
+    assert len(moves) == (best < value(chosen) - 1e-9)
+
+
 def test_a_time_limited_program_warns():
     # A chunk stopped by HiGHS's time limit is HiGHS's incumbent, not the optimum: say so.
     rng = np.random.default_rng(0)
