@@ -1,6 +1,8 @@
 """XLA's CPU thread pool, widened on import where jaxlib's LAPACK kernels could deadlock it."""
 
 import os
+import sys
+import warnings
 
 # jaxlib 0.10's CPU LAPACK kernels (batched Cholesky, triangular solves) cut a large batch
 # into tasks on XLA's intra-op thread pool and block their own pool thread until the tasks
@@ -12,6 +14,29 @@ import os
 # 5.1-5.4 s with 2, same process layout). It only acts before JAX's CPU backend starts
 # (import jaxmocap before running JAX code) and never overrides a user's PJRT_NPROC.
 MIN_CPU_THREADS = 4
+_USER_ENV = dict(os.environ)  # before the default below
 cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
 if cores < MIN_CPU_THREADS:
     os.environ.setdefault("PJRT_NPROC", str(MIN_CPU_THREADS))
+
+
+def _cpu_backend_started() -> bool:
+    """Whether JAX's CPU backend already runs (JAX keeps no public flag: a private dict,
+    read defensively; False when it cannot tell)."""
+    if "jax" not in sys.modules:
+        return False
+    try:
+        from jax._src import xla_bridge
+
+        return "cpu" in getattr(xla_bridge, "_backends", {})
+    except Exception:  # another JAX's internals: no warning rather than a wrong one
+        return False
+
+
+if cores < MIN_CPU_THREADS and "PJRT_NPROC" not in _USER_ENV and _cpu_backend_started():
+    warnings.warn(
+        f"JAX's CPU backend started before `import jaxmocap` on a machine with {cores} usable core(s): its thread "
+        f"pool has {cores} thread(s), and two concurrent batched solves can hang it (jaxmocap/_threads.py). Import "
+        f"jaxmocap before running JAX code, or set PJRT_NPROC={MIN_CPU_THREADS} in the environment before starting.",
+        RuntimeWarning, stacklevel=2,
+    )  # fmt: skip
