@@ -14,7 +14,7 @@ import warnings
 # 5.1-5.4 s with 2, same process layout). It only acts before JAX's CPU backend starts
 # (import jaxmocap before running JAX code) and never overrides a user's PJRT_NPROC.
 MIN_CPU_THREADS = 4
-_USER_ENV = dict(os.environ)  # before the default below
+_USER_POOL = "PJRT_NPROC" in os.environ  # set by the user, before the default below
 cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
 if cores < MIN_CPU_THREADS:
     os.environ.setdefault("PJRT_NPROC", str(MIN_CPU_THREADS))
@@ -33,7 +33,7 @@ def _cpu_backend_started() -> bool:
         return False
 
 
-if cores < MIN_CPU_THREADS and "PJRT_NPROC" not in _USER_ENV and _cpu_backend_started():
+if cores < MIN_CPU_THREADS and not _USER_POOL and _cpu_backend_started():
     warnings.warn(
         f"JAX's CPU backend started before `import jaxmocap` on a machine with {cores} usable core(s): its thread "
         f"pool has {cores} thread(s), and two concurrent batched solves can hang it (jaxmocap/_threads.py). Import "
