@@ -13,9 +13,11 @@ start given, with `linear_scaling`: time / ((T / frames) x the single-sequence t
 `--big-batch` sequences of `--frames` frames through `sparse_inertial_poser_batch`, which
 chunks to fit memory). A GPU run also writes its two keys into results/sip_speed.json and
 a CPU run copies them from results/sip_speed_gpu.json, so that one file holds them all.
-The block-tridiagonal factorisation ("scan" or "cyclic" cyclic reduction, see
-jaxmocap/solve/tridiagonal.py) is timed both ways on the single sequence
-(`tridiagonal`), the other one being the old path on the GPU.
+The frame band's factorisation ("rows": in the acceleration rows' space, jaxmocap/solve/rows.py;
+"scan": block Cholesky of the band; "cyclic": cyclic reduction, jaxmocap/solve/tridiagonal.py)
+is timed every way on the single sequence (`tridiagonal`, with `default_vs_scan_ratio`:
+the default against the band scan, the CPU's default before "rows"); `--big-batch-tridiagonal`
+times the big batch with others besides the default (`big_batch_by_tridiagonal`).
 
 The thesis (von Marcard §3.4.1): 1000 frames, 20 cost evaluations, 7.5 minutes in
 single-core MATLAB. Here "20 iterations" means 20 LM trial steps (each one cost
@@ -176,6 +178,8 @@ def main(argv=None) -> int:
     p.add_argument("--no-v1", action="store_true", help="skip the v1-engine (commit d67d910) baseline")
     p.add_argument("--long", default="", help="comma-separated long sequence lengths to time once each (e.g. 5000,20000)")
     p.add_argument("--big-batch", type=int, default=0, help="time this many sequences of --frames frames at once")
+    p.add_argument("--big-batch-tridiagonal", default="", help="comma-separated factorisations to time the big batch "
+                   "with besides the default (key big_batch_by_tridiagonal)")
     p.add_argument("--before", help="also time the single sequence with the engine at this commit (subprocess, same "
                    "machine; build/engine_<commit>, extracted from git or carried): key `before`")
     p.add_argument("--engine-only", action="store_true", help="internal: time the single SIP solve only")
@@ -214,8 +218,9 @@ def main(argv=None) -> int:
         t, s = _time_sip(setup, sop, args.iters, args.min_seconds, tridiagonal=method)
         tridiagonal[method] = dict(t, final_cost=float(s.cost))
         print(f"  tridiagonal={method}: {t['median_s']:.3f} s, final cost {float(s.cost):.9g}")
-    other = [m for m in TRIDIAGONAL_METHODS if m != tridiagonal["default"]][0]
-    tridiagonal["default_vs_other_ratio"] = tridiagonal[tridiagonal["default"]]["median_s"] / tridiagonal[other]["median_s"]
+    for method in TRIDIAGONAL_METHODS:
+        if method != tridiagonal["default"]:
+            tridiagonal[f"default_vs_{method}_ratio"] = tridiagonal[tridiagonal["default"]]["median_s"] / tridiagonal[method]["median_s"]
 
     long = {}
     for T in [int(x) for x in args.long.split(",") if x]:
@@ -293,16 +298,21 @@ def main(argv=None) -> int:
             print(f"baseline (AD Jacobians, no elimination): {baseline['median_s']:.3f} s, "
                   f"ratio {single['ratio_to_baseline']:.3f}")
 
-    big = None
+    big, big_by = None, {}
     if args.big_batch:
         stacked = inertial.stack_setups([setup] * args.big_batch)
         init = jnp.broadcast_to(sop, (args.big_batch,) + sop.shape)
-        big = time_call(lambda: inertial.sparse_inertial_poser_batch(stacked, init, **it).value["pose"],
-                        min_seconds=1e-9, max_repeats=1)  # fmt: skip
-        big.update(sequences=args.big_batch, frames=args.frames, lm_iterations=args.iters,
-                   frames_per_second=args.big_batch * args.frames / big["median_s"])  # fmt: skip
-        print(f"batch {args.big_batch} x {args.frames} frames x {args.iters} steps: {big['median_s']:.2f} s "
-              f"(compile + first {big['compile_and_first_call_s']:.1f} s)")
+        for method in [None] + [m for m in args.big_batch_tridiagonal.split(",") if m]:
+            t = time_call(lambda m=method: inertial.sparse_inertial_poser_batch(stacked, init, tridiagonal=m, **it).value["pose"],
+                          min_seconds=1e-9, max_repeats=1)  # fmt: skip
+            t.update(sequences=args.big_batch, frames=args.frames, lm_iterations=args.iters,
+                     frames_per_second=args.big_batch * args.frames / t["median_s"])  # fmt: skip
+            print(f"batch {args.big_batch} x {args.frames} frames x {args.iters} steps ({method or 'default'}): "
+                  f"{t['median_s']:.2f} s (compile + first {t['compile_and_first_call_s']:.1f} s)")
+            if method is None:
+                big = t
+            else:
+                big_by[method] = t
 
     before = None
     if args.before:  # an earlier engine on this machine: a ratio that survives a change of card
@@ -341,6 +351,7 @@ def main(argv=None) -> int:
         **{f"sip_t{T}_s": v["median_s"] for T, v in long.items()},
         "long": {str(T): v for T, v in long.items()},
         "big_batch": big,
+        "big_batch_by_tridiagonal": big_by or None,
         "before": before,
         **v1,
         "baseline_ad_jacobians": baseline,
@@ -368,7 +379,8 @@ def _gpu_keys(gpu_run: dict) -> dict:
     """A GPU run's issue-20 keys and, under "gpu", its machine and details."""
     keys = {k: gpu_run.get(k) for k in ("gpu_single_s", "gpu_1000x1000_s")}
     keys["gpu"] = {"machine": gpu_run["machine"], "tridiagonal": gpu_run.get("tridiagonal"),
-                   "big_batch": gpu_run.get("big_batch"), "before": gpu_run.get("before")}  # fmt: skip
+                   "big_batch": gpu_run.get("big_batch"), "big_batch_by_tridiagonal": gpu_run.get("big_batch_by_tridiagonal"),
+                   "before": gpu_run.get("before")}  # fmt: skip
     return keys
 
 

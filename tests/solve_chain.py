@@ -49,6 +49,10 @@ def e_smooth2(x, data):  # bandwidth 2: couples t-2 .. t+2 (tests a wider band)
     return (pad[:-4] - pad[4:]).reshape(w.shape[0], -1, 3)
 
 
+def e_smooth2_root(x, data):  # bandwidth 2 on two angles of the root: few rows per frame
+    return e_smooth2(x, data)[:, :1, :2]
+
+
 CHAIN = Problem(
     [
         Term("ori", e_ori, weight=1.0, mask=lambda d: nan_mask(d["R"], (-2, -1))),
@@ -113,6 +117,8 @@ def _variants(T, seed=1):
     border = [Term("heading", e_heading, weight=0.7, reads=(("rot", None), ("trans", None), ("heading", None))),
               Term("offset", e_offset, weight=0.2, reads=(("trans", None), ("offset", None)))]  # fmt: skip
     windows = [Term("window", e_window, weight=0.4, reads=(("trans", None), ("coef", None)))]
+    # 9 + 2 coupling rows per frame against 12 coupled unknowns: the "rows" factorisation.
+    narrow = list(CHAIN.terms) + [Term("prior", e_prior, weight=0.5), Term("smooth2", e_smooth2_root, weight=0.3, bandwidth=2)]
     seq = {"heading": jnp.asarray(rng.normal(0, 0.2, 3)), "offset": jnp.asarray(rng.normal(0, 0.1, 3))}
     coef = {"coef": jnp.asarray(rng.normal(0, 0.3, (W, 2, 3)))}
     u_seq = {"heading": sequence("angle"), "offset": sequence()}
@@ -121,4 +127,6 @@ def _variants(T, seed=1):
         "border": (Problem(base + border, {"rot": frame("so3"), **u_seq}), {**init, **seq}),
         "windows": (Problem(base + windows, {"rot": frame("so3"), "coef": WIN}), {**init, **coef}),
         "all": (Problem(base + border + windows, {"rot": frame("so3"), **u_seq, "coef": WIN}), {**init, **seq, **coef}),
+        "narrow": (Problem(narrow, rotations=("rot",)), init),
+        "narrow_border": (Problem(narrow + border, {"rot": frame("so3"), **u_seq}), {**init, **seq}),
     }, data

@@ -73,13 +73,18 @@ def test_manifold_parametrisations_converge_alike():
 
 # --- the structured linear solve: band, border, windows ----------------------------------
 
-@pytest.mark.parametrize("tridiagonal", ["scan", "cyclic"])
-@pytest.mark.parametrize("variant", ["band", "border", "windows", "all"])
+@pytest.mark.parametrize(
+    "variant, tridiagonal",
+    [(v, m) for v in ("band", "border", "windows", "all") for m in ("scan", "cyclic")]
+    + [("narrow", "rows"), ("narrow_border", "rows"), ("windows", "rows")],
+)
 def test_structured_step_equals_dense_step(variant, tridiagonal):
     """The LM step (eq. 2.52) from the structured factorisation equals a dense float64 solve
     of the same normal equations, for frame bands (b = 0, 1, 2 together), a sequence-wide
     border, overlapping windows and all at once; T = 9 is not a multiple of any block.
-    Both block-tridiagonal factorisations (sequential scan, cyclic reduction)."""
+    Every factorisation of the frame band: coupling rows (used where they are fewer than
+    the coupled unknowns: the narrow variants; the band scan elsewhere), sequential scan,
+    cyclic reduction."""
     from jaxmocap.solve.solver import linearise
     from jaxmocap.solve.structured import factor, solve_factored
     from jaxmocap.solve.unknowns import retract
@@ -89,7 +94,8 @@ def test_structured_step_equals_dense_step(variant, tridiagonal):
     layout = problem.layout(params)
     args = Args(problem, data, None, layout)
     st = args.structure()
-    normal, grad, cost = linearise(params, args, st, jnp.float64, jnp.float64)
+    normal, grad, cost = linearise(params, args, st, jnp.float64, jnp.float64, tridiagonal)
+    assert (normal.C is not None) == (tridiagonal == "rows" and variant.startswith("narrow"))
     xF, xW, xG = solve_factored(factor(normal, st, 0.3, tridiagonal=tridiagonal), *grad)
     step = layout.ravel(layout.unravel(st.from_solver_order(xF), xW, xG))
     flat = np.concatenate([np.asarray(p).reshape(-1) for p in step if p is not None])

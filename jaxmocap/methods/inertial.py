@@ -492,11 +492,13 @@ def sparse_inertial_poser_batch(
     max_steps: int = 20,
     rtol: float = 1e-6,
     atol: float = 1e-10,
+    tridiagonal: str | None = None,
 ) -> Solution:
     """SIP on a batch (`stack_setups`) in one vmapped solve; init (B, T, 24, 3).
 
     Returns the engine's batched `Solution` (value["pose"], value["trans"], per-sequence
     result codes and costs); `frame_mask` (B, T) marks real frames of padded sequences.
+    `tridiagonal`: how the frame band is factorised (`jaxmocap.solve.solve`'s; speed only).
     """
     if not isinstance(setups, InertialSetup) or setups.pose0.ndim != 3:
         raise ValueError("setups must be one batched InertialSetup (from stack_setups or pad_setups).")
@@ -511,7 +513,8 @@ def sparse_inertial_poser_batch(
     problem = inertial_problem(setups, weights, acceleration=True)
     dtype = setups.pose0.dtype
     params = {"pose": jnp.asarray(init, dtype), "trans": trans.astype(dtype)}
-    sol = solve_batch(problem, params, setups.data, frame_mask, max_steps=max_steps, rtol=rtol, atol=atol)
+    sol = solve_batch(problem, params, setups.data, frame_mask, max_steps=max_steps, rtol=rtol, atol=atol,
+                      tridiagonal=tridiagonal)  # fmt: skip
     return eqx.tree_at(lambda s: s.result, sol, _unless_observed(setups.data, sol.result, frame_mask))
 
 

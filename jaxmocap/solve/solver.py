@@ -192,12 +192,13 @@ def _analytic_blocks(term, x, clean, data, frame_mask, layout: Layout, st: Struc
     return r, st.to_solver_order(blocks)
 
 
-def linearise(y: dict, args: Args, st: Structure, dtype, factor_dtype):
+def linearise(y: dict, args: Args, st: Structure, dtype, factor_dtype, tridiagonal: str | None = None):
     """Residuals at y and their blocks in the left-perturbation tangent: (Normal, grad, cost).
 
     One Gauss-Newton linearisation of `args.problem` (st = `args.structure()`), for methods
     that drive their own loop (e.g. MuVS's temporal stage) and for `factor` /
-    `solve_factored`; `dtype` of the residuals, `factor_dtype` of the normal blocks.
+    `solve_factored`; `dtype` of the residuals, `factor_dtype` of the normal blocks;
+    `tridiagonal` as `solve`'s ("rows" keeps the frame band as coupling rows).
 
     Terms with an analytic `jacobian` supply their frame blocks; everything else (other
     terms, and any term's window and sequence blocks) comes from forward-mode AD by
@@ -234,7 +235,7 @@ def linearise(y: dict, args: Args, st: Structure, dtype, factor_dtype):
     for k, (r, JF) in analytic.items():
         extra = blocks.get(k)
         blocks[k] = TermBlocks(r, JF, None if extra is None else extra.JW, None if extra is None else extra.JG)
-    return normal_equations([blocks[k] for k in names], st, factor_dtype, args.frame_mask)
+    return normal_equations([blocks[k] for k in names], st, factor_dtype, args.frame_mask, tridiagonal)
 
 
 class _LMState(eqx.Module):
@@ -285,7 +286,7 @@ class VonMarcardLM(optx.AbstractLeastSquaresSolver):
 
     def init(self, fn, y, args, options, f_struct, aux_struct, tags):
         st, dtype, fdtype = self._setup(y, args)
-        normal, grad, cost = linearise(y, args, st, dtype, fdtype)
+        normal, grad, cost = linearise(y, args, st, dtype, fdtype, self.tridiagonal)
         ok = jnp.isfinite(cost)
         return _LMState(
             normal, grad, cost, jnp.asarray(10.0, fdtype), jnp.asarray(0), ~ok,
@@ -313,7 +314,7 @@ class VonMarcardLM(optx.AbstractLeastSquaresSolver):
         converged = (accept & small_cost & small_step) | (~accept & small_step) | (state.lam > 1e10)
 
         def relinearise(_):
-            return linearise(y_new, args, st, dtype, fdtype)
+            return linearise(y_new, args, st, dtype, fdtype, self.tridiagonal)
 
         def keep(_):
             return state.normal, state.grad, state.cost
@@ -431,9 +432,12 @@ def solve(
         progress: print each LM step (cost, time per step, ETA) on stderr ("lm" only).
             Default: on for sequences of `PROGRESS_FRAMES` frames or more, whose solves
             take seconds to minutes; off inside `solve_batch`.
-        tridiagonal: how the frame band is factorised, "scan" (sequential, fewest flops)
-            or "cyclic" (cyclic reduction, ⌈log₂ T⌉ parallel levels); default: "scan" on
-            the CPU, "cyclic" on accelerators. Speed only: both are exact.
+        tridiagonal: how the frame band is factorised: "rows" (sequential, the fill kept
+            in the coupling terms' rows, fewest flops where they have fewer rows per frame
+            than coupled unknowns and there are no windows; "scan" otherwise), "scan"
+            (sequential block Cholesky of the band) or "cyclic" (cyclic reduction,
+            ⌈log₂ T⌉ parallel levels); default: "rows" on the CPU, "cyclic" on
+            accelerators. Speed only: all are exact.
     Returns:
         `Solution(value, result, num_steps, cost, costs)`; `result` is `NO_OBSERVATIONS`
         when every masked term masked out all of its rows.

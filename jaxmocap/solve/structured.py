@@ -54,7 +54,15 @@ from jax import Array
 
 from ..timeseries import shift_frames
 
-from .tridiagonal import CyclicFactor, ScanFactor, inverse_cholesky, tridiagonal_factor, tridiagonal_solve
+from .rows import RowsFactor, rows_factor, rows_solve, scale_rows
+from .tridiagonal import (
+    CyclicFactor,
+    ScanFactor,
+    default_tridiagonal_method,
+    inverse_cholesky,
+    tridiagonal_factor,
+    tridiagonal_solve,
+)
 from .unknowns import Layout, Windows
 
 __all__ = [
@@ -166,7 +174,9 @@ class TermBlocks(eqx.Module):
 class Normal(eqx.Module):
     """The structured matrix (see the module docstring) and a right-hand side.
 
-    FF: [H_{t,t+e}] for e = 0..B2: FF[0] (T, n, n), FF[e>0] (T, nc, nc).
+    FF: [H_{t,t+e}] for e = 0..B2: FF[0] (T, n, n), FF[e>0] (T, nc, nc); or, with `C`,
+    FF[0] only and the frame band as the coupling terms' rows C (T, B2+1, R, nc),
+    H_{s,s'} = Σ_t C_tᵀ C_t for s ≠ s' (`rows.py`).
     FW (T, K, n, m); WW (W, K, m, m) with WW[w, e] = H_{w, w+e}; FG (T, n, g); WG (W, m, g); GG (g, g).
     """
 
@@ -176,6 +186,7 @@ class Normal(eqx.Module):
     FG: Array | None
     WG: Array | None
     GG: Array | None
+    C: Array | None = None
 
 
 # --- stride groups: frames t = q·s + u share the windows q, q-1, ..., q-K+1 --------------
@@ -229,8 +240,8 @@ def _window_of_slot(x: Array, j: int, st: Structure) -> Array:
 # --- normal equations from Jacobian blocks ---------------------------------------------
 
 
-def _normal_blocks(blocks: list[Array], bandwidths, dtype, nc: int, n: int) -> list[Array]:
-    """Upper frame band of JᵀJ: H[e][s] = H_{s, s+e}, e = 0 .. 2·max(b).
+def _normal_blocks(blocks: list[Array], bandwidths, dtype, nc: int, n: int, diagonal_only: bool = False) -> list[Array]:
+    """Upper frame band of JᵀJ: H[e][s] = H_{s, s+e}, e = 0 .. 2·max(b) (0 only: `diagonal_only`).
 
     H[e][s] = Σ_ℓ Σ_d J_ℓ[s-d, d]ᵀ J_ℓ[s-d, d+e]; the shifted factors of every leaf and
     offset are stacked along the contracted axis so each H[e] is one batched product
@@ -239,21 +250,29 @@ def _normal_blocks(blocks: list[Array], bandwidths, dtype, nc: int, n: int) -> l
     """
     B = max(bandwidths)
     H = []
-    for e in range(2 * B + 1):
-        left, right = [], []
+    for e in range(1 if diagonal_only else 2 * B + 1):
+        by_width = {}  # coupled-only leaves (nc columns) apart: no products of zeros
         for J, b in zip(blocks, bandwidths):
             if 2 * b < e:
                 continue
             J = J.astype(dtype)
             if b > 0 and nc < n:
                 J = J[..., :nc]
-                if e == 0:
-                    J = jnp.pad(J, [(0, 0)] * (J.ndim - 1) + [(0, n - nc)])
+            left, right = by_width.setdefault(J.shape[-1], ([], []))
             for d in range(-b, b + 1 - e):
                 # Row t = s - d couples frames s = t + d and s + e = t + d + e.
                 left.append(shift_frames(J[:, d + b], d))
                 right.append(shift_frames(J[:, d + e + b], d))
-        H.append(jnp.einsum("tmi,tmj->tij", jnp.concatenate(left, 1), jnp.concatenate(right, 1)))
+        out = None
+        for width in sorted(by_width, reverse=True):
+            left, right = by_width[width]
+            p = jnp.einsum("tmi,tmj->tij", jnp.concatenate(left, 1), jnp.concatenate(right, 1))
+            if out is None:
+                k = n if e == 0 else width
+                out = jnp.pad(p, ((0, 0), (0, k - width), (0, k - width)))
+            else:
+                out = out.at[:, :width, :width].add(p)
+        H.append(out)
     return H
 
 
@@ -287,20 +306,45 @@ def _pin(normal: Normal, st: Structure, frame_mask: Array | None) -> Normal:
         fm = frame_mask.astype(dtype)
         seen = sum(_group_sum("qu,qu->q", fm, jnp.ones_like(fm), j, st) for j in range(st.K))
         WW = WW.at[:, 0].add((seen == 0)[:, None, None] * jnp.eye(st.m, dtype=dtype))
-    return Normal(FF, normal.FW, WW, normal.FG, normal.WG, normal.GG)
+    return Normal(FF, normal.FW, WW, normal.FG, normal.WG, normal.GG, normal.C)
 
 
-def normal_equations(terms: list[TermBlocks], st: Structure, dtype, frame_mask: Array | None = None):
+def uses_rows(st: Structure, rows: int, tridiagonal: str | None) -> bool:
+    """Whether the frame band is factorised in its coupling rows' space (`rows.py`):
+    asked for ("rows", the CPU's default), a band to factorise, no windows (their
+    super-blocks need the band's), and fewer coupling rows per frame than coupled
+    unknowns (otherwise the band is the smaller representation)."""
+    method = tridiagonal or default_tridiagonal_method()
+    return method == "rows" and st.B2 > 0 and st.nc > 0 and not st.W and 0 < rows < st.nc
+
+
+def _coupling_rows(JF: list[Array], bw, st: Structure) -> Array:
+    """The frame-coupling leaves' blocks on the coupled unknowns, stacked: (T, B2+1, R, nc)."""
+    B = st.B2 // 2
+    parts = []
+    for J, b in zip(JF, bw):
+        if b:
+            J = J[..., : st.nc].reshape(st.T, 2 * b + 1, -1, st.nc)
+            parts.append(jnp.pad(J, ((0, 0), (B - b, B - b), (0, 0), (0, 0))))
+    return jnp.concatenate(parts, 2)
+
+
+def normal_equations(
+    terms: list[TermBlocks], st: Structure, dtype, frame_mask: Array | None = None, tridiagonal: str | None = None
+):
     """H = JᵀJ and g = Jᵀr of the linearised residual leaves: (`Normal`, (gF, gW, gG), cost).
 
     Padded frames (frame_mask False) and windows without a real frame get identity
-    rows so that their step is exactly 0.
+    rows so that their step is exactly 0. `tridiagonal` ("rows" or None on the CPU, see
+    `uses_rows`) keeps the frame band as the coupling rows instead of forming it.
     """
     T, n, nc, K = st.T, st.n, st.nc, st.K
     bw = [t.bandwidth for t in terms]
     JF = [t.JF.astype(dtype) for t in terms]
     rs = [t.r.reshape(T, -1).astype(dtype) for t in terms]
-    FF = _normal_blocks(JF, bw, dtype, nc, n)
+    rows = sum(int(np.prod(t.JF.shape[2:-1])) for t in terms if t.bandwidth)
+    C = _coupling_rows(JF, bw, st) if uses_rows(st, rows, tridiagonal) else None
+    FF = _normal_blocks(JF, bw, dtype, nc, n, diagonal_only=C is not None)
     FW = WW = FG = WG = GG = None
     if st.W:
         m = st.m
@@ -330,7 +374,7 @@ def normal_equations(terms: list[TermBlocks], st: Structure, dtype, frame_mask: 
             if t.JW is not None:
                 for j in range(K):
                     WG = WG + _group_sum("qura,qurk->qak", t.JW[:, j].astype(dtype), JG, j, st)
-    normal = _pin(Normal(FF, FW, WW, FG, WG, GG), st, frame_mask)
+    normal = _pin(Normal(FF, FW, WW, FG, WG, GG, C), st, frame_mask)
     cost = 0.5 * sum(jnp.sum(r * r) for r in rs)
     return normal, jt_vector(terms, st, rs, dtype), cost
 
@@ -491,8 +535,8 @@ class Factor(eqx.Module):
     sG: Array | None
     L_local_inv: Array | None  # (T, n_l, n_l) inverse Cholesky factors of H_ll
     X: Array | None  # (T, n_l, nc + K m + g): L_ll⁻¹ [H_lc | H_lW | H_lG]
-    tri: ScanFactor | CyclicFactor | None  # the coupled block-tridiagonal part
-    Y: Array | None  # (Kb, N, g) A⁻¹ C
+    tri: ScanFactor | CyclicFactor | RowsFactor | None  # the coupled frames (+ windows)
+    Y: Array | None  # (Kb, N, g) or, with rows, (T, nc, g): A⁻¹ C
     S_inv: Array | None  # (g, g) inverse Cholesky factor of the border's Schur complement
     st: Structure = eqx.field(static=True)
 
@@ -528,8 +572,11 @@ def _pad_to(x: Array, length: int, fill_eye: bool = False) -> Array:
     return jnp.concatenate([x, filler], 0)
 
 
-def _to_blocks(xF: Array | None, xW: Array | None, st: Structure) -> Array:
-    """Coupled frame (T, nc, ...) and window (W, m, ...) parts -> super-block vectors (Kb, N, ...)."""
+def _to_blocks(xF: Array | None, xW: Array | None, st: Structure, tri=None) -> Array:
+    """Coupled frame (T, nc, ...) and window (W, m, ...) parts -> super-block vectors (Kb, N, ...)
+    (frames as they are for a `RowsFactor`, which has no windows)."""
+    if isinstance(tri, RowsFactor):
+        return xF
     G, r, Kb = st.blocking()
     parts = []
     if st.nc and xF is not None:
@@ -539,7 +586,9 @@ def _to_blocks(xF: Array | None, xW: Array | None, st: Structure) -> Array:
     return jnp.concatenate(parts, 1)
 
 
-def _from_blocks(x: Array, st: Structure):
+def _from_blocks(x: Array, st: Structure, tri=None):
+    if isinstance(tri, RowsFactor):
+        return x, None
     G, r, Kb = st.blocking()
     xF = xW = None
     split = G * st.nc if st.nc else 0
@@ -615,7 +664,9 @@ def factor(
 ) -> Factor:
     """Factorise H + λI (or H + λ diag(H), eq. 2.54) in its structure (module docstring).
 
-    tridiagonal: "scan", "cyclic" or None (the backend's default), see `tridiagonal.py`.
+    tridiagonal: "scan", "cyclic", "rows" or None (the backend's default), see
+    `tridiagonal.py`; a `normal` with coupling rows (`normal_equations` with "rows") is
+    factorised by `rows.py` whatever it says, "rows" without them by "scan".
     """
     T, n, nc, K, m, g = st.T, st.n, st.nc, st.K, st.m, st.g
     FF = list(normal.FF)
@@ -670,17 +721,23 @@ def factor(
                     WG = WG - _group_sum("qula,qulk->qak", Xw[:, j], Xg, j, st)
     tri = Y = S_inv = None
     G, r, Kb = st.blocking()
-    if Kb:
+    if normal.C is not None:
+        tri = rows_factor(FF[0], scale_rows(normal.C, sF[:, :nc]))
+    elif Kb:
         tri = tridiagonal_factor(*_assemble(FF, FW, WW, st), tridiagonal)
     if g:
         if Kb:
-            C = _to_blocks(FG[:, :nc] if nc else None, WG, st)  # (Kb, N, g)
-            Y = tridiagonal_solve(tri, C)
+            C = _to_blocks(FG[:, :nc] if nc else None, WG, st, tri)  # (Kb, N, g)
+            Y = _coupled_solve(tri, C)
             S = GG - jnp.einsum("kna,knb->ab", C, Y)
         else:
             S = GG
         S_inv = inverse_cholesky(S)
     return Factor(sF, sW, sG, L_local_inv, X, tri, Y, S_inv, st)
+
+
+def _coupled_solve(tri, b: Array) -> Array:
+    return rows_solve(tri, b) if isinstance(tri, RowsFactor) else tridiagonal_solve(tri, b)
 
 
 def _split_X(X: Array, st: Structure):
@@ -713,13 +770,13 @@ def solve_factored(f: Factor, bF: Array, bW: Array | None = None, bG: Array | No
         cF = bF
     xF_c, xW, xG = cF, bW, None
     if f.tri is not None:
-        b = _to_blocks(cF, bW, st)
-        z = tridiagonal_solve(f.tri, b[..., None])[..., 0]
+        b = _to_blocks(cF, bW, st, f.tri)
+        z = _coupled_solve(f.tri, b[..., None])[..., 0]
         if g:
             u = f.S_inv @ (bG - jnp.einsum("kna,kn->a", f.Y, b))
             xG = f.S_inv.T @ u
             z = z - jnp.einsum("kna,a->kn", f.Y, xG)
-        xF_c, xW = _from_blocks(z, st)
+        xF_c, xW = _from_blocks(z, st, f.tri)
     elif g:
         xG = f.S_inv.T @ (f.S_inv @ bG)
     if f.X is not None:
@@ -781,7 +838,7 @@ class StructuredCholesky(lx.AbstractLinearSolver):
         hessian: whether the operator is the Hessian (see above).
         refinements: rounds of iterative refinement of a Hessian solve against the ridge.
         factor_dtype: dtype in which H is formed and factorised (None: the operator's).
-        tridiagonal: "scan", "cyclic" or None (the backend's default), see `tridiagonal.py`.
+        tridiagonal: "rows", "scan", "cyclic" or None (the backend's default), see `solve`.
         frame_mask: (T,) False for padded frames (pinned to a zero step), or None.
     """
 
@@ -840,7 +897,7 @@ class StructuredCholesky(lx.AbstractLinearSolver):
             return jtu.tree_leaves(jac_mv(self._tangent(tF, tW, tG)))
 
         blocks = jacobian_blocks(mv, st, in_dtype, self.bandwidths, self.columns)
-        normal, _, _ = normal_equations(blocks, st, dtype, self.frame_mask)
+        normal, _, _ = normal_equations(blocks, st, dtype, self.frame_mask, self.tridiagonal)
         return factor(normal, st, 0.0 if damping is None else damping, False, self.tridiagonal), blocks, damping, None
 
     @full_precision

@@ -7,6 +7,10 @@ unused). Two factorisations with one interface (`tridiagonal_factor`, `tridiagon
   flops (≈ 3 N³ per block) but K dependent steps: on a GPU each step is a handful of
   tiny kernels, so a 500-block sequence is launch-bound (issue 20: 1.1 s for SIP's 20
   steps on one H200).
+- **"rows"**: the scan's factorisation in frame order with the fill kept in the
+  coupling terms' row space (`rows.py`), used by `structured.py` where the coupling terms
+  have fewer rows per frame than coupled unknowns and there are no windows; a band given
+  to `tridiagonal_factor` with "rows" is factorised by "scan".
 - **"cyclic"**: block cyclic reduction. The odd blocks are eliminated at once, leaving a
   block-tridiagonal Schur complement on the even blocks (half as many), and so on:
   ⌈log₂ K⌉ levels of batched work, ≈ 6 N³ per block. It is Cholesky of A with the
@@ -34,7 +38,7 @@ from jax import Array
 
 __all__ = ["TRIDIAGONAL_METHODS", "tridiagonal_factor", "tridiagonal_solve", "default_tridiagonal_method", "inverse_cholesky"]
 
-TRIDIAGONAL_METHODS = ("scan", "cyclic")
+TRIDIAGONAL_METHODS = ("rows", "scan", "cyclic")
 
 #: `inverse_cholesky`'s base size in the scan, where each step factorises one block and
 #: every extra operation costs its dispatch: the whole scan factorisation of SIP's 500
@@ -49,11 +53,11 @@ CYCLIC_RECURSIVE_BLOCKS = 32
 
 
 def default_tridiagonal_method() -> str:
-    """"scan" on the CPU (fewest flops, no launch cost), "cyclic" on accelerators.
+    """"rows" on the CPU (fewest flops, no launch cost), "cyclic" on accelerators.
 
     Read from JAX's default backend at trace time: the choice changes speed, not results.
     """
-    return "scan" if jax.default_backend() == "cpu" else "cyclic"
+    return "rows" if jax.default_backend() == "cpu" else "cyclic"
 
 
 def _t(x: Array) -> Array:
@@ -186,12 +190,12 @@ def _cyclic_solve(f: CyclicFactor, b: Array) -> Array:
 def tridiagonal_factor(D: Array, U: Array, method: str | None = None) -> ScanFactor | CyclicFactor:
     """Factorise the SPD block-tridiagonal A (D (K, N, N), U (K, N, N), U[-1] ignored).
 
-    method: "scan", "cyclic" or None (`default_tridiagonal_method`).
+    method: "scan", "cyclic", "rows" (here "scan") or None (`default_tridiagonal_method`).
     """
     method = method or default_tridiagonal_method()
     if method not in TRIDIAGONAL_METHODS:
         raise ValueError(f"tridiagonal method {method!r}: use one of {TRIDIAGONAL_METHODS}.")
-    if method == "scan":
+    if method in ("scan", "rows"):
         return _scan_factor(D, U)
     return _cyclic_factor(D, U.at[-1].set(0.0))
 
