@@ -25,8 +25,11 @@ This module builds and solves it exactly, at a cost linear in T:
 3. **Block-tridiagonal Cholesky.** The coupled frame unknowns and the windows are
    grouped in super-blocks (G frames and r windows, G = r·s, large enough that every
    coupling joins a block to itself or the next); the resulting block-tridiagonal
-   matrix is factorised by a `lax.scan` along the sequence (CPU) or by cyclic reduction
-   in ⌈log₂ T⌉ parallel levels (accelerators), see `tridiagonal.py`.
+   matrix is factorised by a `lax.scan` along the sequence or by cyclic reduction in
+   ⌈log₂ T⌉ parallel levels (accelerators), see `tridiagonal.py`. Without windows, and
+   where the frame-coupling terms have fewer rows per frame than coupled unknowns, the
+   CPU's default instead keeps those rows and factorises in their space (`rows.py`: the
+   same pivots, the band's off-diagonal blocks never formed).
 4. **Border.** The Schur complement on the sequence-wide unknowns,
    S = H_GG - H_GA H_AA⁻¹ H_AG, is formed by banded solves against the g border
    columns (O(T g) work), factorised densely, and the step is recovered by back
