@@ -84,7 +84,7 @@ def rows_factor(P0: Array, C: Array) -> RowsFactor:
 
 def rows_solve(f: RowsFactor, b: Array) -> Array:
     """H⁻¹ b for b (T, n, k)."""
-    T, n, k = b.shape
+    n, k = b.shape[1:]
     B = f.F.shape[2] // 2
     R = f.K.shape[-1] // (2 * B + 1)
 

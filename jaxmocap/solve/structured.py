@@ -270,7 +270,7 @@ def _normal_blocks(blocks: list[Array], bandwidths, dtype, nc: int, n: int, diag
         for width in sorted(by_width, reverse=True):
             left, right = by_width[width]
             p = jnp.einsum("tmi,tmj->tij", jnp.concatenate(left, 1), jnp.concatenate(right, 1))
-            if out is None:
+            if out is None:  # H[0] is n wide even where only coupled leaves exist
                 k = n if e == 0 else width
                 out = jnp.pad(p, ((0, 0), (0, k - width), (0, k - width)))
             else:
