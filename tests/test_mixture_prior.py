@@ -94,7 +94,7 @@ def test_sip_residual_jacobian_uses_the_selected_component():
     def residual(delta):  # delta (T, 24, 3) -> (T, 70)
         return fn({"pose": jax.vmap(jax.vmap(axis_angle_to_matrix))(delta) @ R0}, data)
 
-    J = np.asarray(fn.jacobian({"pose": R0}, data)["pose"])  # (T, 1, 70, 24, 3)
+    J = np.asarray(fn.jacobian({"pose": R0}, data)["pose"].dense((70,), (24, 3)))  # (T, 1, 70, 24, 3)
     assert J.shape == (T, 1, 70, 24, 3)
     full = np.asarray(jax.jacfwd(residual)(jnp.zeros((T, 24, 3))))  # (T, 70, T, 24, 3)
     for t in range(T):

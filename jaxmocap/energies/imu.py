@@ -49,7 +49,7 @@ from ..body.kinematics import chain_transforms, mat3_apply, mat3_mul
 from ..body.model import SMPL_PARENTS
 from ..priors.pose_prior import MixturePosePrior, PosePrior
 from ..rotation import hat, left_jacobian_inverse, log_small, matrix_to_axis_angle
-from ..solve import Term, nan_mask
+from ..solve import BlockJacobian, Term, nan_mask
 from ..timeseries import second_difference, shift_frames
 
 __all__ = [
@@ -213,7 +213,8 @@ def _joint_angles(local: Array) -> Array:
 
 
 #: The prior terms read the 23 non-root joints.
-_PRIOR_READS = (("pose", tuple(range(1, 24))),)
+_PRIOR_JOINTS = tuple(range(1, 24))
+_PRIOR_READS = (("pose", _PRIOR_JOINTS),)
 
 
 class MahalanobisResidual(eqx.Module):
@@ -229,21 +230,16 @@ class MahalanobisResidual(eqx.Module):
     def __call__(self, params, data: InertialData) -> Array:
         return data.prior.mahalanobis_residual(_joint_angles(params["pose"]))
 
-    def jacobian(self, params, data: InertialData) -> dict[str, Array]:
-        """∂r/∂δ_j = W_[:, j] J_l⁻¹(x_j): pose (T, 1, R, 24, 3), R = 69 (70 for a mixture).
+    def jacobian(self, params, data: InertialData) -> dict[str, BlockJacobian]:
+        """∂r/∂δ_j = W_[:, j] J_l⁻¹(x_j) for joints 1..23: W · blockdiag(J_l⁻¹(x_j)).
 
-        W is the prior's ∂r/∂x: one matrix for the single Gaussian, the selected
-        component's (W_k; 0) per frame for a mixture (its constant entry has a zero row).
+        W is the prior's ∂r/∂x: one (69, 69) matrix for the single Gaussian, the selected
+        component's (W_k; 0) per frame for a mixture, (T, 70, 69) (its constant entry has
+        a zero row).
         """
         x = _joint_angles(params["pose"])
-        T = x.shape[0]
-        Jl = left_jacobian_inverse(x.reshape(T, 23, 3))
-        W = data.prior.mahalanobis_jacobian(x).astype(x.dtype)
-        if W.ndim == 2:  # the same W for every frame
-            blocks = jnp.einsum("mja,tjab->tmjb", W.reshape(-1, 23, 3), Jl)
-        else:  # per frame, (T, R, 69)
-            blocks = jnp.einsum("tmja,tjab->tmjb", W.reshape(T, -1, 23, 3), Jl)
-        return {"pose": jnp.pad(blocks, ((0, 0), (0, 0), (1, 0), (0, 0)))[:, None]}
+        Jl = left_jacobian_inverse(x.reshape(x.shape[0], 23, 3))
+        return {"pose": BlockJacobian(Jl, data.prior.mahalanobis_jacobian(x).astype(x.dtype), _PRIOR_JOINTS)}
 
 
 class JointLimitResidual(eqx.Module):
@@ -255,15 +251,14 @@ class JointLimitResidual(eqx.Module):
         x = _joint_angles(params["pose"])
         return data.prior.limit_residual(x).reshape(x.shape[0], 23, 3)
 
-    def jacobian(self, params, data: InertialData) -> dict[str, Array]:
-        """∂e_j/∂δ_j = 1[x_j outside the box] J_l⁻¹(x_j): pose (T, 1, 23, 3, 24, 3)."""
+    def jacobian(self, params, data: InertialData) -> dict[str, BlockJacobian]:
+        """∂e_j/∂δ_j = diag(1[x_j outside the box]) J_l⁻¹(x_j) for joints 1..23 (W = I)."""
         x = _joint_angles(params["pose"])
         T = x.shape[0]
         # e_limit is elementwise in x: its derivative is the JVP with a unit tangent.
         _, slope = jax.jvp(data.prior.limit_residual, (x,), (jnp.ones_like(x),))
         Jl = left_jacobian_inverse(x.reshape(T, 23, 3)) * slope.reshape(T, 23, 3, 1)
-        onehot = jnp.eye(23, 24, k=1, dtype=x.dtype)  # joint j of the 23 is joint j+1 of 24
-        return {"pose": jnp.einsum("tjab,jk->tjakb", Jl, onehot)[:, None]}
+        return {"pose": BlockJacobian(Jl, None, _PRIOR_JOINTS)}
 
 
 def _sensor_mask(key: str):

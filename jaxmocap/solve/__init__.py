@@ -15,6 +15,7 @@ from .batch import pad_sequences as pad_sequences
 from .batch import plan_batch as plan_batch
 from .batch import solve_batch as solve_batch
 from .batch import with_weights as with_weights
+from .residuals import BlockJacobian as BlockJacobian
 from .residuals import Cauchy as Cauchy
 from .residuals import GemanMcClure as GemanMcClure
 from .residuals import Huber as Huber

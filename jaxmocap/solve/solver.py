@@ -46,8 +46,9 @@ from .._checks import concrete
 from .._progress import report
 from .._compat import DIVERGENCE, MAX_STEPS, SUCCESSFUL, result_code
 from .._compat import result_message as optx_message
-from .residuals import Problem, _sanitise
+from .residuals import BlockJacobian, Problem, _sanitise
 from .structured import (
+    FactoredBlocks,
     Structure,
     StructuredCholesky,
     TermBlocks,
@@ -158,21 +159,43 @@ def linear_solver(args: Args, factor_dtype=None, hessian: bool = False, tridiago
 # --- linearisation in the tangent of the manifold (the LM's own) -------------------------
 
 
-def _analytic_blocks(term, x, clean, data, frame_mask, layout: Layout, st: Structure, dtype):
+def _analytic_blocks(term, x, clean, data, frame_mask, layout: Layout, st: Structure, dtype, plain=False):
     """Residual (T, m) and frame blocks (T, 2b+1, m, n) of a term with an analytic Jacobian.
 
     The term supplies ∂e/∂δ of its raw output; weight, robust loss and masks (which act
-    row by row) are applied by pushing each column through their linearisation.
+    row by row) are applied by pushing each column through their linearisation. A lone
+    `BlockJacobian` of a term without loss or mask stays factored (`FactoredBlocks`)
+    unless `plain` (the term has window or sequence blocks to join).
     """
     T = layout.T
     e = term.raw(x, clean, data)
     jac = term.raw_jacobian(x, clean, data)
     C = 2 * term.bandwidth + 1
+    frame_keys = [(k, s) for k, kind, s in zip(layout.keys, layout.kinds, layout.shapes) if kind == "frame"]
+    factored = [k for k, v in jac.items() if isinstance(v, BlockJacobian)]
+    if factored and term.bandwidth:
+        raise ValueError(f"Term {term.name!r}: a BlockJacobian needs a per-frame term (bandwidth 0), got {term.bandwidth}.")
+    if len(jac) == 1 and factored and term.loss is None and term.mask is None and not plain:
+        # r = √w · keep_t · e: one scale per frame, so JᵀJ = s² Dᵀ (WᵀW) D (`FactoredBlocks`).
+        (key,) = factored
+        bj = jac[key]
+        offset = 0
+        for k, s in frame_keys:
+            if k == key:
+                break
+            offset += int(np.prod(s))
+        k = bj.D.shape[-1]
+        layout_cols = [offset + i * k + a for i in bj.index for a in range(k)]
+        solver_pos = np.arange(st.n) if st.perm is None else np.argsort(st.perm)
+        e = e.astype(dtype)
+        r = term.finish(e, data, frame_mask, T)
+        s = term.finish(jnp.ones_like(e), data, frame_mask, T)[:, 0]
+        return r, FactoredBlocks(r, s, bj.D.astype(dtype), bj.W, tuple(int(solver_pos[c]) for c in layout_cols))
     parts = []
-    for key, kind, shape in zip(layout.keys, layout.kinds, layout.shapes):
-        if kind != "frame":
-            continue
-        size = int(jnp.size(jnp.zeros(shape))) if shape else 1
+    for key, shape in frame_keys:
+        size = int(np.prod(shape))
+        if isinstance(jac.get(key), BlockJacobian):
+            jac[key] = jac[key].dense(e.shape[1:], shape)
         if key in jac:
             parts.append(jnp.asarray(jac[key], dtype).reshape((T, C) + e.shape[1:] + (size,)))
         else:
@@ -216,7 +239,8 @@ def linearise(y: dict, args: Args, st: Structure, dtype, factor_dtype, tridiagon
     for k in names:
         t = terms[k]
         if t.jacobian is not None:
-            analytic[k] = _analytic_blocks(t, views[k], clean, args.data, args.frame_mask, layout, st, dtype)
+            plain = any(cols[names.index(k)][1:])  # window or sequence blocks to join
+            analytic[k] = _analytic_blocks(t, views[k], clean, args.data, args.frame_mask, layout, st, dtype, plain)
     ad = [k for k in names if k not in analytic or any(cols[names.index(k)][1:])]
     if ad:
         sub = Problem([terms[k] for k in ad], dict(problem.unknowns))
@@ -234,6 +258,9 @@ def linearise(y: dict, args: Args, st: Structure, dtype, factor_dtype, tridiagon
             blocks[k] = TermBlocks(res[k], b.JF, b.JW, b.JG)
     for k, (r, JF) in analytic.items():
         extra = blocks.get(k)
+        if isinstance(JF, FactoredBlocks):
+            blocks[k] = JF
+            continue
         blocks[k] = TermBlocks(r, JF, None if extra is None else extra.JW, None if extra is None else extra.JG)
     return normal_equations([blocks[k] for k in names], st, factor_dtype, args.frame_mask, tridiagonal)
 
