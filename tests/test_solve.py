@@ -76,15 +76,15 @@ def test_manifold_parametrisations_converge_alike():
 @pytest.mark.parametrize(
     "variant, tridiagonal",
     [(v, m) for v in ("band", "border", "windows", "all") for m in ("scan", "cyclic")]
-    + [("narrow", "rows"), ("narrow_border", "rows"), ("windows", "rows")],
+    + [(v, m) for v in ("narrow", "narrow_border") for m in ("rows", "cyclic")] + [("windows", "rows")],
 )
 def test_structured_step_equals_dense_step(variant, tridiagonal):
     """The LM step (eq. 2.52) from the structured factorisation equals a dense float64 solve
     of the same normal equations, for frame bands (b = 0, 1, 2 together), a sequence-wide
     border, overlapping windows and all at once; T = 9 is not a multiple of any block.
-    Every factorisation of the frame band: coupling rows (used where they are fewer than
-    the coupled unknowns: the narrow variants; the band scan elsewhere), sequential scan,
-    cyclic reduction."""
+    Every factorisation of the frame band: sequential scan and cyclic reduction of the
+    band, and both in the coupling rows' space (used where the rows are fewer than the
+    coupled unknowns: the narrow variants; the band's elsewhere)."""
     from jaxmocap.solve.solver import linearise
     from jaxmocap.solve.structured import factor, solve_factored
     from jaxmocap.solve.unknowns import retract
@@ -95,7 +95,7 @@ def test_structured_step_equals_dense_step(variant, tridiagonal):
     args = Args(problem, data, None, layout)
     st = args.structure()
     normal, grad, cost = linearise(params, args, st, jnp.float64, jnp.float64, tridiagonal)
-    assert (normal.C is not None) == (tridiagonal == "rows" and variant.startswith("narrow"))
+    assert (normal.C is not None) == (tridiagonal in ("rows", "cyclic") and variant.startswith("narrow"))
     xF, xW, xG = solve_factored(factor(normal, st, 0.3, tridiagonal=tridiagonal), *grad)
     step = layout.ravel(layout.unravel(st.from_solver_order(xF), xW, xG))
     flat = np.concatenate([np.asarray(p).reshape(-1) for p in step if p is not None])
@@ -160,11 +160,12 @@ def test_block_tridiagonal_solves_match_dense(K, N):
         tridiagonal_factor(jnp.asarray(D), jnp.asarray(U), "lu")
 
 
-@pytest.mark.parametrize("T, n, R, B", [(1, 3, 2, 1), (3, 6, 4, 2), (9, 5, 3, 1), (11, 4, 2, 2), (7, 5, 7, 1)])
+@pytest.mark.parametrize("T, n, R, B", [(1, 3, 2, 1), (3, 6, 4, 2), (9, 5, 3, 1), (11, 4, 2, 2), (7, 5, 7, 1), (40, 4, 2, 2)])
 def test_rows_factorisation_matches_dense(T, n, R, B):
-    """`rows.py` against numpy on H = blockdiag(A) + CᵀC with coupling rows reading frames
-    t-B .. t+B: bandwidths 1 and 2, one frame, fewer frames than the band, R > n."""
-    from jaxmocap.solve.rows import rows_factor, rows_solve
+    """`rows.py` (frame order and cyclic reduction) against numpy on H = blockdiag(A) + CᵀC
+    with coupling rows reading frames t-B .. t+B: bandwidths 1 and 2, one frame, fewer
+    frames than the band, R > n, T not a multiple of the super-blocks, five levels."""
+    from jaxmocap.solve.rows import rows_cyclic_factor, rows_cyclic_solve, rows_factor, rows_solve
 
     rng = np.random.default_rng(T * 100 + n)
     C = rng.normal(size=(T, 2 * B + 1, R, n))
@@ -183,9 +184,10 @@ def test_rows_factorisation_matches_dense(T, n, R, B):
         H[s * n : (s + 1) * n, s * n : (s + 1) * n] += A[s]
     P0 = np.stack([H[s * n : (s + 1) * n, s * n : (s + 1) * n] for s in range(T)])
     b = rng.normal(size=(T, n, 2))
-    x = rows_solve(rows_factor(jnp.asarray(P0), jnp.asarray(C)), jnp.asarray(b))
     ref = np.linalg.solve(H, b.reshape(T * n, 2)).reshape(T, n, 2)
-    np.testing.assert_allclose(np.asarray(x), ref, atol=1e-10 * np.abs(ref).max())
+    for fac, sol in ((rows_factor, rows_solve), (rows_cyclic_factor, rows_cyclic_solve)):
+        x = sol(fac(jnp.asarray(P0), jnp.asarray(C)), jnp.asarray(b))
+        np.testing.assert_allclose(np.asarray(x), ref, atol=1e-10 * np.abs(ref).max(), err_msg=fac.__name__)
 
 
 @pytest.mark.parametrize("W", ["shared", "per_frame", "identity"])

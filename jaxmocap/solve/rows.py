@@ -31,9 +31,9 @@ import jax.numpy as jnp
 from jax import Array
 
 from ..timeseries import shift_frames
-from .tridiagonal import SCAN_BASE, inverse_cholesky
+from .tridiagonal import CYCLIC_BASE, CYCLIC_RECURSIVE_BLOCKS, SCAN_BASE, inverse_cholesky
 
-__all__ = ["RowsFactor", "rows_factor", "rows_solve", "scale_rows"]
+__all__ = ["RowsFactor", "RowsCyclicFactor", "rows_factor", "rows_solve", "rows_cyclic_factor", "rows_cyclic_solve", "scale_rows"]
 
 
 class RowsFactor(eqx.Module):
@@ -103,3 +103,137 @@ def rows_solve(f: RowsFactor, b: Array) -> Array:
 
     _, x = jax.lax.scan(backward, jnp.zeros((2 * B, n, k), b.dtype), (f.L, f.K, f.F, w), reverse=True)
     return x
+
+
+# --- cyclic reduction on the rows: the same representation, O(log T) depth ----------------
+
+
+class RowsCyclicLevel(eqx.Module):
+    """One level: L_o⁻¹ of the odd super-blocks, their couplings in the rows' space
+    (P_o = Pa_o Y_{o-1}, Q_o = Qa_o Z_o) and those rows' bases."""
+
+    L: Array  # (Ko, N, N)
+    Pa: Array  # (Ko, N, r)
+    Qa: Array  # (Ko, N, r)
+    Y: Array  # (Ko, r, N) of the even block before each odd one
+    Z: Array  # (Ko, r, N) of the even block after it
+
+
+class RowsCyclicFactor(eqx.Module):
+    """Block cyclic reduction of the 2B-frame super-blocks with off-diagonal blocks kept as
+    U_k = Y_kᵀ M_k Z_k (rank r = 2BR); `last` the final block's inverse factor."""
+
+    levels: tuple[RowsCyclicLevel, ...]
+    last: Array  # (1, N, N)
+    T: int = eqx.field(static=True)
+
+
+def _band_from_rows(C: Array, e: int) -> Array:
+    """H_{s,s+e} = Σ_t C_t[s]ᵀ C_t[s+e] (T, n, n): row t = s + B - j reads s at offset j."""
+    B = (C.shape[1] - 1) // 2
+    return sum(shift_frames(jnp.einsum("trn,trm->tnm", C[:, j], C[:, j + e]), j - B) for j in range(2 * B + 1 - e))
+
+
+def _super_blocks(P0: Array, C: Array):
+    """D (Kb, N, N) diagonal super-blocks of G = 2B frames, and Y, Z (Kb, r, N): the 2B·R
+    rows straddling the boundary after block k on blocks k and k+1 (U_k = Y_kᵀ Z_k)."""
+    T, n = P0.shape[:2]
+    B, R = (C.shape[1] - 1) // 2, C.shape[2]
+    G = 2 * B
+    Kb = -(-T // G)
+    pad = Kb * G - T
+    eye = jnp.broadcast_to(jnp.eye(n, dtype=P0.dtype), (pad, n, n))
+    P0 = jnp.concatenate([P0, eye], 0)
+    C = jnp.pad(C, ((0, pad + 2 * B), (0, 0), (0, 0), (0, 0)))  # rows past the end: zero
+    H = [P0] + [_band_from_rows(C, e)[: Kb * G] for e in range(1, G)]
+    Hb = [h.reshape((Kb, G, n, n)) for h in H]
+    D = jnp.concatenate([
+        jnp.concatenate([Hb[i2 - i][:, i] if i2 >= i else _t(Hb[i - i2][:, i2]) for i2 in range(G)], -1)
+        for i in range(G)
+    ], -2)  # fmt: skip
+    # Row q of the boundary after block k is frame t = (k+1)G - B + q; it reads frame i of
+    # block k at offset i - q and frame i of block k+1 at offset i - q + 2B.
+    rows = C[G - B :][: Kb * G].reshape((Kb, G) + C.shape[1:])  # (Kb, q, 2B+1, R, n)
+    zero = jnp.zeros((Kb, R, n), P0.dtype)
+    Y = jnp.concatenate([
+        jnp.concatenate([rows[:, q, i - q] if 0 <= i - q <= 2 * B else zero for i in range(G)], -1) for q in range(G)
+    ], 1)  # fmt: skip
+    Z = jnp.concatenate([
+        jnp.concatenate([rows[:, q, i - q + 2 * B] if i <= q else zero for i in range(G)], -1) for q in range(G)
+    ], 1)  # fmt: skip
+    return D, Y, Z
+
+
+def _t(x: Array) -> Array:
+    return jnp.swapaxes(x, -1, -2)
+
+
+def _shift_down(x: Array, length: int) -> Array:
+    """x_{j-1} for j = 0..length-1 (zero at j = 0)."""
+    x = jnp.concatenate([jnp.zeros_like(x[:1]), x], 0)[:length]
+    return _pad(x, length)
+
+
+def _pad(x: Array, length: int) -> Array:
+    if x.shape[0] >= length:
+        return x[:length]
+    return jnp.concatenate([x, jnp.zeros((length - x.shape[0],) + x.shape[1:], x.dtype)], 0)
+
+
+def rows_cyclic_factor(P0: Array, C: Array) -> RowsCyclicFactor:
+    """Factorise H (as `rows_factor`'s) by block cyclic reduction of its 2B-frame super-blocks.
+
+    The coupling U_k of blocks k and k+1 is Y_kᵀ M_k Z_k with M = I on the first level;
+    eliminating the odd block o between even blocks e = o-1 and o+1 gives (L_o L_oᵀ = D_o)
+
+        Pa = L_o⁻¹ Z_{e}ᵀ M_{e}ᵀ,   Qa = L_o⁻¹ Y_oᵀ M_o,
+        D_e -= Y_eᵀ (Paᵀ Pa) Y_e,   D_{o+1} -= Z_oᵀ (Qaᵀ Qa) Z_o,   U'_e = Y_eᵀ (-Paᵀ Qa) Z_o,
+
+    so the new coupling keeps the form and its bases, and every product is N × r or
+    r × r instead of N × N (SIP: r = 36 against N = 102; "cyclic" in `tridiagonal.py`
+    forms the dense U). The same elimination order as that cyclic reduction, so the
+    same pivots.
+    """
+    D, Y, Z = _super_blocks(P0, C)
+    r = Y.shape[1]
+    M = jnp.broadcast_to(jnp.eye(r, dtype=D.dtype), (D.shape[0], r, r))
+    M = M.at[-1].set(0.0)  # no block after the last
+    levels = []
+    while D.shape[0] > 1:
+        K = D.shape[0]
+        Ke, Ko = (K + 1) // 2, K // 2
+        L = inverse_cholesky(D[1::2], CYCLIC_BASE if Ko >= CYCLIC_RECURSIVE_BLOCKS else D.shape[-1])
+        Ye, Me, Zo, Mo = Y[0::2][:Ko], M[0::2][:Ko], Z[1::2], M[1::2]
+        LZY = L @ jnp.concatenate([_t(Z[0::2][:Ko]), _t(Y[1::2])], -1)  # (Ko, N, 2r)
+        Pa, Qa = LZY[..., :r] @ _t(Me), LZY[..., r:] @ Mo
+        PQ = jnp.concatenate([Pa, Qa], -1)
+        S = _t(PQ) @ PQ  # [[PaᵀPa, PaᵀQa], [., QaᵀQa]]
+        levels.append(RowsCyclicLevel(L, Pa, Qa, Ye, Zo))
+        left = _t(Ye) @ (S[:, :r, :r] @ Ye)  # on the even block before each odd one
+        right = _t(Zo) @ (S[:, r:, r:] @ Zo)  # ... and after it
+        D = D[0::2] - _pad(left, Ke) - _shift_down(right, Ke)
+        Y, Z, M = Y[0::2], _pad(Zo, Ke), _pad(-S[:, :r, r:], Ke)
+    return RowsCyclicFactor(tuple(levels), inverse_cholesky(D, D.shape[-1]), P0.shape[0])
+
+
+def rows_cyclic_solve(f: RowsCyclicFactor, b: Array) -> Array:
+    """H⁻¹ b for b (T, n, k) with a `RowsCyclicFactor`."""
+    T, n, k = b.shape
+    N = f.last.shape[-1]
+    G = N // n
+    Kb = -(-T // G)
+    b = jnp.pad(b, ((0, Kb * G - T), (0, 0), (0, 0))).reshape(Kb, N, k)
+    zs = []
+    for lev in f.levels:
+        Ke = (b.shape[0] + 1) // 2
+        z = lev.L @ b[1::2]
+        zs.append(z)
+        b = b[0::2] - _pad(_t(lev.Y) @ (_t(lev.Pa) @ z), Ke) - _shift_down(_t(lev.Z) @ (_t(lev.Qa) @ z), Ke)
+    x = _t(f.last) @ (f.last @ b)
+    for lev, z in zip(reversed(f.levels), reversed(zs)):
+        Ko = z.shape[0]
+        x_prev, x_next = x[:Ko], _pad(x[1:], Ko)
+        x_odd = _t(lev.L) @ (z - lev.Pa @ (lev.Y @ x_prev) - lev.Qa @ (lev.Z @ x_next))
+        out = jnp.zeros((x.shape[0] + Ko,) + x.shape[1:], x.dtype)
+        x = out.at[0::2].set(x).at[1::2].set(x_odd)
+    return x.reshape(Kb * G, n, k)[:T]

@@ -57,7 +57,7 @@ from jax import Array
 
 from ..timeseries import shift_frames
 
-from .rows import RowsFactor, rows_factor, rows_solve, scale_rows
+from .rows import RowsCyclicFactor, RowsFactor, rows_cyclic_factor, rows_cyclic_solve, rows_factor, rows_solve, scale_rows
 from .tridiagonal import (
     CyclicFactor,
     ScanFactor,
@@ -373,11 +373,11 @@ def _pin(normal: Normal, st: Structure, frame_mask: Array | None) -> Normal:
 
 def uses_rows(st: Structure, rows: int, tridiagonal: str | None) -> bool:
     """Whether the frame band is factorised in its coupling rows' space (`rows.py`):
-    asked for ("rows", the CPU's default), a band to factorise, no windows (their
-    super-blocks need the band's), and fewer coupling rows per frame than coupled
-    unknowns (otherwise the band is the smaller representation)."""
+    "rows" (the CPU's default) or "cyclic" (accelerators') asked for, a band to
+    factorise, no windows (their super-blocks need the band's), and fewer coupling rows
+    per frame than coupled unknowns (otherwise the band is the smaller representation)."""
     method = tridiagonal or default_tridiagonal_method()
-    return method == "rows" and st.B2 > 0 and st.nc > 0 and not st.W and 0 < rows < st.nc
+    return method in ("rows", "cyclic") and st.B2 > 0 and st.nc > 0 and not st.W and 0 < rows < st.nc
 
 
 def _coupling_rows(JF: list[Array], bw, st: Structure) -> Array:
@@ -397,7 +397,7 @@ def normal_equations(
     """H = JᵀJ and g = Jᵀr of the linearised residual leaves: (`Normal`, (gF, gW, gG), cost).
 
     Padded frames (frame_mask False) and windows without a real frame get identity
-    rows so that their step is exactly 0. `tridiagonal` ("rows" or None on the CPU, see
+    rows so that their step is exactly 0. `tridiagonal` ("rows", "cyclic" or None, see
     `uses_rows`) keeps the frame band as the coupling rows instead of forming it.
     """
     T, n, nc, K = st.T, st.n, st.nc, st.K
@@ -604,7 +604,7 @@ class Factor(eqx.Module):
     sG: Array | None
     L_local_inv: Array | None  # (T, n_l, n_l) inverse Cholesky factors of H_ll
     X: Array | None  # (T, n_l, nc + K m + g): L_ll⁻¹ [H_lc | H_lW | H_lG]
-    tri: ScanFactor | CyclicFactor | RowsFactor | None  # the coupled frames (+ windows)
+    tri: ScanFactor | CyclicFactor | RowsFactor | RowsCyclicFactor | None  # the coupled frames (+ windows)
     Y: Array | None  # (Kb, N, g) or, with rows, (T, nc, g): A⁻¹ C
     S_inv: Array | None  # (g, g) inverse Cholesky factor of the border's Schur complement
     st: Structure = eqx.field(static=True)
@@ -643,8 +643,8 @@ def _pad_to(x: Array, length: int, fill_eye: bool = False) -> Array:
 
 def _to_blocks(xF: Array | None, xW: Array | None, st: Structure, tri=None) -> Array:
     """Coupled frame (T, nc, ...) and window (W, m, ...) parts -> super-block vectors (Kb, N, ...)
-    (frames as they are for a `RowsFactor`, which has no windows)."""
-    if isinstance(tri, RowsFactor):
+    (frames as they are for the coupling rows' factors, which have no windows)."""
+    if isinstance(tri, (RowsFactor, RowsCyclicFactor)):
         return xF
     G, r, Kb = st.blocking()
     parts = []
@@ -656,7 +656,7 @@ def _to_blocks(xF: Array | None, xW: Array | None, st: Structure, tri=None) -> A
 
 
 def _from_blocks(x: Array, st: Structure, tri=None):
-    if isinstance(tri, RowsFactor):
+    if isinstance(tri, (RowsFactor, RowsCyclicFactor)):
         return x, None
     G, r, Kb = st.blocking()
     xF = xW = None
@@ -734,8 +734,9 @@ def factor(
     """Factorise H + λI (or H + λ diag(H), eq. 2.54) in its structure (module docstring).
 
     tridiagonal: "scan", "cyclic", "rows" or None (the backend's default), see
-    `tridiagonal.py`; a `normal` with coupling rows (`normal_equations` with "rows") is
-    factorised by `rows.py` whatever it says, "rows" without them by "scan".
+    `tridiagonal.py`; a `normal` with coupling rows (`normal_equations` with "rows" or
+    "cyclic") is factorised by `rows.py`, in frame order or by cyclic reduction ("cyclic");
+    "rows" without them by "scan".
     """
     T, n, nc, K, m, g = st.T, st.n, st.nc, st.K, st.m, st.g
     FF = list(normal.FF)
@@ -791,7 +792,8 @@ def factor(
     tri = Y = S_inv = None
     G, r, Kb = st.blocking()
     if normal.C is not None:
-        tri = rows_factor(FF[0], scale_rows(normal.C, sF[:, :nc]))
+        by_rows = rows_cyclic_factor if (tridiagonal or default_tridiagonal_method()) == "cyclic" else rows_factor
+        tri = by_rows(FF[0], scale_rows(normal.C, sF[:, :nc]))
     elif Kb:
         tri = tridiagonal_factor(*_assemble(FF, FW, WW, st), tridiagonal)
     if g:
@@ -806,7 +808,11 @@ def factor(
 
 
 def _coupled_solve(tri, b: Array) -> Array:
-    return rows_solve(tri, b) if isinstance(tri, RowsFactor) else tridiagonal_solve(tri, b)
+    if isinstance(tri, RowsFactor):
+        return rows_solve(tri, b)
+    if isinstance(tri, RowsCyclicFactor):
+        return rows_cyclic_solve(tri, b)
+    return tridiagonal_solve(tri, b)
 
 
 def _split_X(X: Array, st: Structure):

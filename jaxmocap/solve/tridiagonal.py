@@ -11,7 +11,8 @@ unused). Two factorisations with one interface (`tridiagonal_factor`, `tridiagon
   coupling terms' row space (`rows.py`), used by `structured.py` where the coupling terms
   have fewer rows per frame than coupled unknowns and there are no windows; a band given
   to `tridiagonal_factor` with "rows" is factorised by "scan".
-- **"cyclic"**: block cyclic reduction. The odd blocks are eliminated at once, leaving a
+- **"cyclic"**: block cyclic reduction (with coupling rows as for "rows", `rows.py`'s
+  version, which keeps the off-diagonal blocks in the rows' space). The odd blocks are eliminated at once, leaving a
   block-tridiagonal Schur complement on the even blocks (half as many), and so on:
   ⌈log₂ K⌉ levels of batched work, ≈ 6 N³ per block. It is Cholesky of A with the
   blocks reordered (odd ones first, level by level), hence as stable as the scan for SPD A.
