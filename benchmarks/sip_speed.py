@@ -39,10 +39,11 @@ run's engine, `sip_single.median_s`), `optx_default_vs_v1_ratio` = current / v1,
 v1's end point under this engine's cost function; `v1`: the subprocess's own record).
 `--no-v1` skips it.
 
-`--before COMMIT`: the same single-sequence solve with the engine at COMMIT (extracted
-like v1 into build/engine_COMMIT, which a machine without .git needs carried), key
-`before` (time, final cost, `ratio` = now / before): a speed-up measured on one machine,
-whichever card it is.
+`--before COMMIT`: the same single-sequence solve (and, with `--big-batch`, the same
+batch) with the engine at COMMIT (extracted like v1 into build/engine_COMMIT, which a
+machine without .git needs carried), key `before` (time, final cost, `ratio` = now /
+before, `big_batch_s`, `big_batch_ratio`): a speed-up measured on one machine, whichever
+card it is.
 
 Baseline (same process, same problem and start): the engine without the SIP terms'
 analytic Jacobians and `reads`, i.e. Jacobian blocks by forward-mode AD over all 75
@@ -135,6 +136,14 @@ def _engine_only(args) -> int:
         "dtype": str(jnp.asarray(setup.pose0).dtype),
         "own_data_identical": bool(identical),  # its own data generation gave the same arrays
     }
+    if args.engine_batch:  # the big batch too, once (compile + one timed call)
+        from jaxmocap.methods import inertial
+
+        stacked = inertial.stack_setups([setup] * args.engine_batch)
+        init = jnp.broadcast_to(jnp.asarray(given["init"]), (args.engine_batch,) + given["init"].shape)
+        run = lambda: inertial.sparse_inertial_poser_batch(stacked, init, max_steps=args.iters, rtol=0.0, atol=0.0).value["pose"]  # noqa: E731
+        out["big_batch"] = dict(time_call(run, min_seconds=1e-9, max_repeats=1), sequences=args.engine_batch)
+        print(f"[{where.name}] batch {args.engine_batch} x {args.frames} frames: {out['big_batch']['median_s']:.2f} s")
     np.savez(Path(args.json_out).with_suffix(".npz"), pose=np.asarray(sol.value["pose"]),
              trans=np.asarray(sol.value["trans"]))  # fmt: skip
     Path(args.json_out).write_text(json.dumps(out, indent=2) + "\n")
@@ -143,7 +152,7 @@ def _engine_only(args) -> int:
     return 0
 
 
-def _run_v1(args, setup, sop, package=None, x64=None, frames=None, iters=None) -> tuple[dict, dict]:
+def _run_v1(args, setup, sop, package=None, x64=None, frames=None, iters=None, batch=0) -> tuple[dict, dict]:
     """Run `--engine-only` under the v1 package (or `package`); returns its JSON and final values."""
     v1 = v1_path() if package is None else package
     x64 = jax.config.jax_enable_x64 if x64 is None else x64
@@ -158,7 +167,7 @@ def _run_v1(args, setup, sop, package=None, x64=None, frames=None, iters=None) -
         env["JAX_ENABLE_X64"] = "1" if x64 else "0"
         cmd = [sys.executable, str(Path(__file__).resolve()), "--engine-only", "--frames", str(frames or args.frames),
                "--iters", str(iters or args.iters), "--min-seconds", str(args.min_seconds), "--init", str(handed),
-               "--json-out", str(out), "--expect-package", str(v1)]  # fmt: skip
+               "--json-out", str(out), "--expect-package", str(v1), "--engine-batch", str(batch)]  # fmt: skip
         subprocess.run(cmd, env=env, check=True)
         result = json.loads(out.read_text())
         with np.load(out.with_suffix(".npz")) as f:
@@ -186,6 +195,7 @@ def main(argv=None) -> int:
     p.add_argument("--init", help="internal (--engine-only): .npz with the setup's arrays and the SOP start")
     p.add_argument("--json-out", help="internal (--engine-only): where to write time and final cost")
     p.add_argument("--expect-package", help="internal (--engine-only): folder jaxmocap must come from")
+    p.add_argument("--engine-batch", type=int, default=0, help="internal (--engine-only): also time this many sequences at once")
     args = p.parse_args(argv)
     if args.engine_only:
         if not (args.init and args.json_out):
@@ -319,10 +329,14 @@ def main(argv=None) -> int:
         from _v1 import ROOT, v1_path
 
         package = v1_path(args.before, ROOT / "build" / f"engine_{args.before}")
-        child, _ = _run_v1(args, setup, sop, package=package)
+        child, _ = _run_v1(args, setup, sop, package=package, batch=args.big_batch)
         before = {"commit": args.before, "time_s": child["time"]["median_s"], "final_cost": child["final_cost"],
                   "ratio": single["median_s"] / child["time"]["median_s"], "run": child}  # fmt: skip
         print(f"engine at {args.before}: {before['time_s']:.3f} s; now/before = {before['ratio']:.3f}")
+        if big and "big_batch" in child:
+            before["big_batch_s"] = child["big_batch"]["median_s"]
+            before["big_batch_ratio"] = big["median_s"] / before["big_batch_s"]
+            print(f"  batch {args.big_batch}: {before['big_batch_s']:.2f} s; now/before = {before['big_batch_ratio']:.3f}")
 
     batches = {}
     if args.batches:
