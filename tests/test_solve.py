@@ -6,6 +6,7 @@ acceleration residuals, a prior) at a size that keeps this file fast. Float64 is
 (tests/conftest.py); float32 behaviour is tested explicitly.
 """
 
+import functools
 
 import jax
 import jax.numpy as jnp
@@ -87,19 +88,36 @@ def test_structured_step_equals_dense_step(variant, tridiagonal):
     coupled unknowns: the narrow variants; the band's elsewhere)."""
     from jaxmocap.solve.solver import linearise
     from jaxmocap.solve.structured import factor, solve_factored
-    from jaxmocap.solve.unknowns import retract
 
     problems, data = _variants(9)
     problem, params = problems[variant]
     layout = problem.layout(params)
     args = Args(problem, data, None, layout)
     st = args.structure()
-    normal, grad, cost = linearise(params, args, st, jnp.float64, jnp.float64, tridiagonal)
-    assert (normal.C is not None) == (tridiagonal in ("rows", "cyclic") and variant.startswith("narrow"))
-    xF, xW, xG = solve_factored(factor(normal, st, 0.3, tridiagonal=tridiagonal), *grad)
-    step = layout.ravel(layout.unravel(st.from_solver_order(xF), xW, xG))
+
+    @jax.jit  # one compilation instead of op-by-op dispatch of every small product
+    def step_of(params, data):
+        normal, grad, cost = linearise(params, Args(problem, data, None, layout), st, jnp.float64, jnp.float64, tridiagonal)
+        xF, xW, xG = solve_factored(factor(normal, st, 0.3, tridiagonal=tridiagonal), *grad)
+        return normal.C is not None, layout.ravel(layout.unravel(st.from_solver_order(xF), xW, xG)), cost
+
+    has_rows, step, cost = step_of(params, data)
+    assert bool(has_rows) == (tridiagonal in ("rows", "cyclic") and variant.startswith("narrow"))
     flat = np.concatenate([np.asarray(p).reshape(-1) for p in step if p is not None])
-    # Dense reference: J of the residuals at x ⊕ δ over the flat tangent.
+    dense, half_rr = _dense_step(variant)
+    assert abs(float(cost) - half_rr) <= 1e-12 * half_rr
+    assert np.max(np.abs(flat - dense)) < 1e-7 * max(np.max(np.abs(dense)), 1.0)
+
+
+@functools.lru_cache(maxsize=None)
+def _dense_step(variant):
+    """Dense float64 reference for `test_structured_step_equals_dense_step` (once per variant):
+    the step (JᵀJ + 0.3 I)⁻¹ Jᵀr from J of the residuals at x ⊕ δ over the flat tangent, and ½‖r‖²."""
+    from jaxmocap.solve.unknowns import retract
+
+    problems, data = _variants(9)
+    problem, params = problems[variant]
+    layout = problem.layout(params)
     x = to_manifold(params, layout)
     F, W, G = layout.ravel(layout.zeros(jnp.float64))
     sizes = [p.size for p in (F, W, G) if p is not None]
@@ -116,11 +134,8 @@ def test_structured_step_equals_dense_step(variant, tridiagonal):
         return jnp.concatenate([v.reshape(-1) for v in jax.tree_util.tree_leaves(res)])
 
     d0 = jnp.zeros(sum(sizes))
-    J = np.asarray(jax.jacfwd(r_of)(d0))
-    r = np.asarray(r_of(d0))
-    dense = np.linalg.solve(J.T @ J + 0.3 * np.eye(J.shape[1]), J.T @ r)
-    assert abs(float(cost) - 0.5 * r @ r) <= 1e-12 * (0.5 * r @ r)
-    assert np.max(np.abs(flat - dense)) < 1e-7 * max(np.max(np.abs(dense)), 1.0)
+    J, r = (np.asarray(a) for a in jax.jit(lambda d: (jax.jacfwd(r_of)(d), r_of(d)))(d0))
+    return np.linalg.solve(J.T @ J + 0.3 * np.eye(J.shape[1]), J.T @ r), 0.5 * r @ r
 
 
 def _block_tridiagonal_dense(D, U):
