@@ -31,7 +31,7 @@ import jax.numpy as jnp
 from jax import Array
 
 from ..timeseries import shift_frames
-from .tridiagonal import CYCLIC_BASE, CYCLIC_RECURSIVE_BLOCKS, SCAN_BASE, inverse_cholesky
+from .tridiagonal import CYCLIC_BASE, CYCLIC_RECURSIVE_BLOCKS, SCAN_BASE, _pad, _shift_down, _t, inverse_cholesky
 
 __all__ = ["RowsFactor", "RowsCyclicFactor", "rows_factor", "rows_solve", "rows_cyclic_factor", "rows_cyclic_solve", "scale_rows"]
 
@@ -162,22 +162,6 @@ def _super_blocks(P0: Array, C: Array):
         jnp.concatenate([rows[:, q, i - q + 2 * B] if i <= q else zero for i in range(G)], -1) for q in range(G)
     ], 1)  # fmt: skip
     return D, Y, Z
-
-
-def _t(x: Array) -> Array:
-    return jnp.swapaxes(x, -1, -2)
-
-
-def _shift_down(x: Array, length: int) -> Array:
-    """x_{j-1} for j = 0..length-1 (zero at j = 0)."""
-    x = jnp.concatenate([jnp.zeros_like(x[:1]), x], 0)[:length]
-    return _pad(x, length)
-
-
-def _pad(x: Array, length: int) -> Array:
-    if x.shape[0] >= length:
-        return x[:length]
-    return jnp.concatenate([x, jnp.zeros((length - x.shape[0],) + x.shape[1:], x.dtype)], 0)
 
 
 def rows_cyclic_factor(P0: Array, C: Array) -> RowsCyclicFactor:
