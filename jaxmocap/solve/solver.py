@@ -169,7 +169,7 @@ def _analytic_blocks(term, x, clean, data, frame_mask, layout: Layout, st: Struc
     """
     T = layout.T
     e = term.raw(x, clean, data)
-    jac = term.raw_jacobian(x, clean, data)
+    jac = dict(term.raw_jacobian(x, clean, data))
     C = 2 * term.bandwidth + 1
     frame_keys = [(k, s) for k, kind, s in zip(layout.keys, layout.kinds, layout.shapes) if kind == "frame"]
     factored = [k for k, v in jac.items() if isinstance(v, BlockJacobian)]
@@ -180,10 +180,10 @@ def _analytic_blocks(term, x, clean, data, frame_mask, layout: Layout, st: Struc
         (key,) = factored
         bj = jac[key]
         offset = 0
-        for k, s in frame_keys:
-            if k == key:
+        for name, shape in frame_keys:
+            if name == key:
                 break
-            offset += int(np.prod(s))
+            offset += int(np.prod(shape))
         k = bj.D.shape[-1]
         layout_cols = [offset + i * k + a for i in bj.index for a in range(k)]
         solver_pos = np.arange(st.n) if st.perm is None else np.argsort(st.perm)

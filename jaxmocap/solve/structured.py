@@ -186,9 +186,6 @@ class FactoredBlocks(eqx.Module):
     D: Array
     W: Array | None
     cols: tuple[int, ...] = eqx.field(static=True)
-    JW = None  # no window or sequence blocks
-    JG = None
-    bandwidth = 0
 
     def _pos(self, n: int) -> np.ndarray:
         """(n,) each solver column's block column, or p (= none: a zero) outside the blocks."""
