@@ -31,7 +31,7 @@ import jax.numpy as jnp
 from jax import Array
 
 from ..timeseries import shift_frames
-from .tridiagonal import CYCLIC_BASE, CYCLIC_RECURSIVE_BLOCKS, SCAN_BASE, _pad, _shift_down, _t, inverse_cholesky
+from .tridiagonal import CYCLIC_BASE, CYCLIC_RECURSIVE_BLOCKS, SCAN_BASE, _interleave, _pad, _shift_down, _t, inverse_cholesky
 
 __all__ = ["RowsFactor", "RowsCyclicFactor", "rows_factor", "rows_solve", "rows_cyclic_factor", "rows_cyclic_solve", "scale_rows"]
 
@@ -125,7 +125,6 @@ class RowsCyclicFactor(eqx.Module):
 
     levels: tuple[RowsCyclicLevel, ...]
     last: Array  # (1, N, N)
-    T: int = eqx.field(static=True)
 
 
 def _band_from_rows(C: Array, e: int) -> Array:
@@ -197,7 +196,7 @@ def rows_cyclic_factor(P0: Array, C: Array) -> RowsCyclicFactor:
         right = _t(Zo) @ (S[:, r:, r:] @ Zo)  # ... and after it
         D = D[0::2] - _pad(left, Ke) - _shift_down(right, Ke)
         Y, Z, M = Y[0::2], _pad(Zo, Ke), _pad(-S[:, :r, r:], Ke)
-    return RowsCyclicFactor(tuple(levels), inverse_cholesky(D, D.shape[-1]), P0.shape[0])
+    return RowsCyclicFactor(tuple(levels), inverse_cholesky(D, D.shape[-1]))
 
 
 def rows_cyclic_solve(f: RowsCyclicFactor, b: Array) -> Array:
@@ -217,7 +216,5 @@ def rows_cyclic_solve(f: RowsCyclicFactor, b: Array) -> Array:
     for lev, z in zip(reversed(f.levels), reversed(zs)):
         Ko = z.shape[0]
         x_prev, x_next = x[:Ko], _pad(x[1:], Ko)
-        x_odd = _t(lev.L) @ (z - lev.Pa @ (lev.Y @ x_prev) - lev.Qa @ (lev.Z @ x_next))
-        out = jnp.zeros((x.shape[0] + Ko,) + x.shape[1:], x.dtype)
-        x = out.at[0::2].set(x).at[1::2].set(x_odd)
+        x = _interleave(x, _t(lev.L) @ (z - lev.Pa @ (lev.Y @ x_prev) - lev.Qa @ (lev.Z @ x_next)))
     return x.reshape(Kb * G, n, k)[:T]

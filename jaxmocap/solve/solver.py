@@ -171,7 +171,6 @@ def _analytic_blocks(term, x, clean, data, frame_mask, layout: Layout, st: Struc
     e = term.raw(x, clean, data)
     jac = dict(term.raw_jacobian(x, clean, data))
     C = 2 * term.bandwidth + 1
-    frame_keys = [(k, s) for k, kind, s in zip(layout.keys, layout.kinds, layout.shapes) if kind == "frame"]
     factored = [k for k, v in jac.items() if isinstance(v, BlockJacobian)]
     if factored and term.bandwidth:
         raise ValueError(f"Term {term.name!r}: a BlockJacobian needs a per-frame term (bandwidth 0), got {term.bandwidth}.")
@@ -179,19 +178,14 @@ def _analytic_blocks(term, x, clean, data, frame_mask, layout: Layout, st: Struc
         # r = √w · keep_t · e: one scale per frame, so JᵀJ = s² Dᵀ (WᵀW) D (`FactoredBlocks`).
         (key,) = factored
         bj = jac[key]
-        offset = 0
-        for name, shape in frame_keys:
-            if name == key:
-                break
-            offset += int(np.prod(shape))
-        k = bj.D.shape[-1]
-        layout_cols = [offset + i * k + a for i in bj.index for a in range(k)]
+        layout_cols = [c for i in bj.index for c in layout.columns(((key, (i,)),))]  # in the blocks' order
         solver_pos = np.arange(st.n) if st.perm is None else np.argsort(st.perm)
         e = e.astype(dtype)
         r = term.finish(e, data, frame_mask, T)
         s = term.finish(jnp.ones_like(e), data, frame_mask, T)[:, 0]
         return r, FactoredBlocks(r, s, bj.D.astype(dtype), bj.W, tuple(int(solver_pos[c]) for c in layout_cols))
     parts = []
+    frame_keys = [(k, s) for k, kind, s in zip(layout.keys, layout.kinds, layout.shapes) if kind == "frame"]
     for key, shape in frame_keys:
         size = int(np.prod(shape))
         if isinstance(jac.get(key), BlockJacobian):

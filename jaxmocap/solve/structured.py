@@ -27,9 +27,9 @@ This module builds and solves it exactly, at a cost linear in T:
    coupling joins a block to itself or the next); the resulting block-tridiagonal
    matrix is factorised by a `lax.scan` along the sequence or by cyclic reduction in
    ⌈log₂ T⌉ parallel levels (accelerators), see `tridiagonal.py`. Without windows, and
-   where the frame-coupling terms have fewer rows per frame than coupled unknowns, the
-   CPU's default instead keeps those rows and factorises in their space (`rows.py`: the
-   same pivots, the band's off-diagonal blocks never formed).
+   where the frame-coupling terms have fewer rows per frame than coupled unknowns, both
+   instead keep those rows and factorise in their space (`rows.py`: the same pivots,
+   the band's off-diagonal blocks never formed).
 4. **Border.** The Schur complement on the sequence-wide unknowns,
    S = H_GG - H_GA H_AA⁻¹ H_AG, is formed by banded solves against the g border
    columns (O(T g) work), factorised densely, and the step is recovered by back
@@ -399,6 +399,7 @@ def normal_equations(
     """
     T, n, nc, K = st.T, st.n, st.nc, st.K
     rs = [t.r.reshape(T, -1).astype(dtype) for t in terms]
+    grad = jt_vector(terms, st, rs, dtype)
     factored = [t for t in terms if isinstance(t, FactoredBlocks)]
     terms = [t for t in terms if not isinstance(t, FactoredBlocks)]
     bw = [t.bandwidth for t in terms]
@@ -442,7 +443,7 @@ def normal_equations(
                     WG = WG + _group_sum("qura,qurk->qak", t.JW[:, j].astype(dtype), JG, j, st)
     normal = _pin(Normal(FF, FW, WW, FG, WG, GG, C), st, frame_mask)
     cost = 0.5 * sum(jnp.sum(r * r) for r in rs)
-    return normal, jt_vector(terms + factored, st, [t.r for t in terms + factored], dtype), cost
+    return normal, grad, cost
 
 
 # --- blocks by colouring -----------------------------------------------------------------

@@ -12,8 +12,9 @@ unused). Two factorisations with one interface (`tridiagonal_factor`, `tridiagon
   have fewer rows per frame than coupled unknowns and there are no windows; a band given
   to `tridiagonal_factor` with "rows" is factorised by "scan".
 - **"cyclic"**: block cyclic reduction (with coupling rows as for "rows", `rows.py`'s
-  version, which keeps the off-diagonal blocks in the rows' space). The odd blocks are eliminated at once, leaving a
-  block-tridiagonal Schur complement on the even blocks (half as many), and so on:
+  version, which keeps the off-diagonal blocks in the rows' space). The odd blocks are
+  eliminated at once, leaving a block-tridiagonal Schur complement on the even blocks
+  (half as many), and so on:
   ⌈log₂ K⌉ levels of batched work, ≈ 6 N³ per block. It is Cholesky of A with the
   blocks reordered (odd ones first, level by level), hence as stable as the scan for SPD A.
 
@@ -180,12 +181,14 @@ def _cyclic_solve(f: CyclicFactor, b: Array) -> Array:
     for lev, z in zip(reversed(f.levels), reversed(zs)):
         Ko = z.shape[0]
         x_prev, x_next = x[:Ko], _pad(x[1:], Ko)
-        x_odd = _t(lev.L) @ (z - lev.P @ x_prev - lev.Q @ x_next)
-        # Interleave: even blocks at 0, 2, ..., odd ones at 1, 3, ...
-        K = x.shape[0] + Ko
-        out = jnp.zeros((K,) + x.shape[1:], x.dtype)
-        x = out.at[0::2].set(x).at[1::2].set(x_odd)
+        x = _interleave(x, _t(lev.L) @ (z - lev.P @ x_prev - lev.Q @ x_next))
     return x
+
+
+def _interleave(even: Array, odd: Array) -> Array:
+    """Blocks back in sequence order: even ones at 0, 2, ..., odd ones at 1, 3, ..."""
+    out = jnp.zeros((even.shape[0] + odd.shape[0],) + even.shape[1:], even.dtype)
+    return out.at[0::2].set(even).at[1::2].set(odd)
 
 
 def tridiagonal_factor(D: Array, U: Array, method: str | None = None) -> ScanFactor | CyclicFactor:
