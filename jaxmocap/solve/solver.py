@@ -260,13 +260,19 @@ def linearise(y: dict, args: Args, st: Structure, dtype, factor_dtype, tridiagon
 
 
 class _LMState(eqx.Module):
-    normal: Any
+    normal: Any  # the linearisation at y when not `stale`
     grad: tuple
     cost: Array
     lam: Array
     step: Array
     done: Array
     result: Array
+    stale: Array  # y moved since (or before) the last linearisation
+
+
+def _cost(residuals, dtype) -> Array:
+    """½ Σ r² over the residual leaves, in `dtype`."""
+    return 0.5 * sum(jnp.sum(r.astype(dtype) ** 2) for r in jtu.tree_leaves(residuals))
 
 
 def _report_step(step, max_steps, cost, accepted, done) -> None:
@@ -306,24 +312,35 @@ class VonMarcardLM(optx.AbstractLeastSquaresSolver):
         return args.structure(), dtype, self.factor_dtype or dtype
 
     def init(self, fn, y, args, options, f_struct, aux_struct, tags):
+        # The linearisation happens at the top of `step`, so that it is traced (and
+        # compiled) once, not also here: init holds zeros of its shape, marked stale.
         st, dtype, fdtype = self._setup(y, args)
-        normal, grad, cost = linearise(y, args, st, dtype, fdtype, self.tridiagonal)
+        res, _ = fn(y, args)
+        cost = _cost(res, fdtype)
+        shapes = jax.eval_shape(lambda: linearise(y, args, st, dtype, fdtype, self.tridiagonal)[:2])
+        normal, grad = jtu.tree_map(lambda s: jnp.zeros(s.shape, s.dtype), shapes)
         ok = jnp.isfinite(cost)
         return _LMState(
             normal, grad, cost, jnp.asarray(10.0, fdtype), jnp.asarray(0), ~ok,
-            jnp.where(ok, SUCCESSFUL, DIVERGENCE),
+            jnp.where(ok, SUCCESSFUL, DIVERGENCE), jnp.asarray(True),
         )  # fmt: skip
 
     def step(self, fn, y, args, options, state: _LMState, tags):
         st, dtype, fdtype = self._setup(y, args)
         layout = args.layout
-        f = factor(state.normal, st, state.lam, self.marquardt, self.tridiagonal)
-        dF, dW, dG = solve_factored(f, *state.grad)
+        # Linearise at y after an accepted step (and at the start); not after the last.
+        normal, grad = jax.lax.cond(
+            state.stale,
+            lambda: linearise(y, args, st, dtype, fdtype, self.tridiagonal)[:2],
+            lambda: (state.normal, state.grad),
+        )  # fmt: skip
+        f = factor(normal, st, state.lam, self.marquardt, self.tridiagonal)
+        dF, dW, dG = solve_factored(f, *grad)
         cast = lambda d: None if d is None else (-d).astype(dtype)  # noqa: E731
         delta = layout.unravel(cast(st.from_solver_order(dF)), cast(dW), cast(dG))
         y_new = from_manifold(retract(to_manifold(y, layout), delta, layout), layout)
         res_new, _ = fn(y_new, args)
-        cost_new = 0.5 * sum(jnp.sum(r.astype(fdtype) ** 2) for r in jtu.tree_leaves(res_new))
+        cost_new = _cost(res_new, fdtype)
         accept = jnp.isfinite(cost_new) & (cost_new < state.cost)
         # Cauchy-type test (as optimistix): an accepted step that changes neither the cost
         # nor the parameters noticeably, or a rejected step already negligible.
@@ -334,13 +351,7 @@ class VonMarcardLM(optx.AbstractLeastSquaresSolver):
         small_cost = (state.cost - cost_new) <= self.rtol * state.cost + self.atol
         converged = (accept & small_cost & small_step) | (~accept & small_step) | (state.lam > 1e10)
 
-        def relinearise(_):
-            return linearise(y_new, args, st, dtype, fdtype, self.tridiagonal)
-
-        def keep(_):
-            return state.normal, state.grad, state.cost
-
-        normal, grad, cost = jax.lax.cond(accept, relinearise, keep, None)
+        cost = jnp.where(accept, cost_new, state.cost)
         y_next = jtu.tree_map(lambda a, b: jnp.where(accept, a, b), y_new, y)
         step = state.step + 1
         done = converged | (step >= self.max_steps)
@@ -348,7 +359,7 @@ class VonMarcardLM(optx.AbstractLeastSquaresSolver):
         lam = jnp.where(accept, state.lam * 0.1, state.lam * 10.0)
         if self.progress:
             jax.debug.callback(_report_step, step, self.max_steps, cost, accept, done)
-        new = _LMState(normal, grad, cost, lam, step, done, jnp.where(done, result, state.result))
+        new = _LMState(normal, grad, cost, lam, step, done, jnp.where(done, result, state.result), accept)
         return y_next, new, None
 
     def terminate(self, fn, y, args, options, state: _LMState, tags):
