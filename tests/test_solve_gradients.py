@@ -68,18 +68,14 @@ def _five_point(f, theta, i, eps=1e-3):
 
 def test_gradients_through_solve_match_finite_differences():
     """d(solution scalar) / d(term weight, observation, per-sequence constant) by implicit
-    differentiation equals central differences, float64, also under vmap."""
+    differentiation equals central differences, float64. (Under vmap: the padded batch
+    test below.)"""
     _, _, _, theta, f, value_and_grad = _grad_fixture()
     _, grads = value_and_grad(*theta)
+    assert abs(float(grads[0])) > 1e-3
     for i, g in enumerate(grads):
         fd = _five_point(f, theta, i)
         assert abs(float(g) - fd) <= 1e-4 * abs(fd) + 1e-6, (i, float(g), fd)
-    # Under vmap: a batch of weights gives the per-member gradients.
-    ws = jnp.asarray([0.05, 0.2])
-    gv = jax.vmap(jax.grad(lambda w: f(w, theta[1], theta[2])))(ws)
-    assert abs(float(grads[0])) > 1e-3
-    np.testing.assert_allclose(gv[0], grads[0], rtol=1e-6)
-    np.testing.assert_allclose(gv[1], value_and_grad(ws[1], theta[1], theta[2])[1][0], rtol=1e-6)
 
 
 
@@ -105,7 +101,8 @@ def test_gradient_through_solve_with_a_gauge_freedom():
 
 
 def test_gradient_through_a_padded_batch():
-    """Padded frames change neither the solution nor its gradient w.r.t. per-member weights."""
+    """Padded frames change neither the solution nor its gradient w.r.t. per-member weights,
+    and a batch of two weights gives each member its own solve's gradient (vmap)."""
     problem, params, data, theta, _, value_and_grad = _grad_fixture()
     rng = np.random.default_rng(8)
 
@@ -117,12 +114,15 @@ def test_gradient_through_a_padded_batch():
     pparams, pdata = {k: pad(v) for k, v in params.items()}, {k: pad(v) for k, v in data.items()}
     mask = jnp.arange(8) < 6
 
-    def batched(w):
-        b = jax.tree_util.tree_map(lambda x: x[None], (pparams, pdata))
-        sol = solve_batch(problem, *b, mask[None], weights={"acc": w[None]}, **_KW)
-        return _scalar(jax.tree_util.tree_map(lambda x: x[0], sol.value))
+    def batched(w):  # w (2,): one weight per member; the members' scalars sum
+        b = jax.tree_util.tree_map(lambda x: jnp.stack([x, x]), (pparams, pdata))
+        sol = solve_batch(problem, *b, jnp.stack([mask, mask]), weights={"acc": w}, **_KW)
+        values = jax.vmap(_scalar)(sol.value)
+        return jnp.sum(values), values
 
-    vb, gb = jax.value_and_grad(batched)(theta[0])
-    vs, gs = value_and_grad(*theta)  # the single solve, compiled once for both tests
-    np.testing.assert_allclose(vb, vs, rtol=1e-9)
-    np.testing.assert_allclose(gb, gs[0], rtol=1e-6)
+    (_, vb), gb = jax.value_and_grad(batched, has_aux=True)(jnp.stack([theta[0], 0.2]))
+    for b, w in enumerate((theta[0], jnp.asarray(0.2, jnp.float64))):
+        vs, gs = value_and_grad(w, *theta[1:])  # the single solve, compiled once for both tests
+        np.testing.assert_allclose(vb[b], vs, rtol=1e-9)
+        np.testing.assert_allclose(gb[b], gs[0], rtol=1e-6)
+    assert abs(float(gb[0] - gb[1])) > 1e-3 * abs(float(gb[0]))  # the weights matter

@@ -259,6 +259,10 @@ def linearise(y: dict, args: Args, st: Structure, dtype, factor_dtype, tridiagon
     return normal_equations([blocks[k] for k in names], st, factor_dtype, args.frame_mask, tridiagonal)
 
 
+#: `linearise` as a nested jit: init's shape query and step's call share one trace.
+_linearise_once = eqx.filter_jit(linearise)
+
+
 class _LMState(eqx.Module):
     normal: Any  # the linearisation at y when not `stale`
     grad: tuple
@@ -317,7 +321,7 @@ class VonMarcardLM(optx.AbstractLeastSquaresSolver):
         st, dtype, fdtype = self._setup(y, args)
         res, _ = fn(y, args)
         cost = _cost(res, fdtype)
-        shapes = jax.eval_shape(lambda: linearise(y, args, st, dtype, fdtype, self.tridiagonal)[:2])
+        shapes = eqx.filter_eval_shape(_linearise_once, y, args, st, dtype, fdtype, self.tridiagonal)[:2]
         normal, grad = jtu.tree_map(lambda s: jnp.zeros(s.shape, s.dtype), shapes)
         ok = jnp.isfinite(cost)
         return _LMState(
@@ -331,7 +335,7 @@ class VonMarcardLM(optx.AbstractLeastSquaresSolver):
         # Linearise at y after an accepted step (and at the start); not after the last.
         normal, grad = jax.lax.cond(
             state.stale,
-            lambda: linearise(y, args, st, dtype, fdtype, self.tridiagonal)[:2],
+            lambda: _linearise_once(y, args, st, dtype, fdtype, self.tridiagonal)[:2],
             lambda: (state.normal, state.grad),
         )  # fmt: skip
         f = factor(normal, st, state.lam, self.marquardt, self.tridiagonal)
