@@ -247,7 +247,8 @@ def linearise(y: dict, args: Args, st: Structure, dtype, factor_dtype, tridiagon
         res, lin = jax.linearize(at, *zero)
         idx = [names.index(k) for k in ad]
         ad_cols = [(() if k in analytic else cols[i][0], cols[i][1], cols[i][2]) for k, i in zip(ad, idx)]
-        found = jacobian_blocks(lambda *t: [lin(*t)[k] for k in ad], st, dtype, [bw[i] for i in idx], ad_cols)
+        found = jacobian_blocks(lambda *t: [lin(*t)[k] for k in ad], st, dtype, [bw[i] for i in idx], ad_cols,
+                                [res[k].shape for k in ad])  # fmt: skip
         for k, b in zip(ad, found):
             blocks[k] = TermBlocks(res[k], b.JF, b.JW, b.JG)
     for k, (r, JF) in analytic.items():

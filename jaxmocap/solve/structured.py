@@ -449,7 +449,7 @@ def normal_equations(
 # --- blocks by colouring -----------------------------------------------------------------
 
 
-def jacobian_blocks(mv, st: Structure, dtype, bandwidths, columns) -> list[TermBlocks]:
+def jacobian_blocks(mv, st: Structure, dtype, bandwidths, columns, out_shapes=None) -> list[TermBlocks]:
     """Every non-zero Jacobian block of a linear map with the problem's structure.
 
     Args:
@@ -457,6 +457,7 @@ def jacobian_blocks(mv, st: Structure, dtype, bandwidths, columns) -> list[TermB
             residual leaves (T, ...), tangents in the layout's order (not solver order).
         bandwidths: per leaf; columns: per leaf, the (frame, window, sequence) column
             tuples it reads (the other blocks are zeros, not computed).
+        out_shapes: the shapes of mv's leaves where the caller knows them (else traced).
     Returns:
         One `TermBlocks` per leaf, residual r = 0 (the caller fills it in).
     """
@@ -464,7 +465,9 @@ def jacobian_blocks(mv, st: Structure, dtype, bandwidths, columns) -> list[TermB
     zF = jnp.zeros((T, n), dtype)
     zW = jnp.zeros((st.W, st.m), dtype) if st.W else None
     zG = jnp.zeros((st.g,), dtype) if st.g else None
-    rows = [int(np.prod(s.shape[1:])) for s in jax.eval_shape(mv, zF, zW, zG)]
+    if out_shapes is None:
+        out_shapes = [s.shape for s in jax.eval_shape(mv, zF, zW, zG)]
+    rows = [int(np.prod(shape[1:])) for shape in out_shapes]
     found = [dict() for _ in bandwidths]
     t = np.arange(T)
 
@@ -969,7 +972,7 @@ class StructuredCholesky(lx.AbstractLinearSolver):
         def mv(tF, tW, tG):
             return jtu.tree_leaves(jac_mv(self._tangent(tF, tW, tG)))
 
-        blocks = jacobian_blocks(mv, st, in_dtype, self.bandwidths, self.columns)
+        blocks = jacobian_blocks(mv, st, in_dtype, self.bandwidths, self.columns, [leaf.shape for leaf in out])
         normal, _, _ = normal_equations(blocks, st, dtype, self.frame_mask, self.tridiagonal)
         return factor(normal, st, 0.0 if damping is None else damping, False, self.tridiagonal), blocks, damping, None
 
