@@ -423,14 +423,17 @@ class Problem(eqx.Module):
         layout = self.layout(params)
         return self.residuals_on_manifold(to_manifold(params, layout), data, frame_mask, layout.T)
 
-    def residuals_on_manifold(self, x, data, frame_mask: Array | None = None, T: int | None = None) -> dict[str, Array]:
-        """As `residuals`, with `x` already in manifold form (rotations as matrices)."""
+    def residuals_on_manifold(self, x, data, frame_mask: Array | None = None, T: int | None = None,
+                              names=None) -> dict[str, Array]:  # fmt: skip
+        """As `residuals`, with `x` already in manifold form (rotations as matrices);
+        `names`: only these terms' (default: all)."""
         if T is None:
             spec = self.spec
             T = next(jnp.shape(v)[0] for k, v in x.items() if k not in spec or spec[k].kind == "frame")
         clean = _sanitise(data)
         views = self.views(x)
-        return {t.name: t.residual(views[t.name], clean, data, frame_mask, T) for t in self.terms}
+        terms = self.terms if names is None else [t for t in self.terms if t.name in names]
+        return {t.name: t.residual(views[t.name], clean, data, frame_mask, T) for t in terms}
 
     def costs(self, params, data, frame_mask: Array | None = None) -> dict[str, Array]:
         """Per-term costs ½ w Σ ρ(‖e‖²), the balance the solver struck."""

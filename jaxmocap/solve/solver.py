@@ -236,20 +236,25 @@ def linearise(y: dict, args: Args, st: Structure, dtype, factor_dtype, tridiagon
             plain = any(cols[names.index(k)][1:])  # window or sequence blocks to join
             analytic[k] = _analytic_blocks(t, views[k], clean, args.data, args.frame_mask, layout, st, dtype, plain)
     ad = [k for k in names if k not in analytic or any(cols[names.index(k)][1:])]
-    if ad:
-        sub = Problem([terms[k] for k in ad], dict(problem.unknowns))
-        zero = layout.ravel(layout.zeros(dtype))
+    zero = layout.ravel(layout.zeros(dtype))
+    # One linearisation per kind of term (bandwidth, window and sequence columns read): each
+    # linear map is traced once per colouring it needs, with only the terms that need it.
+    kinds = {}
+    for k in ad:
+        i = names.index(k)
+        kinds.setdefault((bw[i], bool(cols[i][1]), bool(cols[i][2])), []).append(k)
+    for group in kinds.values():
 
-        def at(dF, dW, dG):
+        def at(dF, dW, dG, group=group):
             moved = retract(x, layout.unravel(dF, dW, dG), layout)
-            return sub.residuals_on_manifold(moved, args.data, args.frame_mask, layout.T)
+            return problem.residuals_on_manifold(moved, args.data, args.frame_mask, layout.T, group)
 
         res, lin = jax.linearize(at, *zero)
-        idx = [names.index(k) for k in ad]
-        ad_cols = [(() if k in analytic else cols[i][0], cols[i][1], cols[i][2]) for k, i in zip(ad, idx)]
-        found = jacobian_blocks(lambda *t: [lin(*t)[k] for k in ad], st, dtype, [bw[i] for i in idx], ad_cols,
-                                [res[k].shape for k in ad])  # fmt: skip
-        for k, b in zip(ad, found):
+        idx = [names.index(k) for k in group]
+        ad_cols = [(() if k in analytic else cols[i][0], cols[i][1], cols[i][2]) for k, i in zip(group, idx)]
+        found = jacobian_blocks(lambda *t, lin=lin, group=group: [lin(*t)[k] for k in group], st, dtype,
+                                [bw[i] for i in idx], ad_cols, [res[k].shape for k in group])  # fmt: skip
+        for k, b in zip(group, found):
             blocks[k] = TermBlocks(res[k], b.JF, b.JW, b.JG)
     for k, (r, JF) in analytic.items():
         extra = blocks.get(k)

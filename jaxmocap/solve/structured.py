@@ -553,6 +553,8 @@ def hessian_normal(hvp, st: Structure, dtype, frame_mask: Array | None = None) -
     zG = jnp.zeros((st.g,), dtype) if st.g else None
     C = 2 * st.B2 + 1
     eye = jnp.eye(n, dtype=dtype)
+    # hvp's linear part, traced once: each colour then skips hvp's primal (gradient) pass.
+    _, hvp = jax.linearize(hvp, zF, zW, zG)
 
     def per_colour(c):
         tF = (jnp.asarray(t % C) == c)[None, :, None].astype(dtype) * eye[:, None, :]
@@ -996,10 +998,11 @@ class StructuredCholesky(lx.AbstractLinearSolver):
             # x = (H + εD)⁻¹ b, then iterative refinement x ← x + (H + εD)⁻¹ (b - H x): each
             # round shrinks the ridge's error by ~ε·cond(H); a gauge (null) component of x
             # stays bounded and does not reach gauge-invariant outputs.
-            x = solve_dict(vector)
-            for _ in range(self.refinements):
+            def refine(_, x):  # a loop, not unrolled: H and the solve traced once
                 r = jtu.tree_map(lambda b, hx: b - hx, vector, operator.mv(x))
-                x = jtu.tree_map(jnp.add, x, solve_dict(r))
+                return jtu.tree_map(jnp.add, x, solve_dict(r))
+
+            x = jax.lax.fori_loop(0, self.refinements, refine, solve_dict(vector))
             return x, lx.RESULTS.successful, {}
         r = vector if damping is None else vector[0]
         bF, bW, bG = jt_vector(blocks, st, jtu.tree_leaves(r), f.sF.dtype)
