@@ -110,11 +110,10 @@ def rows_solve(f: RowsFactor, b: Array) -> Array:
 
 class RowsCyclicLevel(eqx.Module):
     """One level: L_o⁻¹ of the odd super-blocks, their couplings in the rows' space
-    (P_o = Pa_o Y_{o-1}, Q_o = Qa_o Z_o) and those rows' bases."""
+    (P_o = Pa_o Y_{o-1}, Q_o = Qa_o Z_o, PQ = [Pa Qa]) and those rows' bases."""
 
     L: Array  # (Ko, N, N)
-    Pa: Array  # (Ko, N, r)
-    Qa: Array  # (Ko, N, r)
+    PQ: Array  # (Ko, N, 2r)
     Y: Array  # (Ko, r, N) of the even block before each odd one
     Z: Array  # (Ko, r, N) of the even block after it
 
@@ -134,8 +133,9 @@ def _band_from_rows(C: Array, e: int) -> Array:
 
 
 def _super_blocks(P0: Array, C: Array):
-    """D (Kb, N, N) diagonal super-blocks of G = 2B frames, and Y, Z (Kb, r, N): the 2B·R
-    rows straddling the boundary after block k on blocks k and k+1 (U_k = Y_kᵀ Z_k)."""
+    """Hb: the band H_{s,s+e} (e = 0..G-1) as (Kb, G, n, n) arrays by super-block, for
+    `_diagonal`, and Y, Z (Kb, r, N): the 2B·R rows straddling the boundary after block k on blocks k
+    and k+1 (U_k = Y_kᵀ Z_k)."""
     T, n = P0.shape[:2]
     B, R = (C.shape[1] - 1) // 2, C.shape[2]
     G = 2 * B
@@ -146,10 +146,6 @@ def _super_blocks(P0: Array, C: Array):
     C = jnp.pad(C, ((0, pad + 2 * B), (0, 0), (0, 0), (0, 0)))  # rows past the end: zero
     H = [P0] + [_band_from_rows(C, e)[: Kb * G] for e in range(1, G)]
     Hb = [h.reshape((Kb, G, n, n)) for h in H]
-    D = jnp.concatenate([
-        jnp.concatenate([Hb[i2 - i][:, i] if i2 >= i else _t(Hb[i - i2][:, i2]) for i2 in range(G)], -1)
-        for i in range(G)
-    ], -2)  # fmt: skip
     # Row q of the boundary after block k is frame t = (k+1)G - B + q; it reads frame i of
     # block k at offset i - q and frame i of block k+1 at offset i - q + 2B.
     rows = C[G - B :][: Kb * G].reshape((Kb, G) + C.shape[1:])  # (Kb, q, 2B+1, R, n)
@@ -160,7 +156,18 @@ def _super_blocks(P0: Array, C: Array):
     Z = jnp.concatenate([
         jnp.concatenate([rows[:, q, i - q + 2 * B] if i <= q else zero for i in range(G)], -1) for q in range(G)
     ], 1)  # fmt: skip
-    return D, Y, Z
+    return Hb, Y, Z
+
+
+def _diagonal(Hb: list, start: int, step: int, count: int) -> Array:
+    """D_k (count, N, N) of super-blocks k = start, start + step, ..., built from the band
+    where it is needed: each block is factorised once, so the whole D is never written."""
+    G = len(Hb)
+    Hk = [h[start::step][:count] for h in Hb]
+    return jnp.concatenate([
+        jnp.concatenate([Hk[i2 - i][:, i] if i2 >= i else _t(Hk[i - i2][:, i2]) for i2 in range(G)], -1)
+        for i in range(G)
+    ], -2)  # fmt: skip
 
 
 def rows_cyclic_factor(P0: Array, C: Array) -> RowsCyclicFactor:
@@ -176,27 +183,41 @@ def rows_cyclic_factor(P0: Array, C: Array) -> RowsCyclicFactor:
     r × r instead of N × N (SIP: r = 36 against N = 102; "cyclic" in `tridiagonal.py`
     forms the dense U). The same elimination order as that cyclic reduction, so the
     same pivots.
+
+    A block's bases never change (Y of block k is that of its right boundary, Z_{k-1} of its
+    left one, at every level), so its updates are summed as r × r matrices A_k, B_k,
+    D_k = D⁰_k - Y_kᵀ A_k Y_k - Z_{k-1}ᵀ B_k Z_{k-1}, and D_k is formed once, when it is
+    factorised: no N × N array is rewritten per level (on a GPU the time was moving them).
+    Level ℓ's blocks are the original ones k·2^ℓ, sliced from Y, Z and the band directly.
     """
-    D, Y, Z = _super_blocks(P0, C)
-    r = Y.shape[1]
-    M = jnp.broadcast_to(jnp.eye(r, dtype=D.dtype), (D.shape[0], r, r))
-    M = M.at[-1].set(0.0)  # no block after the last
+    Hb, Y, Z = _super_blocks(P0, C)
+    Kb, r, N = Y.shape
+    dtype = Y.dtype
+    A = Bz = jnp.zeros((Kb, r, r), dtype)  # the summed updates through Y_k and Z_{k-1}
+    M = jnp.broadcast_to(jnp.eye(r, dtype=dtype), (Kb, r, r)).at[-1].set(0.0)  # no block after the last
     levels = []
-    while D.shape[0] > 1:
-        K = D.shape[0]
+    K, s = Kb, 1  # blocks on this level, their stride in the original ones
+    while K > 1:
         Ke, Ko = (K + 1) // 2, K // 2
-        L = inverse_cholesky(D[1::2], CYCLIC_BASE if Ko >= CYCLIC_RECURSIVE_BLOCKS else D.shape[-1])
-        Ye, Me, Zo, Mo = Y[0::2][:Ko], M[0::2][:Ko], Z[1::2], M[1::2]
-        LZY = L @ jnp.concatenate([_t(Z[0::2][:Ko]), _t(Y[1::2])], -1)  # (Ko, N, 2r)
-        Pa, Qa = LZY[..., :r] @ _t(Me), LZY[..., r:] @ Mo
-        PQ = jnp.concatenate([Pa, Qa], -1)
-        S = _t(PQ) @ PQ  # [[PaᵀPa, PaᵀQa], [., QaᵀQa]]
-        levels.append(RowsCyclicLevel(L, Pa, Qa, Ye, Zo))
-        left = _t(Ye) @ (S[:, :r, :r] @ Ye)  # on the even block before each odd one
-        right = _t(Zo) @ (S[:, r:, r:] @ Zo)  # ... and after it
-        D = D[0::2] - _pad(left, Ke) - _shift_down(right, Ke)
-        Y, Z, M = Y[0::2], _pad(Zo, Ke), _pad(-S[:, :r, r:], Ke)
-    return RowsCyclicFactor(tuple(levels), inverse_cholesky(D, D.shape[-1]))
+        W = jnp.concatenate([Z[s - 1 :: 2 * s][:Ko], Y[s :: 2 * s][:Ko]], 1)  # (Ko, 2r, N): Z_{o-1}, Y_o
+        D = _diagonal(Hb, s, 2 * s, Ko)
+        if s > 1:  # nothing to subtract on the first level
+            Sd = jnp.concatenate([_pad_cols(Bz[1::2], 2 * r, 0), _pad_cols(A[1::2], 2 * r, r)], 1)
+            D = D - jnp.einsum("kan,kam->knm", W, jnp.einsum("kab,kbm->kam", Sd, W))
+        L = inverse_cholesky(D, CYCLIC_BASE if Ko >= CYCLIC_RECURSIVE_BLOCKS else N)
+        Me, Mo = M[0::2][:Ko], M[1::2]
+        Md = jnp.concatenate([_pad_cols(_t(Me), 2 * r, 0), _pad_cols(Mo, 2 * r, r)], 1)  # [Meᵀ 0; 0 Mo]
+        PQ = jnp.einsum("knm,kam->kna", L, jnp.einsum("kba,kbm->kam", Md, W))  # [Pa Qa]
+        S = jnp.einsum("kna,knb->kab", PQ, PQ)  # [[PaᵀPa, PaᵀQa], [., QaᵀQa]]
+        levels.append(RowsCyclicLevel(L, PQ, Y[0 :: 2 * s][:Ko], _pad(Z[2 * s - 1 :: 2 * s], Ko)))
+        A, Bz, M = A[0::2] + _pad(S[:, :r, :r], Ke), Bz[0::2] + _shift_down(S[:, r:, r:], Ke), _pad(-S[:, :r, r:], Ke)
+        K, s = Ke, 2 * s
+    D = _diagonal(Hb, 0, 1, 1) - jnp.einsum("kan,kab,kbm->knm", Y[:1], A, Y[:1])  # block 0: no left boundary
+    return RowsCyclicFactor(tuple(levels), inverse_cholesky(D, N))
+
+
+def _pad_cols(x: Array, width: int, at: int) -> Array:
+    return jnp.pad(x, ((0, 0), (0, 0), (at, width - at - x.shape[-1])))
 
 
 def rows_cyclic_solve(f: RowsCyclicFactor, b: Array) -> Array:
@@ -208,13 +229,14 @@ def rows_cyclic_solve(f: RowsCyclicFactor, b: Array) -> Array:
     b = jnp.pad(b, ((0, Kb * G - T), (0, 0), (0, 0))).reshape(Kb, N, k)
     zs = []
     for lev in f.levels:
-        Ke = (b.shape[0] + 1) // 2
+        Ke, r = (b.shape[0] + 1) // 2, lev.Y.shape[1]
         z = lev.L @ b[1::2]
         zs.append(z)
-        b = b[0::2] - _pad(_t(lev.Y) @ (_t(lev.Pa) @ z), Ke) - _shift_down(_t(lev.Z) @ (_t(lev.Qa) @ z), Ke)
+        t = _t(lev.PQ) @ z  # [Paᵀ z; Qaᵀ z]
+        b = b[0::2] - _pad(_t(lev.Y) @ t[:, :r], Ke) - _shift_down(_t(lev.Z) @ t[:, r:], Ke)
     x = _t(f.last) @ (f.last @ b)
     for lev, z in zip(reversed(f.levels), reversed(zs)):
         Ko = z.shape[0]
-        x_prev, x_next = x[:Ko], _pad(x[1:], Ko)
-        x = _interleave(x, _t(lev.L) @ (z - lev.Pa @ (lev.Y @ x_prev) - lev.Qa @ (lev.Z @ x_next)))
+        u = jnp.concatenate([lev.Y @ x[:Ko], lev.Z @ _pad(x[1:], Ko)], 1)  # x_{o-1}, x_{o+1} in the rows
+        x = _interleave(x, _t(lev.L) @ (z - lev.PQ @ u))
     return x.reshape(Kb * G, n, k)[:T]
