@@ -280,7 +280,7 @@ def test_dip_pickle_input(body, tmp_path):
 
 def test_padded_batch_equals_separate_fits(body):
     """SIP on a padded batch (9 and 12 frames, analytic Jacobians, per-frame elimination,
-    masks) gives each sequence its separate fit on its real frames."""
+    masks) gives the padded sequence its separate fit on its real frames."""
     sc = _scenario(body, "sip6", IMUErrorModel.xsens(), 12)
     long = I.from_scenario(sc, 0, body)
     short = eqx_set_frames(long, 9)
@@ -289,11 +289,11 @@ def test_padded_batch_equals_separate_fits(body):
     assert stacked.num_frames == 12 and mask.sum(1).tolist() == [9, 12]
     init = jnp.stack([jnp.concatenate([sops[0], jnp.repeat(sops[0][-1:], 3, 0)]), sops[1]])
     batch = I.sparse_inertial_poser_batch(stacked, init, frame_mask=mask, max_steps=8)
-    for b, (setup, sop) in enumerate(zip((short, long), sops)):
-        alone = I.sparse_inertial_poser(setup, init=sop, max_steps=8)
-        T = setup.num_frames
-        np.testing.assert_allclose(batch.value["pose"][b, :T], alone.poses, atol=2e-3)
-        assert abs(float(batch.cost[b]) - float(alone.solution.cost)) <= 1e-3 * float(alone.solution.cost)
+    # The padded member against its own fit (an unpadded member equals its fit by
+    # test_solve.py's batch-of-one test; one SIP compile less here).
+    alone = I.sparse_inertial_poser(short, init=sops[0], max_steps=8)
+    np.testing.assert_allclose(batch.value["pose"][0, :9], alone.poses, atol=2e-3)
+    assert abs(float(batch.cost[0]) - float(alone.solution.cost)) <= 1e-3 * float(alone.solution.cost)
     # Padded frames keep their start (up to the exp/log round trip of re-anchoring).
     np.testing.assert_allclose(batch.value["pose"][0, 9:], init[0, 9:], atol=1e-5)
 
