@@ -130,7 +130,7 @@ def test_energy_gradients_are_finite(scene):
         seen = to_manifold(p, problem.layout(p))
         return sum(jnp.sum(t.fn(seen, data) ** 2) for t in problem.terms)
 
-    grads = jax.grad(energy)(layout_params)
+    grads = jax.jit(jax.grad(energy))(layout_params)  # one compile, not op by op
     for k, g in grads.items():
         assert np.isfinite(np.asarray(g)).all(), k
     assert float(jnp.abs(grads["heading"]).sum()) > 0  # the heading does enter the energy
