@@ -185,11 +185,13 @@ def test_compact_body_gives_the_same_keypoints_joints_and_silhouette_terms(scene
     joints = mv._weighted(mv._stage_one_problem(w.sigma, w.silhouette_stride, w.silhouette_slack, False), w, jnp.float32)
     small = mv.compact(data, 0)
     assert small.body.num_vertices < 0.15 * body.num_vertices and not small.pose_blend
+    compact_costs = joints.costs(params, small)
     for k, v in joints.costs(params, data).items():
-        np.testing.assert_allclose(float(joints.costs(params, small)[k]), float(v), rtol=1e-5, err_msg=k)
+        np.testing.assert_allclose(float(compact_costs[k]), float(v), rtol=1e-5, err_msg=k)
     strided = mv.compact(data, None, w.silhouette_stride)  # the full body's model points: E_S unchanged
+    strided_costs = full.costs(params, strided)
     for k, v in full.costs(params, data).items():
-        np.testing.assert_allclose(float(full.costs(params, strided)[k]), float(v), rtol=1e-4, err_msg=k)
+        np.testing.assert_allclose(float(strided_costs[k]), float(v), rtol=1e-4, err_msg=k)
     pose = axis_angle_to_matrix(params["pose"])
     want = forward(body, params["pose"], params["betas"], params["trans"]).joints
     got = ec._posed({"pose": pose, "trans": params["trans"], "betas": params["betas"]}, small).joints
