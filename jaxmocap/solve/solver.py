@@ -15,8 +15,8 @@ Solvers (`method=`, or any optimistix least-squares solver as `solver=`):
   step, ×0.1 on an accepted one, manifold unknowns updated x ← x ⊕ δ and re-anchored
   after every accepted step (eq. 2.56-2.60). Jacobian blocks (a term's analytic
   `Term.jacobian`, else forward-mode AD by colouring over what the term `reads`) and H
-  are built once per accepted iterate; a rejected step only refactorises with the new
-  λ. Levenberg damping is the default: on the SIP problem Marquardt's diag(JᵀJ) scaling
+  are built once per accepted iterate, at the top of the step that leaves it (so never
+  for the last), and compiled once; a rejected step only refactorises with the new λ. Levenberg damping is the default: on the SIP problem Marquardt's diag(JᵀJ) scaling
   let joints seen only by the 0.003-weight prior take multi-radian steps.
 - ``"optx_lm"`` / ``"optx_gn"`` — `optx.LevenbergMarquardt` / `optx.GaussNewton` with the
   structured factorisation as their linear solver (`StructuredCholesky`); they iterate
