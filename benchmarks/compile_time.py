@@ -7,10 +7,14 @@ same cases in the same order, on the same machine:
 - `sip_ad`: the same terms with their Jacobians by AD colouring (two bandwidths: the
   orientation and prior terms per frame, the acceleration term over three frames);
 - `sip_gradient`: d(final cost)/d(acceleration weight) through the SIP solve (the
-  implicit adjoint with the structured Hessian), jitted whole.
+  implicit adjoint with the structured Hessian), jitted whole;
+- `vip`: the Video Inertial Poser's fusion (AD-coloured terms, per-sensor headings and
+  the camera as sequence unknowns), 24 frames of walking x 30 LM steps.
 
 `compile_s` is the first call (trace, XLA compile and one run) minus the median of three
-more; `ratio` = now / before. float32, the default body "low", SOP start given.
+more, the least over `--repeats` fresh processes per engine (run alternately: this
+machine's compile times vary by tens of percent); `ratio` = now / before. float32, the
+default body "low", SOP start given.
 
     python benchmarks/compile_time.py --before 82c9f8a     # writes results/compile_time.json
 """
@@ -30,7 +34,7 @@ sys.path.insert(0, str(Path(__file__).parent))
 from _common import machine, write_json  # noqa: E402
 from _v1 import ROOT, v1_path  # noqa: E402
 
-CASES = ("sip", "sip_ad", "sip_gradient")
+CASES = ("sip", "sip_ad", "sip_gradient", "vip")
 
 
 def _cases(frames: int, steps: int) -> dict:
@@ -38,7 +42,11 @@ def _cases(frames: int, steps: int) -> dict:
     import jax.numpy as jnp
     from sip_speed import _setup
 
+    from jaxmocap.body.io import default_body
     from jaxmocap.methods import inertial
+    from jaxmocap.methods import visual_inertial as vip
+    from jaxmocap.sensors import DetectorErrorModel, IMUErrorModel, make_scenario
+    from jaxmocap.sensors.scenario import vip_config
     from jaxmocap.solve import Problem, Term, solve
     from jaxmocap.solve.batch import with_weights
 
@@ -51,10 +59,15 @@ def _cases(frames: int, steps: int) -> dict:
     weight = jnp.asarray(next(t.weight for t in problem.terms if t.name == "acc"), jnp.float32)
     cost = lambda w: solve(with_weights(problem, {"acc": w}), params, setup.data, **it).cost  # noqa: E731
     grad = jax.jit(jax.grad(cost))
+    body = default_body("low")
+    cfg = vip_config(max_frames=24, imu_errors=IMUErrorModel.off(), detector=DetectorErrorModel.off())
+    vdata, _, bones = vip.from_scenario(make_scenario(["walk"], cfg, seed=3, body=body), 0, body)
+    tracked = vip.inertial_tracker(vdata, bones)
     return {
         "sip": lambda: solve(problem, params, setup.data, **it).value["pose"],
         "sip_ad": lambda: solve(plain, params, setup.data, **it).value["pose"],
         "sip_gradient": lambda: grad(weight),
+        "vip": lambda: vip.video_inertial_poser(vdata, bones, init=tracked, max_steps=30).poses,
     }
 
 
@@ -100,6 +113,7 @@ def main(argv=None) -> int:
     p.add_argument("--before", help="the engine at this commit (build/engine_<commit>, extracted from git or carried)")
     p.add_argument("--frames", type=int, default=100)
     p.add_argument("--steps", type=int, default=10)
+    p.add_argument("--repeats", type=int, default=2, help="fresh processes per engine (the least compile time counts)")
     p.add_argument("--suffix", default="", help="results/compile_time_<suffix>.json")
     p.add_argument("--child", action="store_true", help="internal: time the cases in this process")
     p.add_argument("--json-out", help="internal (--child): where to write the timings")
@@ -107,11 +121,23 @@ def main(argv=None) -> int:
     if args.child:
         return _child(args)
 
-    now = _run_child(ROOT, args)
-    result = {"benchmark": "compile_time", "machine": machine(), "frames": args.frames, "lm_steps": args.steps,
-              "now": now}  # fmt: skip
+    engines = {"now": ROOT}
     if args.before:
-        before = _run_child(v1_path(args.before, ROOT / "build" / f"engine_{args.before}"), args)
+        engines["before"] = v1_path(args.before, ROOT / "build" / f"engine_{args.before}")
+    runs = {name: [] for name in engines}
+    for _ in range(args.repeats):
+        for name, package in engines.items():
+            runs[name].append(_run_child(package, args))
+    summary = {
+        name: {"jaxmocap": rs[0]["jaxmocap"], "runs": rs,
+               "cases": {k: min((r["cases"][k] for r in rs), key=lambda c: c["compile_s"]) for k in CASES}}
+        for name, rs in runs.items()
+    }  # fmt: skip
+    now = summary["now"]
+    result = {"benchmark": "compile_time", "machine": machine(), "frames": args.frames, "lm_steps": args.steps,
+              "repeats": args.repeats, "now": now}  # fmt: skip
+    if args.before:
+        before = summary["before"]
         result["before"] = dict(before, commit=args.before)
         result["ratio"] = {k: now["cases"][k]["compile_s"] / before["cases"][k]["compile_s"] for k in CASES}
         for k in CASES:
