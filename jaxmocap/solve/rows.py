@@ -133,9 +133,9 @@ def _band_from_rows(C: Array, e: int) -> Array:
 
 
 def _super_blocks(P0: Array, C: Array):
-    """Hb: the band H_{s,s+e} (e = 0..G-1) as (Kb, G, n, n) arrays by super-block, for
-    `_diagonal`, and Y, Z (Kb, r, N): the 2B·R rows straddling the boundary after block k on blocks k
-    and k+1 (U_k = Y_kᵀ Z_k)."""
+    """Hb: the band H_{s,s+e} (e = 0..G-1) as (Kb, G, n, n) arrays by super-block (for
+    `_diagonal`), and Y, Z (Kb, r, N): the 2B·R rows straddling the boundary after block
+    k on blocks k and k+1 (U_k = Y_kᵀ Z_k)."""
     T, n = P0.shape[:2]
     B, R = (C.shape[1] - 1) // 2, C.shape[2]
     G = 2 * B
@@ -202,11 +202,11 @@ def rows_cyclic_factor(P0: Array, C: Array) -> RowsCyclicFactor:
         W = jnp.concatenate([Z[s - 1 :: 2 * s][:Ko], Y[s :: 2 * s][:Ko]], 1)  # (Ko, 2r, N): Z_{o-1}, Y_o
         D = _diagonal(Hb, s, 2 * s, Ko)
         if s > 1:  # nothing to subtract on the first level
-            Sd = jnp.concatenate([_pad_cols(Bz[1::2], 2 * r, 0), _pad_cols(A[1::2], 2 * r, r)], 1)
+            Sd = _block_diag(Bz[1::2], A[1::2])
             D = D - jnp.einsum("kan,kam->knm", W, jnp.einsum("kab,kbm->kam", Sd, W))
         L = inverse_cholesky(D, CYCLIC_BASE if Ko >= CYCLIC_RECURSIVE_BLOCKS else N)
         Me, Mo = M[0::2][:Ko], M[1::2]
-        Md = jnp.concatenate([_pad_cols(_t(Me), 2 * r, 0), _pad_cols(Mo, 2 * r, r)], 1)  # [Meᵀ 0; 0 Mo]
+        Md = _block_diag(_t(Me), Mo)
         PQ = jnp.einsum("knm,kam->kna", L, jnp.einsum("kba,kbm->kam", Md, W))  # [Pa Qa]
         S = jnp.einsum("kna,knb->kab", PQ, PQ)  # [[PaᵀPa, PaᵀQa], [., QaᵀQa]]
         levels.append(RowsCyclicLevel(L, PQ, Y[0 :: 2 * s][:Ko], _pad(Z[2 * s - 1 :: 2 * s], Ko)))
@@ -216,8 +216,10 @@ def rows_cyclic_factor(P0: Array, C: Array) -> RowsCyclicFactor:
     return RowsCyclicFactor(tuple(levels), inverse_cholesky(D, N))
 
 
-def _pad_cols(x: Array, width: int, at: int) -> Array:
-    return jnp.pad(x, ((0, 0), (0, 0), (at, width - at - x.shape[-1])))
+def _block_diag(a: Array, b: Array) -> Array:
+    """[a 0; 0 b] for batches of square blocks (K, r, r): both halves of W in one product."""
+    za, zb = jnp.zeros_like(a), jnp.zeros_like(b)
+    return jnp.concatenate([jnp.concatenate([a, za], -1), jnp.concatenate([zb, b], -1)], -2)
 
 
 def rows_cyclic_solve(f: RowsCyclicFactor, b: Array) -> Array:
