@@ -96,7 +96,9 @@ def test_gradient_through_solve_with_a_gauge_freedom():
         return jnp.sum(second_difference(x)[1:-1] ** 2)
 
     g = float(jax.grad(f)(0.0))
-    fd = float((f(1e-4) - f(-1e-4)) / 2e-4)
+    # The solves stop on the cost (rtol 1e-12), which pins this output to ~1e-9 only: a
+    # step of 1e-4 left differences at that level (1 % off under another LLVM -O level).
+    fd = float((f(1e-3) - f(-1e-3)) / 2e-3)
     assert np.isfinite(g) and abs(g - fd) <= 1e-4 * abs(fd), (g, fd)
 
 
