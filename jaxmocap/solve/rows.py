@@ -21,6 +21,12 @@ P_s are exactly the pivots of the frame-order block Cholesky of H (`tridiagonal.
 per frame drop from ≈ 6 (Bn)³ to ≈ n³ + 3 n² (2B+1) R (SIP: 3.0 → 0.5 Mflop), and the
 off-diagonal blocks of H are never formed. Substitution carries the rows' part of the
 right-hand side forward (ν) and the last 2B frames of x backward.
+
+On the CPU the scan runs at about 20 GFLOP/s on one core (SIP, T = 1000: 43 ms, 19 of
+them the pivots' inverse factors). Eliminating from both ends at once would not help
+there: two independent 500-frame scans, or one vmapped over both, took as long as the
+1000-frame one (XLA:CPU ran them one after the other), and no base of
+`inverse_cholesky` between 8 and 51 was faster.
 """
 
 from __future__ import annotations
