@@ -17,6 +17,12 @@ machine's compile times vary by tens of percent); `ratio` = now / before. float3
 default body "low", SOP start given.
 
     python benchmarks/compile_time.py --before 82c9f8a     # writes results/compile_time.json
+
+`--xla-flags FLAGS` times this engine a second way, its processes run with FLAGS added to
+XLA_FLAGS (key `with_flags`, and `flags_ratio`: compile and steady time with / without),
+e.g. LLVM's optimisation level, which the test suite lowers (tests/conftest.py):
+
+    python benchmarks/compile_time.py --xla-flags=--xla_backend_optimization_level=1 --suffix llvm_o1
 """
 
 from __future__ import annotations
@@ -95,10 +101,12 @@ def _child(args) -> int:
     return 0
 
 
-def _run_child(package: Path, args) -> dict:
+def _run_child(package: Path, args, flags: str | None = None) -> dict:
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "out.json"
         env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(package), str(Path(__file__).parent)]))
+        if flags:
+            env["XLA_FLAGS"] = " ".join(filter(None, [os.environ.get("XLA_FLAGS"), flags]))
         cmd = [sys.executable, __file__, "--child", "--json-out", str(out), "--frames", str(args.frames),
                "--steps", str(args.steps)]  # fmt: skip
         subprocess.run(cmd, env=env, check=True)
@@ -114,6 +122,7 @@ def main(argv=None) -> int:
     p.add_argument("--frames", type=int, default=100)
     p.add_argument("--steps", type=int, default=10)
     p.add_argument("--repeats", type=int, default=2, help="fresh processes per engine (the least compile time counts)")
+    p.add_argument("--xla-flags", help="also time this engine with these flags added to XLA_FLAGS (key with_flags)")
     p.add_argument("--suffix", default="", help="results/compile_time_<suffix>.json")
     p.add_argument("--child", action="store_true", help="internal: time the cases in this process")
     p.add_argument("--json-out", help="internal (--child): where to write the timings")
@@ -121,13 +130,15 @@ def main(argv=None) -> int:
     if args.child:
         return _child(args)
 
-    engines = {"now": ROOT}
+    engines = {"now": (ROOT, None)}
     if args.before:
-        engines["before"] = v1_path(args.before, ROOT / "build" / f"engine_{args.before}")
+        engines["before"] = (v1_path(args.before, ROOT / "build" / f"engine_{args.before}"), None)
+    if args.xla_flags:
+        engines["with_flags"] = (ROOT, args.xla_flags)
     runs = {name: [] for name in engines}
     for _ in range(args.repeats):
-        for name, package in engines.items():
-            runs[name].append(_run_child(package, args))
+        for name, (package, flags) in engines.items():
+            runs[name].append(_run_child(package, args, flags))
     summary = {
         name: {"jaxmocap": rs[0]["jaxmocap"], "runs": rs,
                "cases": {k: min((r["cases"][k] for r in rs), key=lambda c: c["compile_s"]) for k in CASES}}
@@ -143,6 +154,15 @@ def main(argv=None) -> int:
         for k in CASES:
             print(f"{k}: compile {now['cases'][k]['compile_s']:.2f} s against {before['cases'][k]['compile_s']:.2f} s "
                   f"at {args.before} (ratio {result['ratio'][k]:.3f})")  # fmt: skip
+    if args.xla_flags:
+        flagged = summary["with_flags"]
+        result["with_flags"] = dict(flagged, xla_flags=args.xla_flags)
+        result["flags_ratio"] = {
+            k: {t: flagged["cases"][k][t] / now["cases"][k][t] for t in ("compile_s", "steady_s")} for k in CASES
+        }
+        for k in CASES:
+            r = result["flags_ratio"][k]
+            print(f"{k} with {args.xla_flags}: compile {r['compile_s']:.3f}x, steady {r['steady_s']:.3f}x")
     path = write_json(f"compile_time{'_' + args.suffix if args.suffix else ''}.json", result)
     print(f"wrote {path}")
     return 0

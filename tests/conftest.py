@@ -3,9 +3,9 @@
 import os
 from pathlib import Path
 
-# The suite is compile-bound: LLVM at -O1 compiles 10-25 % faster here with no slower
-# steady state on SIP (benchmarks/compile_time.py's cases). Set before JAX starts its
-# backend; subprocesses inherit it.
+# The suite is compile-bound: LLVM at -O1 compiled its cases 5-20 % faster here at about
+# the same steady speed (benchmarks/results/compile_time_llvm_o1.json; the suite 15:29 ->
+# 14:21). Set before JAX starts its backend; subprocesses inherit it.
 os.environ["XLA_FLAGS"] = " ".join(filter(None, [os.environ.get("XLA_FLAGS"), "--xla_backend_optimization_level=1"]))
 
 import jax  # noqa: E402
