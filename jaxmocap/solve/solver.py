@@ -16,7 +16,8 @@ Solvers (`method=`, or any optimistix least-squares solver as `solver=`):
   after every accepted step (eq. 2.56-2.60). Jacobian blocks (a term's analytic
   `Term.jacobian`, else forward-mode AD by colouring over what the term `reads`) and H
   are built once per accepted iterate, at the top of the step that leaves it (so never
-  for the last), and compiled once; a rejected step only refactorises with the new λ. Levenberg damping is the default: on the SIP problem Marquardt's diag(JᵀJ) scaling
+  for the last), and compiled once; a rejected step only refactorises with the new λ.
+  Levenberg damping is the default: on the SIP problem Marquardt's diag(JᵀJ) scaling
   let joints seen only by the 0.003-weight prior take multi-radian steps.
 - ``"optx_lm"`` / ``"optx_gn"`` — `optx.LevenbergMarquardt` / `optx.GaussNewton` with the
   structured factorisation as their linear solver (`StructuredCholesky`); they iterate
@@ -52,6 +53,7 @@ from .structured import (
     Structure,
     StructuredCholesky,
     TermBlocks,
+    _cost,
     factor,
     full_precision,
     jacobian_blocks,
@@ -278,11 +280,6 @@ class _LMState(eqx.Module):
     done: Array
     result: Array
     stale: Array  # y moved since (or before) the last linearisation
-
-
-def _cost(residuals, dtype) -> Array:
-    """½ Σ r² over the residual leaves, in `dtype`."""
-    return 0.5 * sum(jnp.sum(r.astype(dtype) ** 2) for r in jtu.tree_leaves(residuals))
 
 
 def _report_step(step, max_steps, cost, accepted, done) -> None:

@@ -442,8 +442,12 @@ def normal_equations(
                 for j in range(K):
                     WG = WG + _group_sum("qura,qurk->qak", t.JW[:, j].astype(dtype), JG, j, st)
     normal = _pin(Normal(FF, FW, WW, FG, WG, GG, C), st, frame_mask)
-    cost = 0.5 * sum(jnp.sum(r * r) for r in rs)
-    return normal, grad, cost
+    return normal, grad, _cost(rs, dtype)
+
+
+def _cost(residuals, dtype) -> Array:
+    """½ Σ r² over the residual leaves, in `dtype` (the LM's and the linearisation's)."""
+    return 0.5 * sum(jnp.sum(r.astype(dtype) ** 2) for r in jtu.tree_leaves(residuals))
 
 
 # --- blocks by colouring -----------------------------------------------------------------
