@@ -283,6 +283,9 @@ def solve_batch(
     """
     if method not in METHODS:
         raise ValueError(f"method must be one of {METHODS}, got {method!r}.")
+    if tridiagonal == "twisted":
+        raise ValueError('tridiagonal="twisted" splits one sequence over two devices; solve_batch spreads '
+                         'the sequences over the devices instead: use "rows" (CPU) or "cyclic", or None.')  # fmt: skip
     _check_max_steps(max_steps)
     for k, v in (weights or {}).items():
         check_weight(f"weights[{k!r}]", v)

@@ -23,10 +23,15 @@ off-diagonal blocks of H are never formed. Substitution carries the rows' part o
 right-hand side forward (ν) and the last 2B frames of x backward.
 
 On the CPU the scan runs at about 20 GFLOP/s on one core (SIP, T = 1000: 43 ms, 19 of
-them the pivots' inverse factors). Eliminating from both ends at once would not help
-there: two independent 500-frame scans, or one vmapped over both, took as long as the
-1000-frame one (XLA:CPU ran them one after the other), and no base of
-`inverse_cholesky` between 8 and 51 was faster.
+them the pivots' inverse factors), and XLA:CPU runs independent loops of one device one
+after the other (two 500-frame scans in one jit, or one vmapped over both, took as long
+as the 1000-frame one; no base of `inverse_cholesky` between 8 and 51 was faster). So
+eliminating from both ends at once ("twisted", `rows_twisted_factor`) pays only with
+each half on its own device: on this 2-core CPU as two host devices the scan took 39 →
+21 ms, and SIP 1000 × 20 0.95× the one-device "rows" time with params and data split
+over the devices along frames (`shard_frames`; 0.90× in a probe), 1.14× without (the
+rest of the step then runs replicated on both; `benchmarks/sip_two_devices.py`). The
+linearisation, half the step, did not get faster from the split inputs.
 """
 
 from __future__ import annotations
@@ -34,12 +39,16 @@ from __future__ import annotations
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jax import Array
 
 from ..timeseries import shift_frames
 from .tridiagonal import CYCLIC_BASE, CYCLIC_RECURSIVE_BLOCKS, SCAN_BASE, _interleave, _pad, _shift_down, _t, inverse_cholesky
 
-__all__ = ["RowsFactor", "RowsCyclicFactor", "rows_factor", "rows_solve", "rows_cyclic_factor", "rows_cyclic_solve", "scale_rows"]
+__all__ = [
+    "RowsFactor", "RowsTwistedFactor", "RowsCyclicFactor", "rows_factor", "rows_solve", "rows_twisted_factor",
+    "rows_twisted_solve", "frame_halves", "twisted_halves_on_devices", "rows_cyclic_factor", "rows_cyclic_solve", "scale_rows",
+]  # fmt: skip
 
 
 class RowsFactor(eqx.Module):
@@ -68,13 +77,9 @@ def scale_rows(C: Array, s: Array) -> Array:
     return jnp.stack([C[:, j] * shift_frames(s, B - j)[:, None, :] for j in range(2 * B + 1)], 1)
 
 
-def rows_factor(P0: Array, C: Array) -> RowsFactor:
-    """Factorise H = blocks P0 (T, n, n) on the diagonal (all of H_ss, the rows' part
-    included) and off-diagonal blocks Σ_t C_tᵀ C_t, C (T, 2B+1, R, n)."""
-    B, R = (C.shape[1] - 1) // 2, C.shape[2]
-    o = 2 * B * R
-    E = _on_frame(C, 0)
-    F = jnp.stack([_on_frame(C, k) for k in range(1, 2 * B + 1)], 2)
+def _rows_scan(P0: Array, E: Array, o: int):
+    """The elimination of frames 0 .. T-1 in order: (M_T, L, K); see the module docstring."""
+    R = E.shape[1] - o
 
     def step(M, PE):
         P, Es = PE
@@ -84,31 +89,190 @@ def rows_factor(P0: Array, C: Array) -> RowsFactor:
         M_next = K[:, R:].T @ K[:, R:] + jnp.pad(M[R:, R:], ((0, R), (0, R)))
         return M_next, (Linv, K)
 
-    _, (L, K) = jax.lax.scan(step, jnp.zeros((o, o), P0.dtype), (P0, E))
+    return jax.lax.scan(step, jnp.zeros((o, o), P0.dtype), (P0, E))
+
+
+def rows_factor(P0: Array, C: Array) -> RowsFactor:
+    """Factorise H = blocks P0 (T, n, n) on the diagonal (all of H_ss, the rows' part
+    included) and off-diagonal blocks Σ_t C_tᵀ C_t, C (T, 2B+1, R, n)."""
+    B, R = (C.shape[1] - 1) // 2, C.shape[2]
+    o = 2 * B * R
+    E = _on_frame(C, 0)
+    F = jnp.stack([_on_frame(C, k) for k in range(1, 2 * B + 1)], 2)
+    _, (L, K) = _rows_scan(P0, E, o)
     return RowsFactor(L, K, E[:, :o], F)
+
+
+def _forward(f: RowsFactor, b: Array) -> tuple[Array, Array]:
+    """The forward substitution: (ν after the last frame, w)."""
+    o = f.Eo.shape[1]
+    R = f.K.shape[-1] - o
+
+    def step(nu, LKEb):
+        L, K, Eo, bs = LKEb
+        w = L @ (bs - Eo.T @ nu)
+        return (jnp.pad(nu, ((0, R), (0, 0))) + K.T @ w)[R:], w
+
+    return jax.lax.scan(step, jnp.zeros((o, b.shape[-1]), b.dtype), (f.L, f.K, f.Eo, b))
+
+
+def _backward(f: RowsFactor, w: Array, after: Array) -> Array:
+    """The back substitution, given x on the 2B frames after the last (`after`, (2B, n, k))."""
+
+    def step(xs, LKFw):
+        L, K, F, ws = LKFw
+        x = L.T @ (ws - K @ jnp.einsum("rjn,jnk->rk", F, xs))
+        return jnp.concatenate([x[None], xs[:-1]], 0), x
+
+    return jax.lax.scan(step, after, (f.L, f.K, f.F, w), reverse=True)[1]
 
 
 def rows_solve(f: RowsFactor, b: Array) -> Array:
     """H⁻¹ b for b (T, n, k)."""
     n, k = b.shape[1:]
     B = f.F.shape[2] // 2
-    R = f.K.shape[-1] // (2 * B + 1)
+    _, w = _forward(f, b)
+    return _backward(f, w, jnp.zeros((2 * B, n, k), b.dtype))
 
-    def forward(nu, LKEb):
-        L, K, Eo, bs = LKEb
-        w = L @ (bs - Eo.T @ nu)
-        nu_next = (jnp.pad(nu, ((0, R), (0, 0))) + K.T @ w)[R:]
-        return nu_next, w
 
-    _, w = jax.lax.scan(forward, jnp.zeros((2 * B * R, k), b.dtype), (f.L, f.K, f.Eo, b))
+# --- twisted: both ends at once, meeting on 2B frames in the middle ---------------------
 
-    def backward(xs, LKFw):
-        L, K, F, ws = LKFw
-        x = L.T @ (ws - K @ jnp.einsum("rjn,jnk->rk", F, xs))
-        return jnp.concatenate([x[None], xs[:-1]], 0), x
 
-    _, x = jax.lax.scan(backward, jnp.zeros((2 * B, n, k), b.dtype), (f.L, f.K, f.F, w), reverse=True)
-    return x
+class RowsTwistedFactor(eqx.Module):
+    """`halves`: `RowsFactor`s (leading axis 2) of frames [0, m) in order and of frames
+    [m+2B, T) in reverse order, the shorter one padded in front with decoupled identity
+    frames; Y (2, 2BR, 2Bn): each half's rows that straddle into the middle frames
+    I = [m, m+2B), in the half's own frame order; L: the inverse factor of the Schur
+    complement on I; `on_devices`: the halves' work runs on two devices."""
+
+    halves: RowsFactor
+    Y: Array
+    L: Array
+    m: int = eqx.field(static=True)
+    on_devices: bool = eqx.field(static=True)
+
+
+def _reverse(C: Array) -> Array:
+    """The coupling rows in reverse frame order: group t -> T-1-t, offset j -> 2B-j."""
+    return C[::-1, ::-1]
+
+
+def _straddling(C: Array, s: int) -> Array:
+    """Y_s (2BR, 2Bn): the rows of groups s-B .. s+B-1 on frames s .. s+2B-1 (the rows the
+    elimination of frames < s leaves its fill in, in the order of the scan's M)."""
+    B, R, n = (C.shape[1] - 1) // 2, C.shape[2], C.shape[3]
+    zero = jnp.zeros((R, n), C.dtype)
+    return jnp.concatenate([
+        jnp.concatenate([C[s - B + i, k - i + 2 * B] if k <= i else zero for k in range(2 * B)], 1) for i in range(2 * B)
+    ], 0)  # fmt: skip
+
+
+def _middle(P0: Array, C: Array, m: int) -> Array:
+    """H on frames m .. m+2B-1, dense (2Bn, 2Bn)."""
+    B, n = (C.shape[1] - 1) // 2, P0.shape[1]
+    G = 2 * B
+    blocks = [[None] * G for _ in range(G)]
+    for a in range(G):
+        blocks[a][a] = P0[m + a]
+        for b in range(a + 1, G):  # groups g reading both frames m+a and m+b
+            gs = range(max(m + b - B, 0), min(m + a + B, C.shape[0] - 1) + 1)
+            Hab = sum((C[g, m + a - g + B].T @ C[g, m + b - g + B] for g in gs), jnp.zeros((n, n), P0.dtype))
+            blocks[a][b], blocks[b][a] = Hab, Hab.T
+    return jnp.block(blocks)
+
+
+def _flip(x: Array, G: int) -> Array:
+    """Reverse the order of the G frame blocks along x's leading axis (and its second, if square)."""
+    n = x.shape[0] // G
+    if x.ndim == 2 and x.shape[1] == x.shape[0]:
+        return x.reshape(G, n, G, n)[::-1, :, ::-1].reshape(x.shape)
+    return x.reshape((G, n) + x.shape[1:])[::-1].reshape(x.shape)
+
+
+def _front_pad(x: Array, count: int, fill: Array | None = None) -> Array:
+    if count == 0:
+        return x
+    pad = jnp.zeros((count,) + x.shape[1:], x.dtype) if fill is None else jnp.broadcast_to(fill, (count,) + x.shape[1:])
+    return jnp.concatenate([pad, x], 0)
+
+
+def twisted_middle(T: int, B: int) -> int:
+    """m, the first of the 2B middle frames: the halves [0, m) and [m+2B, T) differ by at most one frame."""
+    return (T - 2 * B) // 2
+
+
+def twisted_halves_on_devices() -> bool:
+    """Whether "twisted" puts its halves on two devices: the default backend has two."""
+    return jax.local_device_count() >= 2
+
+
+def frame_halves(on_devices: bool):
+    """`f` -> f mapped over a leading axis of 2: on the first two local devices (one half
+    each, `shard_map`) or, with `on_devices` False, on one (`vmap`)."""
+    if not on_devices:
+        return jax.vmap
+    mesh = jax.sharding.Mesh(np.array(jax.local_devices()[:2]), ("halves",))
+    spec = jax.sharding.PartitionSpec("halves")
+
+    def halves(f):
+        def one(*args):  # each device's share of the leading axis is one half
+            out = f(*jax.tree.map(lambda x: x[0], args))
+            return jax.tree.map(lambda x: x[None], out)
+
+        return jax.shard_map(one, mesh=mesh, in_specs=spec, out_specs=spec, check_vma=False)
+
+    return halves
+
+
+def _half_factor(P0: Array, C: Array) -> tuple[Array, RowsFactor]:
+    """`rows_factor` of frames [0, h) for P0 (h, n, n) and the groups C (h+B, ...) that read
+    them, keeping the scan's last M (the fill the half leaves on the frames after it)."""
+    h, B, R = P0.shape[0], (C.shape[1] - 1) // 2, C.shape[2]
+    o = 2 * B * R
+    E = _on_frame(C, 0)[:h]
+    F = jnp.stack([_on_frame(C, k)[:h] for k in range(1, 2 * B + 1)], 2)
+    M, (L, K) = _rows_scan(P0, E, o)
+    return M, RowsFactor(L, K, E[:, :o], F)
+
+
+def rows_twisted_factor(P0: Array, C: Array, on_devices: bool = False) -> RowsTwistedFactor:
+    """`rows_factor`'s elimination run from both ends at once: frames [0, m) in order and
+    [m+2B, T) in reverse, as two independent halves (on two devices with `on_devices`, see
+    `frame_halves`), then the 2B middle frames I.
+
+    A half's elimination leaves its fill on I as Y_hᵀ M_h Y_h (`_rows_scan`'s M after its
+    last frame), and no row reads both halves, so the Schur complement on I is
+    H_II - Σ_h Y_hᵀ M_h Y_h, factorised densely (2Bn). Every pivot of the halves is a pivot
+    of a block Cholesky of H in a frame order (the halves' own), so the numerics are the
+    scan's. Needs T ≥ 4B + 2 (two frames per half at least)."""
+    T, n = P0.shape[:2]
+    B = (C.shape[1] - 1) // 2
+    G = 2 * B
+    m = twisted_middle(T, B)
+    h = T - G - m  # the second half's length, m or m + 1
+    Cr = _reverse(C)
+    P2 = jnp.stack([_front_pad(P0[:m], h - m, jnp.eye(n, dtype=P0.dtype)), P0[::-1][:h]])
+    C2 = jnp.stack([_front_pad(C[: m + B], h - m), Cr[: h + B]])
+    M2, halves = frame_halves(on_devices)(_half_factor)(P2, C2)
+    Y = jnp.stack([_straddling(C, m), _straddling(Cr, h)])
+    fill = jnp.einsum("hai,hab,hbj->hij", Y, M2, Y)
+    S = _middle(P0, C, m) - fill[0] - _flip(fill[1], G)
+    return RowsTwistedFactor(halves, Y, inverse_cholesky(S, SCAN_BASE), m, on_devices)
+
+
+def rows_twisted_solve(f: RowsTwistedFactor, b: Array) -> Array:
+    """H⁻¹ b for b (T, n, k) with a `RowsTwistedFactor`."""
+    T, n, k = b.shape
+    G = f.Y.shape[-1] // n
+    m, h = f.m, T - G - f.m
+    halves = frame_halves(f.on_devices)
+    b2 = jnp.stack([_front_pad(b[:m], h - m), b[::-1][:h]])
+    nu2, w2 = halves(_forward)(f.halves, b2)
+    rhs = jnp.einsum("hai,hak->hik", f.Y, nu2)
+    xI = b[m : m + G].reshape(G * n, k) - rhs[0] - _flip(rhs[1], G)
+    xI = (_t(f.L) @ (f.L @ xI)).reshape(G, n, k)
+    x2 = halves(_backward)(f.halves, w2, jnp.stack([xI, xI[::-1]]))
+    return jnp.concatenate([x2[0, h - m :], xI, x2[1, ::-1]], 0)
 
 
 # --- cyclic reduction on the rows: the same representation, O(log T) depth ----------------

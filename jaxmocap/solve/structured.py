@@ -57,7 +57,8 @@ from jax import Array
 
 from ..timeseries import shift_frames
 
-from .rows import RowsCyclicFactor, RowsFactor, rows_cyclic_factor, rows_cyclic_solve, rows_factor, rows_solve, scale_rows
+from .rows import RowsCyclicFactor, RowsFactor, RowsTwistedFactor, rows_cyclic_factor, rows_cyclic_solve, rows_factor, rows_solve
+from .rows import rows_twisted_factor, rows_twisted_solve, scale_rows, twisted_halves_on_devices
 from .tridiagonal import (
     CyclicFactor,
     ScanFactor,
@@ -370,11 +371,11 @@ def _pin(normal: Normal, st: Structure, frame_mask: Array | None) -> Normal:
 
 def uses_rows(st: Structure, rows: int, tridiagonal: str | None) -> bool:
     """Whether the frame band is factorised in its coupling rows' space (`rows.py`):
-    "rows" (the CPU's default) or "cyclic" (accelerators') asked for, a band to
+    "rows" (the CPU's default), "twisted" or "cyclic" (accelerators') asked for, a band to
     factorise, no windows (their super-blocks need the band's), and fewer coupling rows
     per frame than coupled unknowns (otherwise the band is the smaller representation)."""
     method = tridiagonal or default_tridiagonal_method()
-    return method in ("rows", "cyclic") and st.B2 > 0 and st.nc > 0 and not st.W and 0 < rows < st.nc
+    return method in ("rows", "twisted", "cyclic") and st.B2 > 0 and st.nc > 0 and not st.W and 0 < rows < st.nc
 
 
 def _coupling_rows(JF: list[Array], bw, st: Structure) -> Array:
@@ -611,7 +612,7 @@ class Factor(eqx.Module):
     sG: Array | None
     L_local_inv: Array | None  # (T, n_l, n_l) inverse Cholesky factors of H_ll
     X: Array | None  # (T, n_l, nc + K m + g): L_ll⁻¹ [H_lc | H_lW | H_lG]
-    tri: ScanFactor | CyclicFactor | RowsFactor | RowsCyclicFactor | None  # the coupled frames (+ windows)
+    tri: ScanFactor | CyclicFactor | RowsFactor | RowsTwistedFactor | RowsCyclicFactor | None  # the coupled frames (+ windows)
     Y: Array | None  # (Kb, N, g) or, with rows, (T, nc, g): A⁻¹ C
     S_inv: Array | None  # (g, g) inverse Cholesky factor of the border's Schur complement
     st: Structure = eqx.field(static=True)
@@ -651,7 +652,7 @@ def _pad_to(x: Array, length: int, fill_eye: bool = False) -> Array:
 def _to_blocks(xF: Array | None, xW: Array | None, st: Structure, tri=None) -> Array:
     """Coupled frame (T, nc, ...) and window (W, m, ...) parts -> super-block vectors (Kb, N, ...)
     (frames as they are for the coupling rows' factors, which have no windows)."""
-    if isinstance(tri, (RowsFactor, RowsCyclicFactor)):
+    if isinstance(tri, (RowsFactor, RowsTwistedFactor, RowsCyclicFactor)):
         return xF
     G, r, Kb = st.blocking()
     parts = []
@@ -663,7 +664,7 @@ def _to_blocks(xF: Array | None, xW: Array | None, st: Structure, tri=None) -> A
 
 
 def _from_blocks(x: Array, st: Structure, tri=None):
-    if isinstance(tri, (RowsFactor, RowsCyclicFactor)):
+    if isinstance(tri, (RowsFactor, RowsTwistedFactor, RowsCyclicFactor)):
         return x, None
     G, r, Kb = st.blocking()
     xF = xW = None
@@ -740,10 +741,10 @@ def factor(
 ) -> Factor:
     """Factorise H + λI (or H + λ diag(H), eq. 2.54) in its structure (module docstring).
 
-    tridiagonal: "scan", "cyclic", "rows" or None (the backend's default), see
-    `tridiagonal.py`; a `normal` with coupling rows (`normal_equations` with "rows" or
-    "cyclic") is factorised by `rows.py`, in frame order or by cyclic reduction ("cyclic");
-    "rows" without them by "scan".
+    tridiagonal: "scan", "cyclic", "rows", "twisted" or None (the backend's default), see
+    `tridiagonal.py`; a `normal` with coupling rows (`normal_equations` with "rows",
+    "twisted" or "cyclic") is factorised by `rows.py`, in frame order, from both ends
+    ("twisted") or by cyclic reduction ("cyclic"); "rows" and "twisted" without them by "scan".
     """
     T, n, nc, K, m, g = st.T, st.n, st.nc, st.K, st.m, st.g
     FF = list(normal.FF)
@@ -799,8 +800,13 @@ def factor(
     tri = Y = S_inv = None
     G, r, Kb = st.blocking()
     if normal.C is not None:
-        by_rows = rows_cyclic_factor if (tridiagonal or default_tridiagonal_method()) == "cyclic" else rows_factor
-        tri = by_rows(FF[0], scale_rows(normal.C, sF[:, :nc]))
+        method, C = tridiagonal or default_tridiagonal_method(), scale_rows(normal.C, sF[:, :nc])
+        if method == "cyclic":
+            tri = rows_cyclic_factor(FF[0], C)
+        elif method == "twisted" and T >= 2 * C.shape[1]:  # two frames per half at least
+            tri = rows_twisted_factor(FF[0], C, twisted_halves_on_devices())
+        else:
+            tri = rows_factor(FF[0], C)
     elif Kb:
         tri = tridiagonal_factor(*_assemble(FF, FW, WW, st), tridiagonal)
     if g:
@@ -819,6 +825,8 @@ def _coupled_solve(tri, b: Array) -> Array:
         return rows_solve(tri, b)
     if isinstance(tri, RowsCyclicFactor):
         return rows_cyclic_solve(tri, b)
+    if isinstance(tri, RowsTwistedFactor):
+        return rows_twisted_solve(tri, b)
     return tridiagonal_solve(tri, b)
 
 
