@@ -31,7 +31,12 @@ each half on its own device: on this 2-core CPU as two host devices the scan too
 21 ms, and SIP 1000 × 20 0.95× the one-device "rows" time with params and data split
 over the devices along frames (`shard_frames`; 0.90× in a probe), 1.14× without (the
 rest of the step then runs replicated on both; `benchmarks/sip_two_devices.py`). The
-linearisation, half the step, did not get faster from the split inputs.
+linearisation, half the step, gains little from two devices even with no communication
+(two 503-frame windows, one per device: 55.6 ms against 62.3 ms for 1000 frames on one):
+one device already keeps both cores busy there. On a GPU the frame-order scans are
+latency-bound, so "twisted" (both halves batched) helps a big batch where "rows" is
+used: 1000 × 1000 × 20 SIP in chunks of 250 on one H100 in 18.9 s against "rows"' 24.2 s,
+but cyclic reduction took 16.1 s (chunk 500 did not fit; `benchmarks/sip_chunks.py`).
 """
 
 from __future__ import annotations
