@@ -100,12 +100,18 @@ def _rows_scan(P0: Array, E: Array, o: int):
 def rows_factor(P0: Array, C: Array) -> RowsFactor:
     """Factorise H = blocks P0 (T, n, n) on the diagonal (all of H_ss, the rows' part
     included) and off-diagonal blocks Σ_t C_tᵀ C_t, C (T, 2B+1, R, n)."""
-    B, R = (C.shape[1] - 1) // 2, C.shape[2]
+    return _factor_with_fill(P0, C)[1]
+
+
+def _factor_with_fill(P0: Array, C: Array) -> tuple[Array, RowsFactor]:
+    """`rows_factor` of frames [0, h) for P0 (h, n, n) and the groups C (≥ h, ...) that read
+    them, with the scan's last M (the fill those frames leave on the frames after them)."""
+    h, B, R = P0.shape[0], (C.shape[1] - 1) // 2, C.shape[2]
     o = 2 * B * R
-    E = _on_frame(C, 0)
-    F = jnp.stack([_on_frame(C, k) for k in range(1, 2 * B + 1)], 2)
-    _, (L, K) = _rows_scan(P0, E, o)
-    return RowsFactor(L, K, E[:, :o], F)
+    E = _on_frame(C, 0)[:h]
+    F = jnp.stack([_on_frame(C, k)[:h] for k in range(1, 2 * B + 1)], 2)
+    M, (L, K) = _rows_scan(P0, E, o)
+    return M, RowsFactor(L, K, E[:, :o], F)
 
 
 def _forward(f: RowsFactor, b: Array) -> tuple[Array, Array]:
@@ -187,11 +193,8 @@ def _middle(P0: Array, C: Array, m: int) -> Array:
 
 
 def _flip(x: Array, G: int) -> Array:
-    """Reverse the order of the G frame blocks along x's leading axis (and its second, if square)."""
-    n = x.shape[0] // G
-    if x.ndim == 2 and x.shape[1] == x.shape[0]:
-        return x.reshape(G, n, G, n)[::-1, :, ::-1].reshape(x.shape)
-    return x.reshape((G, n) + x.shape[1:])[::-1].reshape(x.shape)
+    """Reverse the order of the G frame blocks along x's leading axis."""
+    return x.reshape((G, x.shape[0] // G) + x.shape[1:])[::-1].reshape(x.shape)
 
 
 def _front_pad(x: Array, count: int, fill: Array | None = None) -> Array:
@@ -229,17 +232,6 @@ def frame_halves(on_devices: bool):
     return halves
 
 
-def _half_factor(P0: Array, C: Array) -> tuple[Array, RowsFactor]:
-    """`rows_factor` of frames [0, h) for P0 (h, n, n) and the groups C (h+B, ...) that read
-    them, keeping the scan's last M (the fill the half leaves on the frames after it)."""
-    h, B, R = P0.shape[0], (C.shape[1] - 1) // 2, C.shape[2]
-    o = 2 * B * R
-    E = _on_frame(C, 0)[:h]
-    F = jnp.stack([_on_frame(C, k)[:h] for k in range(1, 2 * B + 1)], 2)
-    M, (L, K) = _rows_scan(P0, E, o)
-    return M, RowsFactor(L, K, E[:, :o], F)
-
-
 def rows_twisted_factor(P0: Array, C: Array, on_devices: bool = False) -> RowsTwistedFactor:
     """`rows_factor`'s elimination run from both ends at once: frames [0, m) in order and
     [m+2B, T) in reverse, as two independent halves (on two devices with `on_devices`, see
@@ -258,10 +250,10 @@ def rows_twisted_factor(P0: Array, C: Array, on_devices: bool = False) -> RowsTw
     Cr = _reverse(C)
     P2 = jnp.stack([_front_pad(P0[:m], h - m, jnp.eye(n, dtype=P0.dtype)), P0[::-1][:h]])
     C2 = jnp.stack([_front_pad(C[: m + B], h - m), Cr[: h + B]])
-    M2, halves = frame_halves(on_devices)(_half_factor)(P2, C2)
+    M2, halves = frame_halves(on_devices)(_factor_with_fill)(P2, C2)
     Y = jnp.stack([_straddling(C, m), _straddling(Cr, h)])
     fill = jnp.einsum("hai,hab,hbj->hij", Y, M2, Y)
-    S = _middle(P0, C, m) - fill[0] - _flip(fill[1], G)
+    S = _middle(P0, C, m) - fill[0] - _flip(_flip(fill[1], G).T, G).T  # both axes in frame order
     return RowsTwistedFactor(halves, Y, inverse_cholesky(S, SCAN_BASE), m, on_devices)
 
 

@@ -61,7 +61,7 @@ from .rows import RowsCyclicFactor, RowsFactor, RowsTwistedFactor, rows_cyclic_f
 from .rows import rows_twisted_factor, rows_twisted_solve, scale_rows, twisted_halves_on_devices
 from .tridiagonal import (
     CyclicFactor,
-    TWISTED_ONE_DEVICE,
+    TWISTED_METHODS,
     ScanFactor,
     default_tridiagonal_method,
     inverse_cholesky,
@@ -376,7 +376,7 @@ def uses_rows(st: Structure, rows: int, tridiagonal: str | None) -> bool:
     factorise, no windows (their super-blocks need the band's), and fewer coupling rows
     per frame than coupled unknowns (otherwise the band is the smaller representation)."""
     method = tridiagonal or default_tridiagonal_method()
-    return method in ("rows", "twisted", TWISTED_ONE_DEVICE, "cyclic") and st.B2 > 0 and st.nc > 0 and not st.W and 0 < rows < st.nc
+    return method in ("rows", "cyclic") + TWISTED_METHODS and st.B2 > 0 and st.nc > 0 and not st.W and 0 < rows < st.nc
 
 
 def _coupling_rows(JF: list[Array], bw, st: Structure) -> Array:
@@ -804,7 +804,7 @@ def factor(
         method, C = tridiagonal or default_tridiagonal_method(), scale_rows(normal.C, sF[:, :nc])
         if method == "cyclic":
             tri = rows_cyclic_factor(FF[0], C)
-        elif method in ("twisted", TWISTED_ONE_DEVICE) and T >= 2 * C.shape[1]:  # two frames per half at least
+        elif method in TWISTED_METHODS and T >= 2 * C.shape[1]:  # two frames per half at least
             tri = rows_twisted_factor(FF[0], C, method == "twisted" and twisted_halves_on_devices())
         else:
             tri = rows_factor(FF[0], C)

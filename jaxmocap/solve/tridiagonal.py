@@ -46,6 +46,7 @@ __all__ = ["TRIDIAGONAL_METHODS", "tridiagonal_factor", "tridiagonal_solve", "de
 TRIDIAGONAL_METHODS = ("rows", "twisted", "scan", "cyclic")
 #: "twisted" with both halves on one device (batched): what `solve_batch` runs for it.
 TWISTED_ONE_DEVICE = "twisted_one_device"
+TWISTED_METHODS = ("twisted", TWISTED_ONE_DEVICE)
 
 #: `inverse_cholesky`'s base size in the scan, where each step factorises one block and
 #: every extra operation costs its dispatch: the whole scan factorisation of SIP's 500
@@ -202,9 +203,9 @@ def tridiagonal_factor(D: Array, U: Array, method: str | None = None) -> ScanFac
     method: "scan", "cyclic", "rows" or "twisted" (here "scan") or None (`default_tridiagonal_method`).
     """
     method = method or default_tridiagonal_method()
-    if method not in TRIDIAGONAL_METHODS + (TWISTED_ONE_DEVICE,):
+    if method not in TRIDIAGONAL_METHODS + TWISTED_METHODS:
         raise ValueError(f"tridiagonal method {method!r}: use one of {TRIDIAGONAL_METHODS}.")
-    if method in ("scan", "rows", "twisted", TWISTED_ONE_DEVICE):
+    if method in ("scan", "rows") + TWISTED_METHODS:
         return _scan_factor(D, U)
     return _cyclic_factor(D, U.at[-1].set(0.0))
 
