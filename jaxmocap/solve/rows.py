@@ -39,7 +39,9 @@ used: 1000 × 1000 × 20 SIP in chunks of 250 on one H100 in 18.9 s against "row
 but cyclic reduction took 16.1 s (chunk 500 did not fit; `benchmarks/sip_chunks.py`).
 Nor would bigger chunks close that gap: timed alone, a step's factorisation and solve
 took "twisted" 0.96 ms per sequence in chunks of 125 and 0.69 ms in chunks of 250 (no
-longer latency-bound), cyclic reduction 0.57 ms in chunks of 125 (`--step`).
+longer latency-bound), cyclic reduction 0.57 ms in chunks of 125 (`--step`). Recording
+the scans' loops as CUDA graphs (`XLA_FLAGS=--xla_gpu_enable_command_buffer=+WHILE`)
+changed nothing ("twisted" at 125: 129 ms per step with and without, one H100).
 """
 
 from __future__ import annotations
