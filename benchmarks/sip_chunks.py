@@ -131,10 +131,11 @@ def main(argv=None) -> int:
         os.unlink(out)
         runs.append(row)
         print({k: v for k, v in row.items() if k != "auto_plan"}, flush=True)
-    kind = "step" if args.step else "solve"
-    payload = {"benchmark": f"sip_chunks ({kind})", "description": __doc__.split("\n\n")[3 if args.step else 2].replace("\n", " "),
-               "sequences": args.sequences, "frames": args.frames, "lm_iterations": args.iters,
-               "machine": machine(), "runs": runs}  # fmt: skip
+    payload = {"benchmark": "sip_chunks (step)" if args.step else "sip_chunks",
+               "description": __doc__.split("\n\n")[3 if args.step else 2].replace("\n", " "),
+               "frames": args.frames, "machine": machine(), "runs": runs}  # fmt: skip
+    if not args.step:  # a step run solves nothing: no sequences or iterations
+        payload.update(sequences=args.sequences, lm_iterations=args.iters)
     name = f"sip_chunks_step_{args.suffix}.json" if args.step else f"sip_chunks_{args.suffix}.json"
     print("wrote", write_json(name, payload))
     return 0
