@@ -57,9 +57,9 @@ def make_sparse(weights_np):
     return sparse, K
 
 
-def library(weights):
-    """The library's sparse loop with each vertex's 4 largest of these weights."""
-    return lambda T, v: kinematics._blend_sparse(weights, T, v, 4)
+def library(weights, influences: int):
+    """The library's sparse loop over each vertex's `influences` largest weights."""
+    return lambda T, v: kinematics._blend_sparse(weights, T, v, influences)
 
 
 def main():
@@ -71,7 +71,7 @@ def main():
     sparse, K = make_sparse(np.asarray(body.weights))
     coherent = default_body("full").weights[: body.num_vertices]
     coherent = coherent / coherent.sum(1, keepdims=True)
-    variants = {"library_random_weights": library(body.weights), "library_default_body_weights": library(coherent),
+    variants = {"library_random_weights": library(body.weights, K), "library_default_body_weights": library(coherent, K),
                 "floor": lambda T, v: v * 1.0001 + 1.0}  # fmt: skip
     rows = []
     for N in args.batches:

@@ -650,10 +650,14 @@ def _pad_to(x: Array, length: int, fill_eye: bool = False) -> Array:
     return jnp.concatenate([x, filler], 0)
 
 
+#: The factorisations in the coupling rows' space: frames as they are, no super-blocks.
+_ROWS_FACTORS = (RowsFactor, RowsTwistedFactor, RowsCyclicFactor)
+
+
 def _to_blocks(xF: Array | None, xW: Array | None, st: Structure, tri=None) -> Array:
     """Coupled frame (T, nc, ...) and window (W, m, ...) parts -> super-block vectors (Kb, N, ...)
     (frames as they are for the coupling rows' factors, which have no windows)."""
-    if isinstance(tri, (RowsFactor, RowsTwistedFactor, RowsCyclicFactor)):
+    if isinstance(tri, _ROWS_FACTORS):
         return xF
     G, r, Kb = st.blocking()
     parts = []
@@ -665,7 +669,7 @@ def _to_blocks(xF: Array | None, xW: Array | None, st: Structure, tri=None) -> A
 
 
 def _from_blocks(x: Array, st: Structure, tri=None):
-    if isinstance(tri, (RowsFactor, RowsTwistedFactor, RowsCyclicFactor)):
+    if isinstance(tri, _ROWS_FACTORS):
         return x, None
     G, r, Kb = st.blocking()
     xF = xW = None
