@@ -1,6 +1,10 @@
 """jaxmocap: human motion capture by model-based optimisation, in JAX."""
 
 from ._threads import MIN_CPU_THREADS as MIN_CPU_THREADS  # first: it must precede JAX's CPU backend
+from ._cache import enable_compilation_cache as enable_compilation_cache
+
+enable_compilation_cache()  # compiled programs kept on disk across processes (jaxmocap/_cache.py)
+
 from . import motion as motion
 from . import rotation as rotation
 from .body import SMPL_JOINT_NAMES as SMPL_JOINT_NAMES
