@@ -120,6 +120,8 @@ def main(argv=None) -> int:
     p.add_argument("--sweep-out", default="out/sweeps/sip_ablation", help="the sweep's store (may hold cached data)")
     p.add_argument("--sweep-summary", help="copy the sweep's summary files here")
     p.add_argument("--suffix", default="")
+    p.add_argument("--refresh-one-gpu", action="store_true",
+                   help="also write this run's one-GPU `batch` into results/sweep_scale.json (keeping its sweep)")
     p.add_argument("--multi-gpu-only", action="store_true",
                    help="time the one-device batch and the multi-GPU speed-ups alone; update those keys of the result file")
     args = p.parse_args(argv)
@@ -154,7 +156,8 @@ def main(argv=None) -> int:
     work = B * T * it
     peak = peak_memory_bytes()
     steps = np.asarray(sol.num_steps)
-    one_device = {"wall_s": wall, "first_call_s": first, "plan": plan.to_dict()}
+    one_device = {"wall_s": wall, "first_call_s": first, "compile_s": max(first - wall, 0.0), "plan": plan.to_dict(),
+                  "peak_memory_bytes": peak}  # fmt: skip
     if not args.multi_gpu_only:
         out["batch"] = {
             "plan": plan.to_dict(), "first_call_s": first, "wall_s": wall, "frame_iterations_per_s": work / wall,
@@ -168,22 +171,32 @@ def main(argv=None) -> int:
           f"peak {0 if peak is None else peak / 2**30:.1f} GiB", flush=True)  # fmt: skip
     del sol
     save()
+    if args.refresh_one_gpu and not args.multi_gpu_only:
+        # The one-GPU part of the main file (its sweep part, a separate run, is kept).
+        main_file = RESULTS / "sweep_scale.json"
+        kept = json.loads(main_file.read_text()) if main_file.exists() else {}
+        if (kept.get("sequences"), kept.get("frames"), kept.get("lm_iterations")) not in ((B, T, it), (None, None, None)):
+            p.error(f"--refresh-one-gpu: {main_file} is for another problem size; give the same sizes")
+        kept.update({k: out[k] for k in ("sequences", "frames", "lm_iterations", "dtype", "batch", "data_and_sop_init_s")})
+        kept["batch"] = dict(out["batch"], machine=machine(), refreshed_by=f"sweep_scale.py --suffix {args.suffix}")
+        print(f"refreshed the one-GPU part of {write_json('sweep_scale.json', kept)}", flush=True)
 
     devices = jax.local_devices()
     counts = [n for n in (2, 4, 8) if n <= len(devices)]
     out["multi_gpu"] = {}
     for n in counts:  # the same batch on the first n devices of this machine
         subset = devices[:n]
-        _timed(lambda subset=subset: _solve(stacked, init, it, devices=subset))  # compile
+        _, first_n = _timed(lambda subset=subset: _solve(stacked, init, it, devices=subset))  # with compilation
         _, wall_n = _timed(lambda subset=subset: _solve(stacked, init, it, devices=subset))
         out[f"speedup_{n}_gpus"] = wall / wall_n
         stats = [d.memory_stats() or {} for d in subset]
         out["multi_gpu"][str(n)] = {
-            "machine": machine(), "wall_s": wall_n, "one_device": one_device,
+            "machine": machine(), "wall_s": wall_n, "first_call_s": first_n, "compile_s": max(first_n - wall_n, 0.0),
+            "one_device": one_device,
             "plan": _plan(stacked, init, devices=subset).to_dict(),
             "peak_bytes_per_device": [st.get("peak_bytes_in_use") for st in stats],
         }  # fmt: skip
-        print(f"{n} devices: {wall_n:.1f} s, speed-up {wall / wall_n:.2f}", flush=True)
+        print(f"{n} devices: {wall_n:.1f} s (first call {first_n:.1f} s), speed-up {wall / wall_n:.2f}", flush=True)
     if not counts:
         out["speedup_2_gpus"] = None
         out["speedup_2_gpus_note"] = (

@@ -7,6 +7,9 @@ from pathlib import Path
 # the same steady speed (benchmarks/results/compile_time_llvm_o1.json; the suite 15:29 ->
 # 14:21). Set before JAX starts its backend; subprocesses inherit it.
 os.environ["XLA_FLAGS"] = " ".join(filter(None, [os.environ.get("XLA_FLAGS"), "--xla_backend_optimization_level=1"]))
+# Compiled programs on disk (jaxmocap/_cache.py), shared by the two test processes, by the
+# modules after `jax.clear_caches()` below, and by the next run; one folder per checkout.
+os.environ.setdefault("JAXMOCAP_CACHE", str(Path(__file__).resolve().parents[1] / ".pytest_cache" / "xla"))
 
 import jax  # noqa: E402
 import numpy as np
