@@ -7,6 +7,8 @@ persistent compilation cache (jaxmocap/_cache.py) keeps on disk:
 - in each process the entry runs twice on the same inputs: `compile_s` = first call -
   second call (tracing, lowering, compiling or loading from disk), `run_s` = second call;
   inputs (a simulated scene) are built before the clock starts;
+- `sip_batch`: `--batch` SIP sequences in one `solve_batch` (20 steps forced), as sweeps and
+  `sweep_scale.py` run them;
 - `make_demo` is the whole `jaxmocap demo` command's wall time (`cold_wall_s`, `warm_wall_s`).
 
 The same entries run, cold, on jaxmocap at `--before` (default: the last commit without the
@@ -31,15 +33,14 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).parent))
-from _common import machine, write_json  # noqa: E402
+from _common import RESULTS, machine, write_json  # noqa: E402
 from _v1 import ROOT, v1_path  # noqa: E402
 
 BEFORE = "de0bea7"  # main before the persistent cache
-ENTRIES = ("sip", "sop", "vip", "multiview", "interaction", "sweep_cell")
-CLIP = ROOT.parent / "shared" / "data" / "cmu" / "02_01.amc"
+ENTRIES = ("sip", "sop", "sip_batch", "vip", "multiview", "interaction", "sweep_cell")
 
 
-def _inputs(name: str, frames: int):
+def _inputs(name: str, frames: int, batch: int = 8):
     """A zero-argument callable running entry `name` on inputs built here (untimed)."""
     import jax
     import numpy as np
@@ -49,16 +50,22 @@ def _inputs(name: str, frames: int):
     body = default_body("low")
     if name in ("sip", "sop"):
         from jaxmocap.methods import inertial
-        from jaxmocap.motion.io import load_motion
+        from jaxmocap.motion import library
         from jaxmocap.sensors import IMUErrorModel, ScenarioConfig, make_scenario
 
-        motion = load_motion(CLIP, fps=30)
+        motion = library.walk(num_frames=frames, fps=30.0, body=body)  # procedural: no data folder needed
         cfg = ScenarioConfig(fps=30.0, max_frames=frames, imu_set="sip6", imu_errors=IMUErrorModel.xsens())
         setup = inertial.from_scenario(make_scenario([motion], cfg, seed=0, body=body), 0, body)
         if name == "sop":
             return lambda: inertial.sparse_orientation_poser(setup)[0]
         sop = jax.block_until_ready(inertial.sparse_orientation_poser(setup)[0])
         return lambda: inertial.sparse_inertial_poser(setup, init=sop).poses
+    if name == "sip_batch":  # `--batch` sequences through solve_batch, as sweeps run them
+        from sweep_scale import _pool, _solve, _tile
+
+        pool, pool_init = _pool(frames, min(8, batch))
+        stacked, init = _tile(pool, batch), _tile(pool_init, batch)
+        return lambda: _solve(stacked, init, 20).value["pose"]
     if name == "vip":
         from jaxmocap.methods import visual_inertial as vip
         from jaxmocap.sensors import DetectorErrorModel, IMUErrorModel, make_scenario
@@ -111,7 +118,7 @@ def _child(args) -> int:
 
     import jaxmocap
 
-    fn = _inputs(args.entry, args.frames)
+    fn = _inputs(args.entry, args.frames, args.batch)
     t0 = time.perf_counter()
     jax.block_until_ready(fn())
     first = time.perf_counter() - t0
@@ -124,12 +131,13 @@ def _child(args) -> int:
     return 0
 
 
-def _run(package: Path, entry: str, cache: Path | None, frames: int) -> dict:
+def _run(package: Path, entry: str, cache: Path | None, frames: int, batch: int) -> dict:
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "out.json"
         env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(package), str(Path(__file__).parent)]),
                    JAXMOCAP_CACHE=str(cache) if cache else "off", PYTHONUNBUFFERED="1")  # fmt: skip
-        cmd = [sys.executable, __file__, "--child", entry, "--json-out", str(out), "--frames", str(frames)]
+        cmd = [sys.executable, __file__, "--child", entry, "--json-out", str(out), "--frames", str(frames),
+               "--batch", str(batch)]  # fmt: skip
         subprocess.run(cmd, env=env, check=True, cwd=ROOT)
         return json.loads(out.read_text())
 
@@ -147,10 +155,12 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--entries", nargs="+", default=list(ENTRIES), choices=ENTRIES)
     p.add_argument("--frames", type=int, default=60, help="frames of each entry's sequence (default 60)")
+    p.add_argument("--batch", type=int, default=8, help="sequences of the sip_batch entry (default 8)")
     p.add_argument("--before", default=BEFORE, help="baseline commit (cold runs only); 'none' skips it")
     p.add_argument("--no-demo", action="store_true", help="skip the `jaxmocap demo` rows")
     p.add_argument("--test", action="store_true", help="also time the test suite (make_test_s)")
     p.add_argument("--suffix", default="")
+    p.add_argument("--merge", action="store_true", help="keep the other entries of an existing results file")
     p.add_argument("--child", metavar="ENTRY", help=argparse.SUPPRESS)
     p.add_argument("--json-out", help=argparse.SUPPRESS)
     args = p.parse_args(argv)
@@ -159,21 +169,21 @@ def main(argv=None) -> int:
         return _child(args)
 
     before = None if args.before == "none" else v1_path(args.before, ROOT / "build" / f"engine_{args.before}")
-    result = {"benchmark": "cold_start", "machine": machine(), "frames": args.frames, "entries": {}}
+    result = {"benchmark": "cold_start", "machine": machine(), "frames": args.frames, "batch": args.batch, "entries": {}}
     if before:
         result["before"] = {"commit": args.before, "entries": {}}
     root = Path(tempfile.mkdtemp(prefix="jaxmocap-cold-"))
     try:
         for entry in args.entries:
             cache = root / entry
-            cold = _run(ROOT, entry, cache, args.frames)
-            warm = _run(ROOT, entry, cache, args.frames)
+            cold = _run(ROOT, entry, cache, args.frames, args.batch)
+            warm = _run(ROOT, entry, cache, args.frames, args.batch)
             row = {"cold_compile_s": cold["compile_s"], "warm_compile_s": warm["compile_s"], "run_s": warm["run_s"],
                    "cold_first_call_s": cold["first_call_s"], "warm_first_call_s": warm["first_call_s"]}  # fmt: skip
             result["entries"][entry] = row
             line = f"{entry:12s} cold compile {row['cold_compile_s']:6.1f} s  warm {row['warm_compile_s']:5.2f} s  run {row['run_s']:6.3f} s"
             if before:
-                old = _run(before, entry, None, args.frames)
+                old = _run(before, entry, None, args.frames, args.batch)
                 result["before"]["entries"][entry] = {"cold_compile_s": old["compile_s"], "run_s": old["run_s"]}
                 row["warm_compile_ratio_vs_before"] = row["warm_compile_s"] / old["compile_s"]
                 line += f"  (before: compile {old['compile_s']:6.1f} s every run, run {old['run_s']:6.3f} s)"
@@ -192,7 +202,13 @@ def main(argv=None) -> int:
             print(f"make test    {result['make_test_s']:.0f} s")
     finally:
         shutil.rmtree(root, ignore_errors=True)
-    path = write_json(f"cold_start{'_' + args.suffix if args.suffix else ''}.json", result)
+    name = f"cold_start{'_' + args.suffix if args.suffix else ''}.json"
+    if args.merge and (RESULTS / name).exists():  # entries measured by an earlier call (the GPU's time limit)
+        old = json.loads((RESULTS / name).read_text())
+        result["entries"] = {**old.get("entries", {}), **result["entries"]}
+        if before and "before" in old:
+            result["before"]["entries"] = {**old["before"]["entries"], **result["before"]["entries"]}
+    path = write_json(name, result)
     print(f"wrote {path}")
     return 0
 

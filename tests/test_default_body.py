@@ -42,7 +42,9 @@ def test_low_and_full_give_the_same_joints(bodies, beta):
     betas = np.full(10, beta)
     low = forward_jit(bodies["low"], np.zeros((24, 3)), betas).joints
     full = forward_jit(bodies["full"], np.zeros((24, 3)), betas).joints
-    np.testing.assert_allclose(low, full, atol=0.01)
+    # Measured: 0.03 mm at the mean shape, 0.52 mm at ±2 (the low body's regressor is fitted
+    # to the full body's joints); 1 mm leaves room for rounding, not for a different body.
+    np.testing.assert_allclose(low, full, atol=1e-3)
 
 
 def test_first_shape_component_changes_height(bodies):

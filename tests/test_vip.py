@@ -150,5 +150,8 @@ def test_whole_method_assigns_and_fuses(scene):
     res = out.people[0]
     err = lambda poses: np.mean(pose_errors(scene["body"], np.asarray(poses), truth["poses"])["mpjpe"])  # noqa: E731
     assert err(res.poses) < 0.7 * err(scene["it"])
-    assert abs(err(res.poses) - err(scene["res"].poses)) < 5.0  # mm: the same fit as from identity labels
+    # The same fit as from identity labels: the two pose sequences against each other, not
+    # their errors against the truth (equal means could hide different poses).
+    apart = pose_errors(scene["body"], np.asarray(res.poses), np.asarray(scene["res"].poses))
+    assert np.mean(apart["mpjpe"]) < 5.0 and np.mean(apart["mpjae"]) < 3.0, {k: float(np.mean(v)) for k, v in apart.items()}
     assert set(out.seconds) == {"tracker", "association", "fusion"}
