@@ -1,5 +1,6 @@
 """jaxmocap: human motion capture by model-based optimisation, in JAX."""
 
+from . import _cli_env  # noqa: F401  first: the command line's XLA log level, read when jaxlib loads
 from ._threads import MIN_CPU_THREADS as MIN_CPU_THREADS  # first: it must precede JAX's CPU backend
 from ._cache import enable_compilation_cache as enable_compilation_cache
 

@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import os
 import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -504,11 +503,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the `jaxmocap` console command; returns the exit status."""
     parser = build_parser()
     args = parser.parse_args(argv)
-    if not args.debug:
-        # XLA's C++ log (read when it first logs) prints "Very slow compile? ... file a bug"
-        # banners with E-prefixed lines on long first compilations: expected here, not errors.
-        # --debug or TF_CPP_MIN_LOG_LEVEL=0 shows them.
-        os.environ.setdefault("TF_CPP_MIN_LOG_LEVEL", "3")
     try:
         _check_backend()
         return int(args._run(args) or 0)

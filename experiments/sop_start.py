@@ -1,0 +1,108 @@
+"""SIP's start: the thesis's sequential SOP against all frames of SOP solved at once.
+
+SIP (eq. 3.5) starts from SOP's poses (§3.4.2). The thesis's SOP solves frame after frame,
+each from the previous result: a scan of T small solves, 7.2 s per 1000 frames on an H200
+(benchmarks/results/cold_start_gpu.json), far more than SIP itself (0.07 s). Solved all at
+once (`orientation_poser(sequential=False)`: every frame from x₀, one batched solve) the
+start costs one solve's latency. This script measures what that does to SIP on clips no
+prior saw: CMU subjects 5-7 on the Character Creator rig (../shared/data/cmu_cc), each
+with the pose prior built without its subject (`evaluation_prior`), 6 Xsens-like IMUs.
+
+    python experiments/sop_start.py [--clips 6] [--frames 120]   # results/sop_start.json (+ .md)
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import jax
+import numpy as np
+
+import jaxmocap  # noqa: F401  (thread pool, compilation cache)
+from jaxmocap.body import default_body
+from jaxmocap.methods import inertial as I
+from jaxmocap.metrics import pose_errors
+from jaxmocap.priors.build import evaluation_prior
+from jaxmocap.sensors import IMUErrorModel, ScenarioConfig, make_scenario
+
+ROOT = Path(__file__).resolve().parents[1]
+CLIPS = ROOT.parent / "shared" / "data" / "cmu_cc"
+RESULTS = Path(__file__).parent / "results"
+
+
+def _timed(fn):
+    t0 = time.perf_counter()
+    out = jax.block_until_ready(fn())
+    return out, time.perf_counter() - t0
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--clips", type=int, default=6, help="clips, taken in turn from subjects 5, 6, 7")
+    p.add_argument("--frames", type=int, default=120)
+    p.add_argument("--seed", type=int, default=0)
+    args = p.parse_args(argv)
+    if not CLIPS.is_dir():
+        sys.exit(f"{CLIPS} is missing: this experiment needs ../shared/data/cmu_cc beside the checkout")
+    by_subject = {s: sorted(CLIPS.glob(f"{s:03d}_*.bvh")) for s in (5, 6, 7)}
+    clips = [by_subject[(5, 6, 7)[i % 3]][i // 3] for i in range(args.clips)]
+    body = default_body("low")
+    cfg = ScenarioConfig(fps=30.0, max_frames=args.frames, imu_set="sip6", imu_errors=IMUErrorModel.xsens())
+    rows = []
+    for k, clip in enumerate(clips):
+        scenario = make_scenario([clip], cfg, seed=args.seed + k, body=body)
+        setup = I.from_scenario(scenario, 0, body, prior=evaluation_prior(clip.name))
+        truth = scenario.sequence(0)["poses"][0]
+        row = {"clip": clip.name, "frames": int(setup.num_frames)}
+        for name, sequential in (("sequential", True), ("batched", False)):
+            start = lambda s=sequential, u=setup: I.orientation_poser(u, sequential=s)[0]  # noqa: E731
+            _timed(start)  # compile
+            sop, sop_s = _timed(start)
+            sip = I.sparse_inertial_poser(setup, init=sop)
+            _, sip_s = _timed(lambda sop=sop, u=setup: I.sparse_inertial_poser(u, init=sop).poses)
+            for label, poses in (("sop", sop), ("sip", sip.poses)):
+                e = pose_errors(body, np.asarray(poses), truth)
+                row[f"{label}_{name}_mpjpe_mm"] = float(e["mpjpe"].mean())
+                row[f"{label}_{name}_mpjae_deg"] = float(e["mpjae"].mean())
+            row[f"sop_{name}_s"], row[f"sip_from_{name}_s"] = sop_s, sip_s
+        rows.append(row)
+        print(f"{clip.name}: SIP from sequential SOP {row['sip_sequential_mpjpe_mm']:.1f} mm / "
+              f"{row['sip_sequential_mpjae_deg']:.1f}°, from batched SOP {row['sip_batched_mpjpe_mm']:.1f} mm / "
+              f"{row['sip_batched_mpjae_deg']:.1f}°; SOP {row['sop_sequential_s']:.2f} s vs {row['sop_batched_s']:.2f} s",
+              flush=True)  # fmt: skip
+    keys = [k for k in rows[0] if k not in ("clip", "frames")]
+    mean = {k: float(np.mean([r[k] for r in rows])) for k in keys}
+    out = {
+        "experiment": "sop_start", "clips": [r["clip"] for r in rows], "frames": args.frames, "imu_set": "sip6",
+        "imu_errors": "xsens", "prior": "held_out (evaluation_prior: built without the clip's subject)",
+        "rows": rows, "mean": mean, "backend": jax.default_backend(),
+        "sip_batched_vs_sequential_mpjpe_percent": 100 * (mean["sip_batched_mpjpe_mm"] / mean["sip_sequential_mpjpe_mm"] - 1),
+        "sip_batched_vs_sequential_mpjae_percent": 100 * (mean["sip_batched_mpjae_deg"] / mean["sip_sequential_mpjae_deg"] - 1),
+        "sop_speedup": mean["sop_sequential_s"] / mean["sop_batched_s"],
+    }  # fmt: skip
+    RESULTS.mkdir(exist_ok=True)
+    (RESULTS / "sop_start.json").write_text(json.dumps(out, indent=2) + "\n")
+    better = "better" if out["sip_batched_vs_sequential_mpjpe_percent"] < 0 else "worse"
+    md = [
+        "# SIP from a sequential or a batched SOP start", "",
+        f"{len(rows)} held-out cmu_cc clips × {args.frames} frames, 6 Xsens-like IMUs, prior without the clip's subject "
+        f"({jax.default_backend()}). Generated by `experiments/sop_start.py`.", "",
+        "| start | SOP MPJPE mm | SOP MPJAE ° | SIP MPJPE mm | SIP MPJAE ° | SOP s / sequence |", "|---|---|---|---|---|---|",
+    ]  # fmt: skip
+    for name in ("sequential", "batched"):
+        md.append(f"| {name} | {mean[f'sop_{name}_mpjpe_mm']:.1f} | {mean[f'sop_{name}_mpjae_deg']:.2f} | "
+                  f"{mean[f'sip_{name}_mpjpe_mm']:.1f} | {mean[f'sip_{name}_mpjae_deg']:.2f} | {mean[f'sop_{name}_s']:.3f} |")  # fmt: skip
+    md += ["", f"From the batched start SIP is {abs(out['sip_batched_vs_sequential_mpjpe_percent']):.1f} % {better} in "
+           f"MPJPE ({out['sip_batched_vs_sequential_mpjae_percent']:+.1f} % MPJAE), and the start is "
+           f"{out['sop_speedup']:.1f}× faster on this machine."]  # fmt: skip
+    (RESULTS / "sop_start.md").write_text("\n".join(md) + "\n")
+    print("\n".join(md))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
