@@ -4,8 +4,6 @@ from . import _cli_env  # noqa: F401  first: the command line's XLA log level, r
 from ._threads import MIN_CPU_THREADS as MIN_CPU_THREADS  # first: it must precede JAX's CPU backend
 from ._cache import enable_compilation_cache as enable_compilation_cache
 
-enable_compilation_cache()  # compiled programs kept on disk across processes (jaxmocap/_cache.py)
-
 from . import motion as motion
 from . import rotation as rotation
 from .body import SMPL_JOINT_NAMES as SMPL_JOINT_NAMES
@@ -17,6 +15,8 @@ from .body import default_body as default_body
 from .body import forward as forward
 from .body import load_body as load_body
 from .body import save_body as save_body
+
+enable_compilation_cache()  # compiled programs kept on disk across processes (jaxmocap/_cache.py)
 
 __version__ = "0.1.0"
 
