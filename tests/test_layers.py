@@ -15,7 +15,7 @@ PACKAGE = Path(__file__).resolve().parents[1] / "jaxmocap"
 
 # Bottom to top, as the README's architecture paragraph lists them.
 LAYERS = [
-    ("maths", {"rotation", "timeseries", "_checks", "_progress", "_compat", "_threads"}),
+    ("maths", {"rotation", "timeseries", "_checks", "_progress", "_compat", "_threads", "_cache", "_cli_env"}),
     ("models", {"body", "solve"}),
     ("data", {"motion", "formats", "metrics", "objects"}),
     ("drawing", {"viz"}),
