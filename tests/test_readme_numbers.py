@@ -1,0 +1,76 @@
+"""The README quotes results and configs: each quote is read from the file it names.
+
+`QUOTES` pairs a sentence of the README (a regular expression whose groups are the quoted
+numbers) with the JSON file and keys the numbers come from and the rounding the README
+uses. A re-run that moves a number, or an edit of the README, fails here until both agree.
+A config the README shows "in full" must parse to the same TOML as the file.
+"""
+
+import json
+import re
+import tomllib
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+README = (ROOT / "README.md").read_text()
+
+
+def _key(path: str, keys: str):
+    value = json.loads((ROOT / path).read_text())
+    for k in keys.split("."):
+        value = value[k]
+    return value
+
+
+# (README pattern, file, [key per group], [decimals per group])
+QUOTES = [
+    (
+        r"four H200s: ([\d.]+) s on one, ([\d.]+) s on two \(([\d.]+)×\), ([\d.]+) s on four \(\*\*([\d.]+)×\*\*\)",
+        "benchmarks/results/sweep_scale_x4.json",
+        ["batch.wall_s", "multi_gpu.2.wall_s", "speedup_2_gpus", "multi_gpu.4.wall_s", "speedup_4_gpus"],
+        [2, 2, 2, 2, 2],
+    ),
+    (
+        r"SIP \(1000 frames\) ([\d.]+) s cold, ([\d.]+) s warm, run ([\d.]+) s \(([\d.]+) s every run before\)",
+        "benchmarks/results/cold_start_gpu.json",
+        ["entries.sip.cold_compile_s", "entries.sip.warm_compile_s", "entries.sip.run_s", "before.entries.sip.cold_compile_s"],
+        [1, 2, 3, 1],
+    ),
+    (
+        r"SIP batch 1000 x 1000 ([\d.]+) s cold, ([\d.]+) s warm, run ([\d.]+) s \(([\d.]+) s every run before\)",
+        "benchmarks/results/cold_start_gpu.json",
+        ["entries.sip_batch.cold_compile_s", "entries.sip_batch.warm_compile_s", "entries.sip_batch.run_s",
+         "before.entries.sip_batch.cold_compile_s"],
+        [1, 2, 1, 1],
+    ),
+    (
+        r"SOP ([\d.]+) s cold, ([\d.]+) s warm, run ([\d.]+) s;",
+        "benchmarks/results/cold_start_gpu.json",
+        ["entries.sop.cold_compile_s", "entries.sop.warm_compile_s", "entries.sop.run_s"],
+        [1, 2, 1],
+    ),
+]
+
+
+@pytest.mark.parametrize("pattern, path, keys, decimals", QUOTES, ids=[q[1].split("/")[-1] + ":" + q[2][0] for q in QUOTES])
+def test_quoted_numbers_match_their_files(pattern, path, keys, decimals):
+    matches = re.findall(pattern, README)
+    assert matches, f"the README no longer says {pattern!r}; update QUOTES with the sentence that quotes {path}"
+    for found in matches:
+        found = (found,) if isinstance(found, str) else found
+        for text, key, d in zip(found, keys, decimals, strict=True):
+            assert f"{_key(path, key):.{d}f}" == text, f"README says {text} for {path}:{key}, the file has {_key(path, key)}"
+
+
+def _toml_block_after(marker: str) -> dict:
+    tail = README[README.index(marker):]
+    block = re.search(r"```toml\n(.*?)```", tail, re.S)
+    return tomllib.loads(block.group(1))
+
+
+def test_the_sweep_config_shown_in_full_is_the_file():
+    shown = _toml_block_after("(`experiments/sweeps/sip_ablation.toml` in full)")
+    with open(ROOT / "experiments" / "sweeps" / "sip_ablation.toml", "rb") as f:
+        assert shown == tomllib.load(f)
