@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from jaxmocap._cache import cache_dir
+from jaxmocap._cache import cache_dir, host_tag
 
 # A fresh process: imports jaxmocap (which enables the cache), compiles one program, and
 # prints the cache folder JAX uses and how many programs it loaded from disk.
@@ -31,11 +31,11 @@ def _child(env: dict) -> dict:
 
 
 def test_second_process_loads_the_first_ones_programs(tmp_path):
-    folder = tmp_path / "xla"
-    first = _child({"JAXMOCAP_CACHE": str(folder)})
+    first = _child({"JAXMOCAP_CACHE": str(tmp_path)})
+    folder = tmp_path / host_tag()
     assert Path(first["dir"]) == folder and first["hits"] == 0
     assert any(folder.iterdir()), "nothing was written to the cache folder"
-    second = _child({"JAXMOCAP_CACHE": str(folder)})
+    second = _child({"JAXMOCAP_CACHE": str(tmp_path)})
     assert second["hits"] >= 1
 
 
@@ -58,9 +58,19 @@ def test_off_values(monkeypatch, value):
 def test_default_folder_follows_xdg(monkeypatch, tmp_path):
     monkeypatch.delenv("JAXMOCAP_CACHE", raising=False)
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
-    assert cache_dir() == tmp_path / "jaxmocap" / "xla"
+    assert cache_dir() == tmp_path / "jaxmocap" / "xla" / host_tag()
     monkeypatch.delenv("XDG_CACHE_HOME")
-    assert cache_dir() == Path.home() / ".cache" / "jaxmocap" / "xla"
+    assert cache_dir() == Path.home() / ".cache" / "jaxmocap" / "xla" / host_tag()
+
+
+def test_each_kind_of_cpu_has_its_own_folder(monkeypatch, tmp_path):
+    # JAX's key does not name the instruction set: programs for one CPU must not reach another.
+    import platform
+
+    tag = host_tag()
+    assert tag.startswith(platform.machine()) and len(tag.rsplit("-", 1)[1]) == 8
+    monkeypatch.setattr("builtins.open", lambda *a, **k: __import__("io").StringIO("flags\t: fpu sse2 avx512f\n"))
+    assert host_tag() != tag
 
 
 def test_unwritable_folder_warns_and_compiles_anyway(tmp_path):
