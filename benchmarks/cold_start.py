@@ -7,6 +7,7 @@ persistent compilation cache (jaxmocap/_cache.py) keeps on disk:
 - in each process the entry runs twice on the same inputs: `compile_s` = first call -
   second call (tracing, lowering, compiling or loading from disk), `run_s` = second call;
   inputs (a simulated scene) are built before the clock starts;
+- `sop_batched`: SOP with every frame solved at once from x₀ (`sequential=False`);
 - `sip_batch`: `--batch` SIP sequences in one `solve_batch` (20 steps forced), as sweeps and
   `sweep_scale.py` run them;
 - `make_demo` is the whole `jaxmocap demo` command's wall time (`cold_wall_s`, `warm_wall_s`).
@@ -37,7 +38,7 @@ from _common import RESULTS, machine, write_json  # noqa: E402
 from _v1 import ROOT, v1_path  # noqa: E402
 
 BEFORE = "de0bea7"  # main before the persistent cache
-ENTRIES = ("sip", "sop", "sip_batch", "vip", "multiview", "interaction", "sweep_cell")
+ENTRIES = ("sip", "sop", "sop_batched", "sip_batch", "vip", "multiview", "interaction", "sweep_cell")
 
 
 def _inputs(name: str, frames: int, batch: int = 8):
@@ -48,7 +49,7 @@ def _inputs(name: str, frames: int, batch: int = 8):
     from jaxmocap.body.io import default_body
 
     body = default_body("low")
-    if name in ("sip", "sop"):
+    if name in ("sip", "sop", "sop_batched"):
         from jaxmocap.methods import inertial
         from jaxmocap.motion import library
         from jaxmocap.sensors import IMUErrorModel, ScenarioConfig, make_scenario
@@ -58,6 +59,8 @@ def _inputs(name: str, frames: int, batch: int = 8):
         setup = inertial.from_scenario(make_scenario([motion], cfg, seed=0, body=body), 0, body)
         if name == "sop":
             return lambda: inertial.sparse_orientation_poser(setup)[0]
+        if name == "sop_batched":  # every frame from x0, all at once (experiments/sop_start.py)
+            return lambda: inertial.orientation_poser(setup, sequential=False)[0]
         sop = jax.block_until_ready(inertial.sparse_orientation_poser(setup)[0])
         return lambda: inertial.sparse_inertial_poser(setup, init=sop).poses
     if name == "sip_batch":  # `--batch` sequences through solve_batch, as sweeps run them
