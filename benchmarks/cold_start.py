@@ -209,8 +209,11 @@ def main(argv=None) -> int:
     if args.merge and (RESULTS / name).exists():  # entries measured by an earlier call (the GPU's time limit)
         old = json.loads((RESULTS / name).read_text())
         result["entries"] = {**old.get("entries", {}), **result["entries"]}
-        if before and "before" in old:
-            result["before"]["entries"] = {**old["before"]["entries"], **result["before"]["entries"]}
+        if "before" in old:  # an earlier call's baseline rows stay, under their own commit
+            if before and old["before"]["commit"] == args.before:
+                result["before"]["entries"] = {**old["before"]["entries"], **result["before"]["entries"]}
+            elif not before:
+                result["before"] = old["before"]
     path = write_json(name, result)
     print(f"wrote {path}")
     return 0
