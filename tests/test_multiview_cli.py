@@ -210,3 +210,96 @@ def test_frame_ranges_are_frame_numbers_and_unseen_frames_start_from_their_neigh
     assert jitter(np.zeros((2, 24, 3)), 30.0) != jitter(np.zeros((2, 24, 3)), 30.0)  # NaN below 3 frames
     line = np.linspace(0.0, 1.0, 10)[:, None, None] * np.ones((1, 24, 3))
     assert jitter(line, 30.0) == pytest.approx(0.0, abs=1e-9)  # uniform motion has no jitter
+
+
+# ------------------------------------------------------------- issue 47: a lab's folders in
+
+
+def test_inputs_are_checked_before_any_fit(recording, tmp_path, capsys):
+    root, _, _ = recording
+    calib = root / "Calib.qca.txt"
+    (tmp_path / "file").write_text("")
+    code, io = _run(["--keypoints", root / "pose", "--calib", calib, "--out", tmp_path / "file"], capsys)
+    assert code == 2 and "file: the output folder exists as a file" in io.err and io.out == ""
+    code, io = _run(["--keypoints", root / "pose", "--calib", calib, "--out", tmp_path / "file" / "sub"], capsys)
+    assert code == 2 and "cannot be created" in io.err
+    code, io = _run([], capsys)
+    assert code == 2 and "missing --keypoints DIR, --calib FILE, --out DIR" in io.err
+    # BODY_25B detections named BODY_25: refused after reading, before fitting
+    code, io = _run(["--keypoints", root / "pose", "--calib", calib, "--out", tmp_path / "o", "--layout", "body25"],
+                    capsys)  # fmt: skip
+    assert code == 2 and "--layout says the keypoints are body25" in io.err and "--layout body25b" in io.err
+    assert "read     4 cameras: cam01_json 9 frames (0..8)" in io.out
+    assert "warning: the frame rate is not known" in io.err  # no --fps, no Config.toml
+    assert not (tmp_path / "o").exists()
+
+
+def test_frame_numbers_missing_in_every_camera_become_empty_frames():
+    from jaxmocap.app.multiview import _complete_frames
+    from jaxmocap.formats import KeypointRecording
+
+    kp = np.ones((4, 1, 25, 3))
+    rec = KeypointRecording(("a",), "body25", np.array([2, 4, 8, 10]), (kp,), (np.ones(4, bool),))
+    full = _complete_frames(rec)
+    assert full.frames.tolist() == [2, 4, 6, 8, 10]  # every 2nd frame written: step 2
+    assert full.present[0].tolist() == [True, True, False, True, True] and not full.keypoints[0][2].any()
+    np.testing.assert_array_equal(full.keypoints[0][[0, 1, 3, 4]], kp)
+    with pytest.raises(ValueError, match="frame numbers jump from 10 to 9000.*--frames"):
+        _complete_frames(KeypointRecording(("a",), "body25", np.array([1, 2, 10, 9000]), (kp,)))
+
+
+def test_monocular_depth_uncertainty_is_the_body_size_spread_at_its_distance():
+    from jaxmocap.app.multiview import STATURE_CV, monocular_depth
+
+    cam = CalibratedCamera("c", np.diag([1000.0, 1000.0, 1.0]), np.zeros(5), np.eye(3), [0.0, 0.0, 4.0], 0, 0)
+    joints = np.zeros((3, 24, 3))
+    det = np.zeros((3, 25, 3))
+    det[:, :2] = [[0.0, 0.0, 1.0], [0.0, 400.0, 1.0]]  # the body spans 400 px
+    d = monocular_depth(cam, joints, det, 4.0)
+    assert d["depth_m"] == pytest.approx(4.0) and d["body_extent_px"] == pytest.approx(400.0)
+    assert d["depth_uncertainty_m"] == pytest.approx(4.0 * np.hypot(STATURE_CV, 0.01))
+
+
+@pytest.fixture(scope="module")
+def demo_recording(tmp_path_factory):
+    from jaxmocap.app.multiview_demo import write_demo_recording
+
+    root = tmp_path_factory.mktemp("demo") / "recording"
+    return root, write_demo_recording(root, frames=6)
+
+
+def test_the_demo_recording_is_a_pose2sim_project_in_camnn_ffff_naming(demo_recording):
+    from jaxmocap.formats import read_openpose, read_project
+
+    root, truth = demo_recording
+    assert (root / "pose" / "cam01_json" / "cam01.0001.json").is_file()
+    assert not (root / "pose" / "cam04_json" / "cam04.0004.json").exists() and truth["dropped"] == (3, 4)
+    project = read_project(root)
+    assert (project.config.layout, project.config.fps) == ("body25b", 60.0)
+    rec = read_openpose(project.keypoints, None)
+    assert rec.frames.tolist() == [1, 2, 3, 4, 5, 6] and rec.present[3].tolist() == [1, 1, 1, 0, 1, 1]
+
+
+def test_one_camera_says_depth_is_unobserved_and_how_uncertain_it_is(demo_recording, tmp_path, capsys):
+    root, _ = demo_recording
+    code, io = _run([root, "--views", "cam01_json", "--no-temporal", "--out", tmp_path / "mono"], capsys)
+    assert code == 0, io.err
+    assert "fps      60, from" in io.out and "layout   body25b (from" in io.out  # Config.toml, no flags
+    assert "warning: one camera (cam01): depth along its line of sight is not observed" in io.err
+    report = json.loads((tmp_path / "mono" / "report.json").read_text())
+    assert report["monocular"] is True and report["frames"]["fps"] == 60.0
+    depth = report["depth"]
+    assert 3.0 < depth["depth_m"] < 6.0 and 0.04 * depth["depth_m"] < depth["depth_uncertainty_m"] < 0.2 * depth["depth_m"]
+
+
+def test_multiview_demo_writes_a_lab_recording_and_fits_it(tmp_path, capsys):
+    code, io = _run(["demo", "--out", tmp_path / "demo", "--no-temporal"], capsys)
+    assert code == 0, io.err
+    for line in ("demo     writing a synthetic 4-camera recording", "cam04_json 15 frames (1..16)",
+                 "layout   body25b (from", "confirmed by the skeleton", "fps      60", "demo     MPJPE"):
+        assert line in io.out, (line, io.out)
+    report = json.loads((tmp_path / "demo" / "fit" / "report.json").read_text())
+    assert report["monocular"] is False and report["layout"] == "body25b" and report["frames"]["count"] == 16
+    assert report["reprojection"]["final"]["overall"]["median_px"] < 6.0
+    assert (tmp_path / "demo" / "recording" / "Config.toml").is_file()
+    assert (tmp_path / "demo" / "fit" / "smpl.npz").is_file()

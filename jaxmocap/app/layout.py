@@ -144,14 +144,15 @@ def check_layout(subject, P, body, count: int, named: str | None = None, named_b
         return LayoutCheck(named, scores, "confirmed",
                            f"layout   {named} (from {named_by}; confirmed by the skeleton: {shown})")  # fmt: skip
     s_named, s_best = judged[named], judged[best]
+    fix = f"pass --layout {best}" + ("" if named_by.startswith("--") else f" or correct {named_by}")
     if s_named > ABSURD_SCORE and s_named > ABSURD_RATIO * s_best:
         raise ValueError(
             f"{named_by} says the keypoints are {named}, but read so the skeleton is absurd (typical segment "
             f"length {100 * (np.exp(s_named) - 1):.0f} % off, against {100 * (np.exp(s_best) - 1):.0f} % as "
-            f"{best}; scores {shown}); the detections are {best}: fix {named_by} (--layout {best})."
+            f"{best}; scores {shown}); the detections are {best}: {fix}."
         )
     if s_named > WARN_RATIO * s_best:
         return LayoutCheck(named, scores, "warned",
                            f"warning: {named_by} says {named}, but {best} fits the skeleton clearly better ({shown}); "
-                           f"fitting as {named}; check the OpenPose model (--layout {best}).")  # fmt: skip
+                           f"fitting as {named}; check the OpenPose model ({fix}).")  # fmt: skip
     return LayoutCheck(named, scores, "confirmed", f"layout   {named} (from {named_by}; {shown})")

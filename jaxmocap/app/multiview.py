@@ -453,7 +453,7 @@ def fit_recording(
     # every input is checked before any fitting: output folder, settings, files
     out_dir = check_out_dir(out_dir)
     config = read_config(keypoints_dir) if Path(keypoints_dir).is_dir() else None
-    named, named_by = layout, "layout"
+    named, named_by = layout, "--layout"
     if named is None and config is not None and config.pose_model is not None:
         named, named_by = config.layout, f"{config.files[-1]} (pose_model = {config.pose_model!r})"
     if fps is None:
@@ -464,8 +464,13 @@ def fit_recording(
             fps = DEFAULT_FPS
             say(f"warning: the frame rate is not known (no fps given, no frame_rate in a Config.toml); assuming "
                 f"{fps:g} fps: give the recording's (--fps).")  # fmt: skip
-    if isinstance(fps, bool) or not isinstance(fps, int | float) or not fps > 0:
+    try:
+        positive = not isinstance(fps, bool) and float(fps) > 0
+    except (TypeError, ValueError):
+        positive = False
+    if not positive:
         raise ValueError(f"fps must be a positive number of frames per second, got {fps!r}.")
+    fps = float(fps)
     weights = MuVSWeights() if weights is None else weights
     timings: dict[str, float] = {}
     stages = ["read", "select person", "initialise", "stage 1", "stage 2", "write"]
