@@ -9,7 +9,15 @@ under a session); no file of Pose2Sim's is copied. Pure NumPy: no JAX compilatio
 import numpy as np
 import pytest
 
-from jaxmocap.formats import ProjectError, load_calibration, read_config, read_project, write_openpose
+from jaxmocap.formats import (
+    KeypointFileError,
+    ProjectError,
+    load_calibration,
+    read_config,
+    read_openpose,
+    read_project,
+    write_openpose,
+)
 from jaxmocap.formats.project import POSE_MODELS
 
 from test_formats import TOML  # two hand-checked Pose2Sim TOML cameras
@@ -88,6 +96,8 @@ def test_project_problems_name_the_file_and_the_fix(tmp_path):
     root = _project(tmp_path / "p", model="'Body_with_feet'")
     with pytest.raises(ProjectError, match=r"Config\.toml: pose_model = 'Body_with_feet' has no jaxmocap layout.*BODY_25B"):
         _ = read_project(root).config.layout
+    with pytest.raises(KeypointFileError, match=r"p: no camera folders.*/p/pose; or the project folder itself as `jaxmocap multiview "):
+        read_openpose(root, None)  # the project given where its keypoint folder belongs
     (root / "Config.toml").write_text(CONFIG.format(rate="-5", model="'BODY_25B'"))
     with pytest.raises(ProjectError, match=r"Config\.toml: \[project\] frame_rate must be a positive.*-5"):
         read_config(root)

@@ -204,8 +204,10 @@ def read_openpose(
             raise KeypointFileError(
                 f"{root}: no camera folders with numbered OpenPose '*.json' files (e.g. "
                 "cam01/cam01_000000000012_keypoints.json); give the folder that holds one such "
-                "folder per camera."
-            )
+                "folder per camera"
+                + (f" ({root / 'pose'}; or the project folder itself as `jaxmocap multiview {root}`)."
+                   if (root / "pose").is_dir() else ".")
+            )  # fmt: skip
     else:
         views = [views] if isinstance(views, str) else list(views)
         present = sorted(p.name for p in root.iterdir() if p.is_dir())
