@@ -290,6 +290,7 @@ def test_one_camera_says_depth_is_unobserved_and_how_uncertain_it_is(demo_record
     assert report["monocular"] is True and report["frames"]["fps"] == 60.0
     depth = report["depth"]
     assert 3.0 < depth["depth_m"] < 6.0 and 0.04 * depth["depth_m"] < depth["depth_uncertainty_m"] < 0.2 * depth["depth_m"]
+    assert abs(depth["floor"]["ratio"] - 1) < 0.1, depth  # the demo's body is the mean body, on the floor
 
 
 def test_multiview_demo_writes_a_lab_recording_and_fits_it(tmp_path, capsys):
@@ -303,3 +304,21 @@ def test_multiview_demo_writes_a_lab_recording_and_fits_it(tmp_path, capsys):
     assert report["reprojection"]["final"]["overall"]["median_px"] < 6.0
     assert (tmp_path / "demo" / "recording" / "Config.toml").is_file()
     assert (tmp_path / "demo" / "fit" / "smpl.npz").is_file()
+
+
+def test_the_floor_gives_a_second_depth_from_the_standing_foot():
+    from jaxmocap.app.multiview import ground_depth
+
+    # z-up world, camera 1.6 m above the floor looking along +y (x right, y down = -z)
+    R = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
+    cam = CalibratedCamera("c", [[1000.0, 0.0, 640.0], [0.0, 1000.0, 360.0], [0.0, 0.0, 1.0]], np.zeros(5), R,
+                           -R @ [0.0, 0.0, 1.6], 1280, 720)  # fmt: skip
+    names = ["left_ankle", "right_ankle", "nose"]
+    world = np.array([[0.1, 4.0, 0.0], [-0.1, 3.0, 0.2], [0.0, 3.5, 1.6]])  # standing foot, lifted (nearer) foot
+    uv, _ = project_points(cam.K, cam.dist, cam.R, cam.t, world)
+    det = np.concatenate([uv, np.ones((3, 1))], -1)[None]
+    floor = ground_depth(cam, det, world[None], names, "+z")
+    # the lifted foot's ray meets the floor at 3.0 * 1.6 / 1.4 = 3.43 m, nearer than 4 m but behind that foot
+    assert floor == pytest.approx({"ground_depth_m": 4.0, "fitted_depth_m": 4.0, "ratio": 1.0})
+    assert ground_depth(cam, det, 1.1 * world[None], names, "+z")["ratio"] == pytest.approx(1 / 1.1)  # fit 10 % too far
+    assert ground_depth(cam, det, world[None], names, "-z") is None  # the camera would be below that floor

@@ -272,6 +272,46 @@ def monocular_depth(camera, joints, detections, reprojection_px: float | None) -
             "from": "the body's size in the image (shape prior: the mean body)"}  # fmt: skip
 
 
+def ground_depth(camera, detections, model_keypoints, names, up: str) -> dict | None:
+    """A second, independent depth with one camera: where the feet meet the floor.
+
+    Assumes the floor is the calibration world's 0 plane across `up` (Qualisys and
+    Pose2Sim calibrations put their origin on the floor). Per frame, the ray of every
+    detected foot point (ankles, heels, toes; undistorted OpenCV pixels) is cut with the
+    floor, and the point whose cut is nearest relative to its fitted depth is kept: a
+    lifted foot's ray meets the floor behind the foot, the standing foot's at the foot.
+    Returns the medians of those cut depths, of the fitted depths of the same points and
+    of their ratio (cut / fitted; 1 when the fitted size is right), or None (camera not
+    above the floor, no feet seen).
+    """
+    axis, sign = _AXES[up]
+    centre = camera.center
+    if sign * centre[axis] <= 0:
+        return None
+    feet = [k for k, n in enumerate(names) if n.endswith(("ankle", "heel", "big_toe", "small_toe"))]
+    ground, fitted = [], []
+    for det, model in zip(detections, model_keypoints):
+        best = None
+        for k in feet:
+            if det[k, 2] <= 0:
+                continue
+            ray = camera.R.T @ np.linalg.solve(camera.K, np.array([det[k, 0], det[k, 1], 1.0]))  # depth 1
+            fit = (camera.R @ model[k] + camera.t)[2]
+            if sign * ray[axis] >= 0 or fit <= 0:  # at or above the horizon: never meets the floor
+                continue
+            cut = -centre[axis] / ray[axis]
+            if best is None or cut / fit < best[0] / best[1]:
+                best = (cut, fit)
+        if best is not None:
+            ground.append(best[0])
+            fitted.append(best[1])
+    if not ground:
+        return None
+    ground, fitted = np.array(ground), np.array(fitted)
+    return {"ground_depth_m": float(np.median(ground)), "fitted_depth_m": float(np.median(fitted)),
+            "ratio": float(np.median(ground / fitted))}  # fmt: skip
+
+
 def _fill_empty_frames(params: dict, empty: np.ndarray) -> dict:
     """Starting values of frames no view sees copied from the nearest frame that is seen
     (the fit then leaves them to the priors and, in stage 2, to their neighbours)."""
@@ -456,14 +496,15 @@ def fit_recording(
     named, named_by = layout, "--layout"
     if named is None and config is not None and config.pose_model is not None:
         named, named_by = config.layout, f"{config.files[-1]} (pose_model = {config.pose_model!r})"
+    fps_note = None  # said once the files are read, so that a bad file is the only message
     if fps is None:
         if config is not None and config.fps is not None:
             fps = config.fps
-            say(f"fps      {fps:g}, from {config.files[-1]} (frame_rate)")
+            fps_note = f"fps      {fps:g}, from {config.files[-1]} (frame_rate)"
         else:
             fps = DEFAULT_FPS
-            say(f"warning: the frame rate is not known (no fps given, no frame_rate in a Config.toml); assuming "
-                f"{fps:g} fps: give the recording's (--fps).")  # fmt: skip
+            fps_note = (f"warning: the frame rate is not known (no fps given, no frame_rate in a Config.toml); "
+                        f"assuming {fps:g} fps: give the recording's (--fps).")  # fmt: skip
     try:
         positive = not isinstance(fps, bool) and float(fps) > 0
     except (TypeError, ValueError):
@@ -509,6 +550,8 @@ def fit_recording(
             unused = sorted({c.name for c in calibration} - {c.name for c in cameras})
             say(f"calib    {len(calibration)} cameras in {calib_path}; without keypoints, not used: {unused}")
         body_model = resolve_body(body)
+        if fps_note:
+            say(fps_note)
         done("read")
 
         begin("select person")
@@ -577,6 +620,15 @@ def fit_recording(
         say(f"warning: one camera ({cameras[0].name}): depth along its line of sight is not observed; it comes from "
             f"{d['from']}: {d['depth_m']:.2f} m ± {d['depth_uncertainty_m']:.2f} m (1σ). Add a second camera to "
             "measure it.")  # fmt: skip
+        verts, _ = _posed(body_model, final["pose"], final["betas"], final["trans"])
+        model_kp = np.einsum("kn,tnc->tkc", keypoint_regressor(body_model, layout), verts)
+        floor = ground_depth(cameras[0], keypoints[:, 0], model_kp, KEYPOINT_FORMATS[layout], report["world_up"])
+        d["floor"] = floor
+        if floor is not None and abs(floor["ratio"] - 1) > 2 * d["relative"]:
+            say(f"warning: the feet would meet the floor (the world's 0 plane) at {floor['ground_depth_m']:.2f} m from "
+                f"the camera, but the fit puts them at {floor['fitted_depth_m']:.2f} m: the person is "
+                f"{'smaller' if floor['ratio'] < 1 else 'larger'} than the mean body, "
+                "or the floor is elsewhere.")  # fmt: skip
     report["notes"] = notes
     report["timings_s"] = {k: round(v, 3) for k, v in timings.items()}
     report["timings_s"]["total"] = round(sum(timings.values()), 3)
