@@ -322,3 +322,15 @@ def test_the_floor_gives_a_second_depth_from_the_standing_foot():
     assert floor == pytest.approx({"ground_depth_m": 4.0, "fitted_depth_m": 4.0, "ratio": 1.0})
     assert ground_depth(cam, det, 1.1 * world[None], names, "+z")["ratio"] == pytest.approx(1 / 1.1)  # fit 10 % too far
     assert ground_depth(cam, det, world[None], names, "-z") is None  # the camera would be below that floor
+
+
+def test_config_frame_range_selects_positions_before_any_fit(demo_recording, tmp_path, capsys):
+    import shutil
+
+    root = tmp_path / "trial"
+    shutil.copytree(demo_recording[0], root)
+    config = root / "Config.toml"
+    config.write_text(config.read_text().replace("frame_range = 'all'", "frame_range = [10, 20]"))
+    code, io = _run([root, "--out", tmp_path / "o"], capsys)
+    assert code == 2 and "Config.toml: frame_range = [10, 20] selects no frame; the recording has 6" in io.err
+    assert not (tmp_path / "o").exists()

@@ -79,6 +79,18 @@ def test_config_values_map_to_layouts_and_rates(tmp_path, rate, model, fps, layo
     config = read_config(root)
     assert (config.fps, config.layout) == (fps, layout)
     assert set(POSE_MODELS.values()) == {"body25", "body25b", "coco18"}
+    assert config.frame_range is None  # 'auto': every frame
+
+
+def test_frame_range_is_pose2sims_start_stop_positions(tmp_path):
+    root = _project(tmp_path / "p")
+    text = (root / "Config.toml").read_text()
+    (root / "Config.toml").write_text(text.replace("frame_range = 'auto'", "frame_range = [10, 300]"))
+    assert read_config(root).frame_range == (10, 300)
+    for bad in ("[300, 10]", "[1, 2, 3]", "'some'"):
+        (root / "Config.toml").write_text(text.replace("frame_range = 'auto'", f"frame_range = {bad}"))
+        with pytest.raises(ProjectError, match=r"Config\.toml: \[project\] frame_range must be \[start, stop\]"):
+            read_config(root)
 
 
 def test_a_trial_reads_its_session_config_and_calibration(tmp_path):

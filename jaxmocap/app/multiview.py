@@ -456,7 +456,8 @@ def fit_recording(
             about, an absurd one refused.
         body: "default-low", "default-full", "mannequin" or a model file.
         views: camera folder names to use (default: all).
-        frames: slice of frame numbers (as in the file names) to fit; default all.
+        frames: slice of frame numbers (as in the file names) to fit; default all, or
+            Config.toml's frame_range (Pose2Sim's [start, stop) positions).
         temporal: run stage 2 (DCT temporal prior); otherwise stop after stage 1.
         resolve_swaps: flip back views whose detector swapped the legs before stage 1
             (`methods.multiview.resolve_left_right`); False is MuVS as written.
@@ -540,6 +541,14 @@ def fit_recording(
         recording = read_openpose(keypoints_dir, named, views)
         say(_read_summary(recording))
         keep = _frame_filter(recording.frames, frames)
+        if frames is None and config is not None and config.frame_range is not None:
+            start, stop = config.frame_range  # Pose2Sim's: positions in the frame order
+            keep = keep[start:stop]
+            if not len(keep):
+                raise ValueError(f"{config.files[-1]}: frame_range = [{start}, {stop}] selects no frame; the "
+                                 f"recording has {recording.num_frames}.")  # fmt: skip
+            say(f"frames   positions {start}..{min(stop, recording.num_frames) - 1} (frame numbers "
+                f"{recording.frames[keep[0]]}..{recording.frames[keep[-1]]}), from {config.files[-1]} (frame_range)")
         recording = _complete_frames(dataclasses.replace(
             recording, frames=recording.frames[keep], keypoints=tuple(k[keep] for k in recording.keypoints),
             present=None if recording.present is None else tuple(p[keep] for p in recording.present),

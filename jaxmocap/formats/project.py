@@ -15,9 +15,11 @@ folder holding the shared calibration/ and a Config.toml the trials' values over
 of pose-associated/, pose-sync/, pose/ that holds any; the calibration is in a folder
 whose name contains "calib" (the trial's, else the session's): its one .toml, else its
 one calibration of another format (`load_calibration`'s folder rule). `read_config` reads
-the two settings jaxmocap uses: ``pose_model`` (Pose2Sim's names, any case; OpenPose's
-BODY_25, BODY_25B and COCO map to jaxmocap's layouts) and ``frame_rate`` ('auto' means
-"from the video", which jaxmocap does not read: None).
+the settings jaxmocap uses: ``pose_model`` (Pose2Sim's names, any case; OpenPose's
+BODY_25, BODY_25B and COCO map to jaxmocap's layouts), ``frame_rate`` ('auto' means
+"from the video", which jaxmocap does not read: None) and ``frame_range`` ([start, stop):
+positions in the frame order, as Pose2Sim indexes its sorted files; 'auto', 'all' and
+[] mean every frame).
 """
 
 from __future__ import annotations
@@ -40,11 +42,13 @@ class ProjectError(ValueError):
 @dataclasses.dataclass(frozen=True)
 class ProjectConfig:
     """What Config.toml says. files: the Config.toml files read, session first (the last
-    wins); pose_model: as written (None: not set); fps: frame_rate (None: not set or 'auto')."""
+    wins); pose_model: as written (None: not set); fps: frame_rate (None: not set or 'auto');
+    frame_range: (start, stop) positions (None: every frame)."""
 
     files: tuple[Path, ...] = ()
     pose_model: str | None = None
     fps: float | None = None
+    frame_range: tuple[int, int] | None = None
 
     @property
     def layout(self) -> str | None:
@@ -115,7 +119,19 @@ def read_config(folder) -> ProjectConfig:
                 f"or 'auto', got {rate!r}."
             )
         fps = float(rate)
-    return ProjectConfig(tuple(files), model, fps)
+    span = project.get("frame_range") if isinstance(project, dict) else None
+    frame_range = None
+    if isinstance(span, list) and span:
+        if len(span) != 2 or not all(isinstance(x, int) and not isinstance(x, bool) and x >= 0 for x in span) \
+                or span[0] >= span[1]:  # fmt: skip
+            raise ProjectError(
+                f"{files[-1]}: [project] frame_range must be [start, stop] with 0 <= start < stop (frame "
+                f"positions), 'auto' or 'all'; got {span!r}."
+            )
+        frame_range = (span[0], span[1])
+    elif span is not None and not (isinstance(span, str) and span.strip().lower() in ("auto", "all")) and span != []:
+        raise ProjectError(f"{files[-1]}: [project] frame_range must be [start, stop], 'auto' or 'all'; got {span!r}.")
+    return ProjectConfig(tuple(files), model, fps, frame_range)
 
 
 def _has_json(folder: Path) -> bool:
