@@ -334,3 +334,15 @@ def test_config_frame_range_selects_positions_before_any_fit(demo_recording, tmp
     code, io = _run([root, "--out", tmp_path / "o"], capsys)
     assert code == 2 and "Config.toml: frame_range = [10, 20] selects no frame; the recording has 6" in io.err
     assert not (tmp_path / "o").exists()
+
+
+def test_frames_one_camera_sees_are_named_in_a_multi_camera_fit():
+    from jaxmocap.app.multiview import _one_view_warning
+
+    kp = np.zeros((6, 3, 25, 3))
+    kp[:, :, :, 2] = 0.9
+    kp[[1, 2, 4], 1:] = 0.0  # only camera 0 sees frames 11, 12, 14
+    message = _one_view_warning(kp, np.arange(10, 16))
+    assert message.startswith("warning: 3 of 6 frames have the subject in one camera only (frame numbers 11..12, 14)")
+    assert _one_view_warning(kp[:, :1], np.arange(10, 16)) is None  # one camera: the monocular warning says it
+    assert _one_view_warning(np.full((2, 2, 25, 3), 0.9), np.arange(2)) is None

@@ -239,6 +239,26 @@ def check_out_dir(out_dir) -> Path:
     return out
 
 
+def _ranges(numbers) -> str:
+    """[1, 2, 3, 7, 9, 10] -> "1..3, 7, 9..10"."""
+    parts, start = [], None
+    for i, n in enumerate(numbers):
+        start = n if start is None else start
+        if i + 1 == len(numbers) or numbers[i + 1] != n + 1:
+            parts.append(f"{start}" if start == n else f"{start}..{n}")
+            start = None
+    return ", ".join(parts)
+
+
+def _one_view_warning(keypoints, frames) -> str | None:
+    """The frames of a multi-camera fit whose subject only one camera sees (T, V, K, 3)."""
+    one = frames[(keypoints[..., 2] > 0).any(-1).sum(1) == 1]
+    if keypoints.shape[1] < 2 or not len(one):
+        return None
+    return (f"warning: {len(one)} of {len(frames)} frames have the subject in one camera only (frame numbers "
+            f"{_ranges(one)}): depth there is not observed, it follows the neighbouring frames and the body's size.")
+
+
 def _read_summary(recording) -> str:
     present = recording.present or tuple(np.ones(recording.num_frames, bool) for _ in recording.views)
     parts = []
@@ -579,6 +599,8 @@ def fit_recording(
                 f"{keypoints_dir}: no frame has the same person in two views consistently with "
                 f"{calib_path}; check that the calibration belongs to this recording."
             )
+        if (warning := _one_view_warning(keypoints, recording.frames)) is not None:
+            say(warning)
         done("select person")
 
         begin("initialise")
