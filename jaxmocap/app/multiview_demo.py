@@ -75,9 +75,11 @@ def write_demo_recording(root, frames: int = 16, fps: float = 60.0, views: int =
     return {"joints": np.asarray(joints, np.float64), "frames": numbers, "dropped": dropped}
 
 
-def run_demo(out, frames: int = 16, body="default-low", temporal: bool = True, log=print) -> dict:
+def run_demo(out, frames: int = 16, body="default-low", temporal: bool = True, log=print,
+             progress: bool = False) -> dict:  # fmt: skip
     """Write the demo recording into ``out/recording`` and fit it into ``out/fit``; returns
-    the fit's report with "demo": {"mpjpe_mm", "seconds"} added."""
+    the fit's report with "demo": {"mpjpe_mm", "seconds"} added. progress: a bar over the
+    fit's stages on stderr."""
     from ..formats import read_project
     from .multiview import check_out_dir, fit_recording
 
@@ -88,8 +90,10 @@ def run_demo(out, frames: int = 16, body="default-low", temporal: bool = True, l
     project = read_project(out / "recording")
     log(f"demo     fitting it as `jaxmocap multiview {out / 'recording'}` would (keypoints {project.keypoints}, "
         f"calibration {project.calibration}, settings {project.config.files[-1]})")  # fmt: skip
+    log("demo     stage 1 (per frame)" + (", stage 2 (temporal)" if temporal else "") + "; the first run compiles "
+        "the solvers, a few minutes on a laptop CPU")  # fmt: skip
     report = fit_recording(project.keypoints, project.calibration, out / "fit", body=body, temporal=temporal,
-                           progress=False, log=log)  # fmt: skip
+                           progress=progress, log=log)  # fmt: skip
     from ..body import posed_vertices
     from ..body.io import resolve_body
     from ..motion.amass import load_amass
