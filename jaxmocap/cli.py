@@ -318,7 +318,7 @@ def _run_multiview(args) -> int:
         if args.source is not None:
             from .formats import read_project
 
-            project = read_project(args.source)
+            project = read_project(args.source, need_keypoints=keypoints is None, need_calibration=calib is None)
             keypoints, calib = keypoints or project.keypoints, calib or project.calibration
             out = out or project.root / "multiview"
         missing = [flag for flag, value in (("--keypoints DIR", keypoints), ("--calib FILE", calib),

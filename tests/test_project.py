@@ -127,4 +127,5 @@ def test_project_problems_name_the_file_and_the_fix(tmp_path):
     (empty / "calibration").rmdir()
     with pytest.raises(ProjectError, match=r"empty: no calibration folder.*--calib"):
         read_project(empty)
+    assert read_project(empty, need_calibration=False).calibration is None  # --calib given instead
     assert read_config(empty) == read_config(tmp_path / "nowhere")  # no Config.toml: nothing said

@@ -72,8 +72,8 @@ class Project:
     calibration (file, or folder for `load_calibration`), config."""
 
     root: Path
-    keypoints: Path
-    calibration: Path
+    keypoints: Path | None
+    calibration: Path | None
     config: ProjectConfig
 
 
@@ -156,24 +156,26 @@ def _calibration(root: Path) -> Path | None:
     return None
 
 
-def read_project(path) -> Project:
+def read_project(path, need_keypoints: bool = True, need_calibration: bool = True) -> Project:
     """The keypoints, calibration and settings of a Pose2Sim-style project (module docstring).
 
+    need_keypoints, need_calibration: False when the caller has its own (`--keypoints`,
+    `--calib`): that piece is not looked for (None).
     Raises:
         ProjectError naming the folder and the missing piece.
     """
     root = Path(path)
     if not root.is_dir():
         raise ProjectError(f"{root}: no such folder; give a project folder (Config.toml, calibration/, pose/).")
-    keypoints = next((root / n for n in _KEYPOINT_FOLDERS if _has_json(root / n)), None)
-    if keypoints is None:
+    keypoints = next((root / n for n in _KEYPOINT_FOLDERS if need_keypoints and _has_json(root / n)), None)
+    if keypoints is None and need_keypoints:
         raise ProjectError(
             f"{root}: no keypoints; a project holds one OpenPose JSON folder per camera under "
             f"{' or '.join(n + '/' for n in reversed(_KEYPOINT_FOLDERS))} (e.g. pose/cam01_json/). "
             "Elsewhere, name them with --keypoints DIR."
         )
-    calibration = _calibration(root)
-    if calibration is None:
+    calibration = _calibration(root) if need_calibration else None
+    if calibration is None and need_calibration:
         raise ProjectError(
             f"{root}: no calibration folder (a folder named like 'calibration' here or in "
             f"{root.parent}); name the calibration file with --calib FILE."
