@@ -331,9 +331,12 @@ def test_config_frame_range_selects_positions_before_any_fit(demo_recording, tmp
     shutil.copytree(demo_recording[0], root)
     config = root / "Config.toml"
     config.write_text(config.read_text().replace("frame_range = 'all'", "frame_range = [10, 20]"))
-    code, io = _run([root, "--out", tmp_path / "o"], capsys)
+    code, io = _run([root], capsys)  # no flags: the output would go to trial/multiview
     assert code == 2 and "Config.toml: frame_range = [10, 20] selects no frame; the recording has 6" in io.err
-    assert not (tmp_path / "o").exists()
+    assert not (root / "multiview").exists()
+    shutil.rmtree(root / "calibration")
+    code, io = _run([root, "--calib", demo_recording[0] / "calibration" / "Calib_demo.toml"], capsys)
+    assert code == 2 and "selects no frame" in io.err  # the calibration given, not looked for
 
 
 def test_frames_one_camera_sees_are_named_in_a_multi_camera_fit():
