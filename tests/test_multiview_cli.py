@@ -7,6 +7,7 @@ which a camera sees no one. The keypoints are the default body's BODY_25B keypoi
 walk, projected through the lens distortion.
 """
 
+import dataclasses
 import json
 
 import matplotlib.image
@@ -349,3 +350,18 @@ def test_frames_one_camera_sees_are_named_in_a_multi_camera_fit():
     assert message.startswith("warning: 3 of 6 frames have the subject in one camera only (frame numbers 11..12, 14)")
     assert _one_view_warning(kp[:, :1], np.arange(10, 16)) is None  # one camera: the monocular warning says it
     assert _one_view_warning(np.full((2, 2, 25, 3), 0.9), np.arange(2)) is None
+
+
+def test_a_camera_sharing_few_frame_numbers_is_warned_about():
+    from jaxmocap.app.multiview import _overlap_warnings
+    from jaxmocap.formats import KeypointRecording
+
+    frames = np.arange(0, 35)
+    a = b = frames < 20
+    c = frames >= 15  # numbered from another start: 5 of its 20 numbers shared by chance
+    rec = KeypointRecording(("a", "b", "c"), "body25", frames, (np.zeros((35, 1, 25, 3)),) * 3, (a, b, c))
+    assert _overlap_warnings(rec) == [
+        "warning: camera folder 'c' shares only 5 of its 20 frame numbers with the other cameras; are the cameras "
+        "synchronised and numbered alike?"
+    ]
+    assert _overlap_warnings(dataclasses.replace(rec, present=(a, b, frames >= 5))) == []  # 15 of 30 shared

@@ -259,6 +259,21 @@ def _one_view_warning(keypoints, frames) -> str | None:
             f"{_ranges(one)}): depth there is not observed, it follows the neighbouring frames and the body's size.")
 
 
+def _overlap_warnings(recording) -> list[str]:
+    """Cameras most of whose frame numbers no other camera has: unsynchronised, or
+    numbered from another start, yet sharing a few numbers by chance."""
+    if recording.present is None or len(recording.views) < 2:
+        return []
+    present = np.array(recording.present)  # (V, T)
+    out = []
+    for view, have in zip(recording.views, present):
+        shared = int((have & (present.sum(0) >= 2)).sum())
+        if shared < 0.5 * have.sum():
+            out.append(f"warning: camera folder {view!r} shares only {shared} of its {int(have.sum())} frame numbers "
+                       "with the other cameras; are the cameras synchronised and numbered alike?")  # fmt: skip
+    return out
+
+
 def _read_summary(recording) -> str:
     present = recording.present or tuple(np.ones(recording.num_frames, bool) for _ in recording.views)
     parts = []
@@ -560,6 +575,8 @@ def fit_recording(
         begin("read")
         recording = read_openpose(keypoints_dir, named, views)
         say(_read_summary(recording))
+        for warning in _overlap_warnings(recording):
+            say(warning)
         keep = _frame_filter(recording.frames, frames)
         if frames is None and config is not None and config.frame_range is not None:
             start, stop = config.frame_range  # Pose2Sim's: positions in the frame order
