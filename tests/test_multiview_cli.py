@@ -292,6 +292,8 @@ def test_one_camera_says_depth_is_unobserved_and_how_uncertain_it_is(demo_record
     depth = report["depth"]
     assert 3.0 < depth["depth_m"] < 6.0 and 0.04 * depth["depth_m"] < depth["depth_uncertainty_m"] < 0.2 * depth["depth_m"]
     assert abs(depth["floor"]["ratio"] - 1) < 0.1, depth  # the demo's body is the mean body, on the floor
+    assert "- warning: one camera (cam01): depth along its line of sight is not observed" in (
+        tmp_path / "mono" / "report.md").read_text()
 
 
 def test_multiview_demo_writes_a_lab_recording_and_fits_it(tmp_path, capsys):

@@ -818,6 +818,8 @@ def _save_reports(out_dir: Path, report: dict) -> None:
         "",
         "Timings (s): " + ", ".join(f"{k} {v:.1f}" for k, v in report["timings_s"].items()) + ".",
         "",
+        *[f"- {note}" for note in report.get("notes", [])],
+        "",
         "Outputs: " + ", ".join([report["outputs"]["smpl"], *report["outputs"]["overlays"], "meshes/"]) + ".",
         "",
     ]
