@@ -15,8 +15,9 @@ one, "left elbow" is the right shoulder and "nose"-"right eye" spans the body. R
    the lengths stay put over time and have human proportions. The lowest score wins.
 
 With one view there is no triangulation: 2-D lengths in pixels, one scale per frame
-(foreshortening adds to every layout's score alike). Measured margins are in
-`tests/test_multiview_layout.py` and the README.
+(foreshortening adds to every layout's score alike). Margins under noise, misses,
+outliers and left/right swaps: `experiments/multiview_layout_margins.py` (the wrong
+layout scores at least 2.4x the true one there; 3 px noise, 4 views: 0.05 against 0.41).
 """
 
 from __future__ import annotations
