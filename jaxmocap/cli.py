@@ -275,30 +275,62 @@ def _frame_slice(text: str) -> slice:
 
 
 def _configure_multiview(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--keypoints", required=True, metavar="DIR", help="folder with one OpenPose JSON folder per camera")
-    p.add_argument("--calib", required=True, metavar="FILE",
-                   help="calibration: Pose2Sim .toml, Qualisys .qca.txt, EasyMocap intri/extri.yml (folder), .npz")
-    p.add_argument("--out", required=True, metavar="DIR", help="output folder")
-    p.add_argument("--layout", default="body25", choices=("body25", "body25b", "coco18"),
-                   help="the OpenPose model the keypoints come from (default: body25)")
+    p.add_argument("source", nargs="?", metavar="PROJECT|demo",
+                   help="a Pose2Sim-style project folder (Config.toml, calibration/, pose/camNN_json/), read with no "
+                   "other flags; or 'demo': write a small synthetic recording in that layout into --out and fit it "
+                   "(a folder named demo: ./demo)")
+    p.add_argument("--keypoints", metavar="DIR",
+                   help="folder with one OpenPose JSON folder per camera (default: the project's pose/)")
+    p.add_argument("--calib", metavar="FILE", help="calibration: Pose2Sim .toml, Qualisys .qca.txt, EasyMocap "
+                   "intri/extri.yml (folder), .npz (default: the project's calibration/)")
+    p.add_argument("--out", metavar="DIR",
+                   help="output folder (default: PROJECT/multiview for a project, multiview-demo for the demo)")
+    p.add_argument("--layout", default=None, choices=("body25", "body25b", "coco18"),
+                   help="the OpenPose model the keypoints come from (default: Config.toml's pose_model, else "
+                   "detected from the skeleton); checked against the skeleton either way")
     _add_body_option(p)
     p.add_argument("--views", type=lambda s: [v for v in s.split(",") if v], metavar="A,B",
                    help="camera folders to use (default: all)")
     p.add_argument("--frames", type=_frame_slice, metavar="START:STOP", help="frame numbers to fit (default: all)")
-    p.add_argument("--fps", type=_positive(float), default=30.0, help="frame rate of the recording (default: 30)")
+    p.add_argument("--fps", type=_positive(float), default=None,
+                   help="frame rate of the recording (default: Config.toml's frame_rate, else 30)")
     p.add_argument("--no-temporal", action="store_true", help="stop after stage 1 (no DCT temporal prior)")
     p.add_argument("--keep-swaps", action="store_true",
                    help="do not flip back views whose detector swapped the legs (MuVS as written)")
     p.add_argument("--masks", metavar="DIR", help="person masks: one folder of PNGs per camera (adds silhouettes)")
 
 
+def _say(line: str) -> None:
+    print(line, file=sys.stderr if line.startswith("warning") else sys.stdout, flush=True)
+
+
 def _run_multiview(args) -> int:
     from .app.multiview import fit_recording
 
-    r = fit_recording(args.keypoints, args.calib, args.out, layout=args.layout, body=args.body, views=args.views,
-                      frames=args.frames, temporal=not args.no_temporal, resolve_swaps=not args.keep_swaps,
-                      masks_dir=args.masks, fps=args.fps, progress=sys.stderr.isatty())
-    final, out = r["reprojection"]["final"], Path(args.out)
+    if args.source == "demo":
+        from .app.multiview_demo import run_demo
+
+        out = Path(args.out or "multiview-demo")
+        r = run_demo(out, body=args.body, temporal=not args.no_temporal, log=_say, progress=sys.stderr.isatty())
+        out = out / "fit"
+    else:
+        keypoints, calib, out = args.keypoints, args.calib, args.out
+        if args.source is not None:
+            from .formats import read_project
+
+            project = read_project(args.source, need_keypoints=keypoints is None, need_calibration=calib is None)
+            keypoints, calib = keypoints or project.keypoints, calib or project.calibration
+            out = out or project.root / "multiview"
+        missing = [flag for flag, value in (("--keypoints DIR", keypoints), ("--calib FILE", calib),
+                                            ("--out DIR", out)) if value is None]  # fmt: skip
+        if missing:
+            raise ValueError(f"missing {', '.join(missing)}: give a project folder (jaxmocap multiview PROJECT), "
+                             "or --keypoints DIR --calib FILE --out DIR.")  # fmt: skip
+        out = Path(out)
+        r = fit_recording(keypoints, calib, out, layout=args.layout, body=args.body, views=args.views,
+                          frames=args.frames, temporal=not args.no_temporal, resolve_swaps=not args.keep_swaps,
+                          masks_dir=args.masks, fps=args.fps, progress=sys.stderr.isatty(), log=_say)
+    final = r["reprojection"]["final"]
     num = lambda x, spec: "-" if x is None else format(x, spec)  # noqa: E731 (None: nothing to measure)
     per_view = ", ".join(f"{v} {s['median_px']:.1f}" for v, s in final["per_view"].items() if s["count"])
     print(f"fitted   {r['frames']['count']} frames x {len(r['views'])} views ({r['layout']}) in "
@@ -310,6 +342,9 @@ def _run_multiview(args) -> int:
     print(f"jitter   stage 1 {num(jitter['stage1'], '.0f')} mm/s^2, final {num(jitter['final'], '.0f')} mm/s^2")
     print(f"wrote    {out / r['outputs']['smpl']}, {len(r['outputs']['overlays'])} overlays in {out / 'overlays'}, "
           f"meshes in {out / 'meshes'}, {out / 'report.md'}")
+    if "demo" in r:
+        print(f"demo     MPJPE {r['demo']['mpjpe_mm']:.0f} mm against the simulated walk; {r['demo']['seconds']:.0f} s "
+              f"in all. Your own: jaxmocap multiview PROJECT (a folder laid out as {out.parent / 'recording'})")
     return 0
 
 
@@ -455,7 +490,8 @@ COMMANDS: list[Command] = [
     Command("export", "pose a body with a motion; write meshes (and pictures)", _configure_export, _run_export),
     Command("demo", "walk → posed body → meshes and pictures (the `make demo` job)", _configure_demo, _run_demo),
     Command("check", "physical plausibility: ground penetration, floating, foot skating", _configure_check, _run_check),
-    Command("multiview", "fit SMPL to multi-camera OpenPose keypoints (Multi-view SMPLify)", _configure_multiview, _run_multiview),
+    Command("multiview", "fit SMPL to multi-camera OpenPose keypoints (Multi-view SMPLify): jaxmocap multiview "
+            "PROJECT | demo | --keypoints DIR --calib FILE --out DIR", _configure_multiview, _run_multiview),
     Command("interaction", "a person handling an object, from RGB-D views (InterCap): jaxmocap interaction demo",
             _configure_interaction, _run_interaction),
     Command("vip", "IMU wearers + a hand-held camera (Video Inertial Poser): jaxmocap vip demo | fit FILE.pkl",

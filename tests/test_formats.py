@@ -613,3 +613,48 @@ def test_formats_is_the_data_layer_and_imports_no_observation_models():
     assert "jaxmocap.formats.openpose" in loaded.split()
     layers = {m.split(".")[1] for m in loaded.split()}
     assert not layers & {"sensors", "energies", "methods", "priors", "solve"}
+
+
+@pytest.mark.parametrize(
+    "name, expected",
+    [
+        ("{view}_{frame:012d}_keypoints.json", "cam01_000000000012_keypoints.json"),  # OpenPose
+        ("{view}_{frame:06d}.json", "cam01_000012.json"),  # Pose2Sim / RTMLib
+        ("{view}.{frame:04d}.json", "cam01.0012.json"),  # camNN_json/camNN.FFFF.json
+        ("frame_{frame:04d}.json", "frame_0012.json"),
+        ("{frame:04d}.json", "0012.json"),
+        ("{view}_{frame}.JSON", "cam01_12.JSON"),
+    ],
+)
+def test_every_per_frame_naming_reads_the_frame_number_from_the_last_digits(tmp_path, name, expected):
+    rng = np.random.default_rng(0)
+    kps = [_random_people(rng, 3, 1), _random_people(rng, 3, 1)]
+    write_openpose(tmp_path, ["cam01", "cam02"], kps, "body25b", frames=[11, 12, 13], name=name)
+    assert (tmp_path / "cam01" / expected).exists()
+    (tmp_path / "cam01" / "notes.json").write_text("{}")  # no number: not a frame
+    rec = read_openpose(tmp_path, None)
+    assert rec.layout is None  # 25 points: BODY_25 or BODY_25B, decided later
+    assert rec.views == ("cam01", "cam02") and rec.frames.tolist() == [11, 12, 13]
+    np.testing.assert_array_equal(rec.keypoints[1], kps[1])
+    assert read_openpose(tmp_path, "body25b").layout == "body25b"
+
+
+def test_frames_are_matched_by_number_with_gaps_kept_and_disjoint_cameras_refused(tmp_path):
+    rng = np.random.default_rng(1)
+    kps = [_random_people(rng, 4, 1, K=18), _random_people(rng, 3, 1, K=18)]
+    write_openpose(tmp_path, ["cam01"], kps[:1], "coco18", frames=[1, 2, 3, 5], name="{view}.{frame:04d}.json")
+    write_openpose(tmp_path, ["cam02"], kps[1:], "coco18", frames=[2, 3, 4], name="{view}.{frame:04d}.json")
+    rec = read_openpose(tmp_path, None)
+    assert rec.layout == "coco18"  # the only 18-point layout
+    assert rec.frames.tolist() == [1, 2, 3, 4, 5]
+    assert [p.tolist() for p in rec.present] == [[True, True, True, False, True], [False, True, True, True, False]]
+    np.testing.assert_array_equal(rec.keypoints[1][1:4], kps[1])  # cam02's frame 2 is row 1, not 0
+    assert not rec.keypoints[0][3].any() and not rec.keypoints[1][[0, 4]].any()
+    # a camera numbered from another start shares no frame: refused, not appended
+    write_openpose(tmp_path, ["cam03"], kps[1:], "coco18", frames=[102, 103, 104], name="{view}.{frame:04d}.json")
+    with pytest.raises(KeypointFileError, match=r"'cam03' shares no frame number.*cam01 1..5, cam02 2..4, cam03 102..104"):
+        read_openpose(tmp_path, None)
+    assert read_openpose(tmp_path, None, views=["cam03"]).frames.tolist() == [102, 103, 104]
+    (tmp_path / "cam02" / "cam02.0003_keypoints.json").write_text('{"people": []}')
+    with pytest.raises(KeypointFileError, match=r"frame 3 appears twice: cam02\.0003\.json and cam02\.0003_keypoints"):
+        read_openpose(tmp_path, None, views=["cam02"])

@@ -7,6 +7,7 @@ which a camera sees no one. The keypoints are the default body's BODY_25B keypoi
 walk, projected through the lens distortion.
 """
 
+import dataclasses
 import json
 
 import matplotlib.image
@@ -210,3 +211,159 @@ def test_frame_ranges_are_frame_numbers_and_unseen_frames_start_from_their_neigh
     assert jitter(np.zeros((2, 24, 3)), 30.0) != jitter(np.zeros((2, 24, 3)), 30.0)  # NaN below 3 frames
     line = np.linspace(0.0, 1.0, 10)[:, None, None] * np.ones((1, 24, 3))
     assert jitter(line, 30.0) == pytest.approx(0.0, abs=1e-9)  # uniform motion has no jitter
+
+
+# ------------------------------------------------------------- issue 47: a lab's folders in
+
+
+def test_inputs_are_checked_before_any_fit(recording, tmp_path, capsys):
+    root, _, _ = recording
+    calib = root / "Calib.qca.txt"
+    (tmp_path / "file").write_text("")
+    code, io = _run(["--keypoints", root / "pose", "--calib", calib, "--out", tmp_path / "file"], capsys)
+    assert code == 2 and "file: the output folder exists as a file" in io.err and io.out == ""
+    code, io = _run(["--keypoints", root / "pose", "--calib", calib, "--out", tmp_path / "file" / "sub"], capsys)
+    assert code == 2 and "cannot be created" in io.err
+    code, io = _run([], capsys)
+    assert code == 2 and "missing --keypoints DIR, --calib FILE, --out DIR" in io.err
+    # BODY_25B detections named BODY_25: refused after reading, before fitting
+    code, io = _run(["--keypoints", root / "pose", "--calib", calib, "--out", tmp_path / "o", "--layout", "body25"],
+                    capsys)  # fmt: skip
+    assert code == 2 and "--layout says the keypoints are body25" in io.err and "--layout body25b" in io.err
+    assert "read     4 cameras: cam01_json 9 frames (0..8)" in io.out
+    assert "warning: the frame rate is not known" in io.err  # no --fps, no Config.toml
+    assert not (tmp_path / "o").exists()
+
+
+def test_frame_numbers_missing_in_every_camera_become_empty_frames():
+    from jaxmocap.app.multiview import _complete_frames
+    from jaxmocap.formats import KeypointRecording
+
+    kp = np.ones((4, 1, 25, 3))
+    rec = KeypointRecording(("a",), "body25", np.array([2, 4, 8, 10]), (kp,), (np.ones(4, bool),))
+    full = _complete_frames(rec)
+    assert full.frames.tolist() == [2, 4, 6, 8, 10]  # every 2nd frame written: step 2
+    assert full.present[0].tolist() == [True, True, False, True, True] and not full.keypoints[0][2].any()
+    np.testing.assert_array_equal(full.keypoints[0][[0, 1, 3, 4]], kp)
+    with pytest.raises(ValueError, match="frame numbers jump from 10 to 9000.*--frames"):
+        _complete_frames(KeypointRecording(("a",), "body25", np.array([1, 2, 10, 9000]), (kp,)))
+
+
+def test_monocular_depth_uncertainty_is_the_body_size_spread_at_its_distance():
+    from jaxmocap.app.multiview import STATURE_CV, monocular_depth
+
+    cam = CalibratedCamera("c", np.diag([1000.0, 1000.0, 1.0]), np.zeros(5), np.eye(3), [0.0, 0.0, 4.0], 0, 0)
+    joints = np.zeros((3, 24, 3))
+    det = np.zeros((3, 25, 3))
+    det[:, :2] = [[0.0, 0.0, 1.0], [0.0, 400.0, 1.0]]  # the body spans 400 px
+    d = monocular_depth(cam, joints, det, 4.0)
+    assert d["depth_m"] == pytest.approx(4.0) and d["body_extent_px"] == pytest.approx(400.0)
+    assert d["depth_uncertainty_m"] == pytest.approx(4.0 * np.hypot(STATURE_CV, 0.01))
+
+
+@pytest.fixture(scope="module")
+def demo_recording(tmp_path_factory):
+    from jaxmocap.app.multiview_demo import write_demo_recording
+
+    root = tmp_path_factory.mktemp("demo") / "recording"
+    return root, write_demo_recording(root, frames=6)
+
+
+def test_the_demo_recording_is_a_pose2sim_project_in_camnn_ffff_naming(demo_recording):
+    from jaxmocap.formats import read_openpose, read_project
+
+    root, truth = demo_recording
+    assert (root / "pose" / "cam01_json" / "cam01.0001.json").is_file()
+    assert not (root / "pose" / "cam04_json" / "cam04.0004.json").exists() and truth["dropped"] == (3, 4)
+    project = read_project(root)
+    assert (project.config.layout, project.config.fps) == ("body25b", 60.0)
+    rec = read_openpose(project.keypoints, None)
+    assert rec.frames.tolist() == [1, 2, 3, 4, 5, 6] and rec.present[3].tolist() == [1, 1, 1, 0, 1, 1]
+
+
+def test_one_camera_says_depth_is_unobserved_and_how_uncertain_it_is(demo_recording, tmp_path, capsys):
+    root, _ = demo_recording
+    code, io = _run([root, "--views", "cam01_json", "--no-temporal", "--out", tmp_path / "mono"], capsys)
+    assert code == 0, io.err
+    assert "fps      60, from" in io.out and "layout   body25b (from" in io.out  # Config.toml, no flags
+    assert "warning: one camera (cam01): depth along its line of sight is not observed" in io.err
+    report = json.loads((tmp_path / "mono" / "report.json").read_text())
+    assert report["monocular"] is True and report["frames"]["fps"] == 60.0
+    depth = report["depth"]
+    assert 3.0 < depth["depth_m"] < 6.0 and 0.04 * depth["depth_m"] < depth["depth_uncertainty_m"] < 0.2 * depth["depth_m"]
+    assert abs(depth["floor"]["ratio"] - 1) < 0.1, depth  # the demo's body is the mean body, on the floor
+    assert "- warning: one camera (cam01): depth along its line of sight is not observed" in (
+        tmp_path / "mono" / "report.md").read_text()
+
+
+def test_multiview_demo_writes_a_lab_recording_and_fits_it(tmp_path, capsys):
+    code, io = _run(["demo", "--out", tmp_path / "demo", "--no-temporal"], capsys)
+    assert code == 0, io.err
+    for line in ("demo     writing a synthetic 4-camera recording", "cam04_json 15 frames (1..16)",
+                 "layout   body25b (from", "confirmed by the skeleton", "fps      60", "demo     MPJPE"):
+        assert line in io.out, (line, io.out)
+    report = json.loads((tmp_path / "demo" / "fit" / "report.json").read_text())
+    assert report["monocular"] is False and report["layout"] == "body25b" and report["frames"]["count"] == 16
+    assert report["reprojection"]["final"]["overall"]["median_px"] < 6.0
+    assert (tmp_path / "demo" / "recording" / "Config.toml").is_file()
+    assert (tmp_path / "demo" / "fit" / "smpl.npz").is_file()
+
+
+def test_the_floor_gives_a_second_depth_from_the_standing_foot():
+    from jaxmocap.app.multiview import ground_depth
+
+    # z-up world, camera 1.6 m above the floor looking along +y (x right, y down = -z)
+    R = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
+    cam = CalibratedCamera("c", [[1000.0, 0.0, 640.0], [0.0, 1000.0, 360.0], [0.0, 0.0, 1.0]], np.zeros(5), R,
+                           -R @ [0.0, 0.0, 1.6], 1280, 720)  # fmt: skip
+    names = ["left_ankle", "right_ankle", "nose"]
+    world = np.array([[0.1, 4.0, 0.0], [-0.1, 3.0, 0.2], [0.0, 3.5, 1.6]])  # standing foot, lifted (nearer) foot
+    uv, _ = project_points(cam.K, cam.dist, cam.R, cam.t, world)
+    det = np.concatenate([uv, np.ones((3, 1))], -1)[None]
+    floor = ground_depth(cam, det, world[None], names, "+z")
+    # the lifted foot's ray meets the floor at 3.0 * 1.6 / 1.4 = 3.43 m, nearer than 4 m but behind that foot
+    assert floor == pytest.approx({"ground_depth_m": 4.0, "fitted_depth_m": 4.0, "ratio": 1.0})
+    assert ground_depth(cam, det, 1.1 * world[None], names, "+z")["ratio"] == pytest.approx(1 / 1.1)  # fit 10 % too far
+    assert ground_depth(cam, det, world[None], names, "-z") is None  # the camera would be below that floor
+
+
+def test_config_frame_range_selects_positions_before_any_fit(demo_recording, tmp_path, capsys):
+    import shutil
+
+    root = tmp_path / "trial"
+    shutil.copytree(demo_recording[0], root)
+    config = root / "Config.toml"
+    config.write_text(config.read_text().replace("frame_range = 'all'", "frame_range = [10, 20]"))
+    code, io = _run([root], capsys)  # no flags: the output would go to trial/multiview
+    assert code == 2 and "Config.toml: frame_range = [10, 20] selects no frame; the recording has 6" in io.err
+    assert not (root / "multiview").exists()
+    shutil.rmtree(root / "calibration")
+    code, io = _run([root, "--calib", demo_recording[0] / "calibration" / "Calib_demo.toml"], capsys)
+    assert code == 2 and "selects no frame" in io.err  # the calibration given, not looked for
+
+
+def test_frames_one_camera_sees_are_named_in_a_multi_camera_fit():
+    from jaxmocap.app.multiview import _one_view_warning
+
+    kp = np.zeros((6, 3, 25, 3))
+    kp[:, :, :, 2] = 0.9
+    kp[[1, 2, 4], 1:] = 0.0  # only camera 0 sees frames 11, 12, 14
+    message = _one_view_warning(kp, np.arange(10, 16))
+    assert message.startswith("warning: 3 of 6 frames have the subject in one camera only (frame numbers 11..12, 14)")
+    assert _one_view_warning(kp[:, :1], np.arange(10, 16)) is None  # one camera: the monocular warning says it
+    assert _one_view_warning(np.full((2, 2, 25, 3), 0.9), np.arange(2)) is None
+
+
+def test_a_camera_sharing_few_frame_numbers_is_warned_about():
+    from jaxmocap.app.multiview import _overlap_warnings
+    from jaxmocap.formats import KeypointRecording
+
+    frames = np.arange(0, 35)
+    a = b = frames < 20
+    c = frames >= 15  # numbered from another start: 5 of its 20 numbers shared by chance
+    rec = KeypointRecording(("a", "b", "c"), "body25", frames, (np.zeros((35, 1, 25, 3)),) * 3, (a, b, c))
+    assert _overlap_warnings(rec) == [
+        "warning: camera folder 'c' shares only 5 of its 20 frame numbers with the other cameras; are the cameras "
+        "synchronised and numbered alike?"
+    ]
+    assert _overlap_warnings(dataclasses.replace(rec, present=(a, b, frames >= 5))) == []  # 15 of 30 shared

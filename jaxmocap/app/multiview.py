@@ -42,6 +42,7 @@ import dataclasses
 import functools
 import json
 import math
+import os
 import re
 import time
 from pathlib import Path
@@ -52,6 +53,11 @@ __all__ = ["fit_recording", "jitter", "read_masks", "reprojection_errors", "worl
 
 #: Detections with at least this confidence count in the reprojection statistics.
 MIN_CONFIDENCE = 0.2
+#: Frame rate assumed when neither fps= nor the project's Config.toml gives one.
+DEFAULT_FPS = 30.0
+#: Relative spread of body size (adult stature: SD ≈ 9 cm about 1.70 m, sexes pooled): with
+#: one camera, depth is the body's size in pixels read against the mean body's size.
+STATURE_CV = 0.055
 #: At most this many PLY files (every n-th frame beyond) and GLB nodes are written.
 MAX_PLY, MAX_GLB_NODES = 300, 30
 #: Masks are refused when their distance transforms (float32, every frame and view) exceed this.
@@ -193,6 +199,154 @@ def _frame_filter(frames: np.ndarray, selection: slice | None) -> np.ndarray:
     return np.flatnonzero(keep)
 
 
+def _complete_frames(recording):
+    """Frame numbers missing from every camera inserted as frames without detections, so
+    that frames stay equally spaced in time for the temporal stage and the jitter; the
+    step is the numbers' greatest common difference (every 2nd frame written: step 2)."""
+    frames = recording.frames
+    if len(frames) < 2:
+        return recording
+    step = int(np.gcd.reduce(np.diff(frames)))
+    full = np.arange(frames[0], frames[-1] + 1, step)
+    if len(full) == len(frames):
+        return recording
+    if len(full) > 2 * len(frames) + 10:
+        jump = int(np.argmax(np.diff(frames)))
+        raise ValueError(
+            f"frame numbers jump from {frames[jump]} to {frames[jump + 1]} ({len(frames)} frames spread over "
+            f"{len(full)} numbers): several takes in one folder? Fit them one at a time (frames=/--frames START:STOP)."
+        )
+    rows = np.searchsorted(full, frames)
+
+    def spread(a):
+        out = np.zeros((len(full), *a.shape[1:]), a.dtype)
+        out[rows] = a
+        return out
+
+    present = recording.present or tuple(np.ones(len(frames), bool) for _ in recording.views)
+    return dataclasses.replace(recording, frames=full, keypoints=tuple(spread(k) for k in recording.keypoints),
+                               present=tuple(spread(p) for p in present))  # fmt: skip
+
+
+def check_out_dir(out_dir) -> Path:
+    """`out_dir` as a Path, after checking it is a folder or can be made (before any fit)."""
+    out = Path(out_dir)
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"{out}: the output folder exists as a file; give a folder (it is created if missing).")
+    base = next(p for p in (out.absolute(), *out.absolute().parents) if p.exists())
+    if not base.is_dir() or not os.access(base, os.W_OK | os.X_OK):
+        raise ValueError(f"{out}: the output folder cannot be created or written ({base} is not a writable folder).")
+    return out
+
+
+def _ranges(numbers) -> str:
+    """[1, 2, 3, 7, 9, 10] -> "1..3, 7, 9..10"."""
+    parts, start = [], None
+    for i, n in enumerate(numbers):
+        start = n if start is None else start
+        if i + 1 == len(numbers) or numbers[i + 1] != n + 1:
+            parts.append(f"{start}" if start == n else f"{start}..{n}")
+            start = None
+    return ", ".join(parts)
+
+
+def _one_view_warning(keypoints, frames) -> str | None:
+    """The frames of a multi-camera fit whose subject only one camera sees (T, V, K, 3)."""
+    one = frames[(keypoints[..., 2] > 0).any(-1).sum(1) == 1]
+    if keypoints.shape[1] < 2 or not len(one):
+        return None
+    return (f"warning: {len(one)} of {len(frames)} frames have the subject in one camera only (frame numbers "
+            f"{_ranges(one)}): depth there is not observed, it follows the neighbouring frames and the body's size.")
+
+
+def _overlap_warnings(recording) -> list[str]:
+    """Cameras most of whose frame numbers no other camera has: unsynchronised, or
+    numbered from another start, yet sharing a few numbers by chance."""
+    if recording.present is None or len(recording.views) < 2:
+        return []
+    present = np.array(recording.present)  # (V, T)
+    out = []
+    for view, have in zip(recording.views, present):
+        shared = int((have & (present.sum(0) >= 2)).sum())
+        if shared < 0.5 * have.sum():
+            out.append(f"warning: camera folder {view!r} shares only {shared} of its {int(have.sum())} frame numbers "
+                       "with the other cameras; are the cameras synchronised and numbered alike?")  # fmt: skip
+    return out
+
+
+def _read_summary(recording) -> str:
+    present = recording.present or tuple(np.ones(recording.num_frames, bool) for _ in recording.views)
+    parts = []
+    for view, have in zip(recording.views, present):
+        numbers = recording.frames[have]
+        parts.append(f"{view} {len(numbers)} frames" + (f" ({numbers[0]}..{numbers[-1]})" if len(numbers) else ""))
+    line = f"read     {len(recording.views)} cameras: " + ", ".join(parts)
+    if len(present) > 1:
+        missing = int((np.sum(present, 0) < len(present)).sum())
+        if missing:
+            line += f"; {missing} of {recording.num_frames} frames lack a file in some camera (masked there)"
+    return line
+
+
+def monocular_depth(camera, joints, detections, reprojection_px: float | None) -> dict:
+    """With one camera, how far the body is and how uncertain that distance is (1σ, m).
+
+    The depth comes from the body's size in the image against the fitted shape, which the
+    shape prior keeps near the mean body: its error is the spread of body size
+    (`STATURE_CV`) combined with the detections' scale error (median reprojection error
+    over the body's median pixel extent). joints: (T, 24, 3) world; detections: (T, K, 3).
+    """
+    depth = np.median((joints[:, 0] @ camera.R.T + camera.t)[:, 2])
+    seen = detections[..., 2] > 0
+    extents = [np.ptp(d[s, :2], 0).max() for d, s in zip(detections, seen) if s.sum() >= 2]
+    extent = float(np.median(extents)) if extents else float("nan")
+    scale = (reprojection_px or 0.0) / extent if extent > 0 else 0.0
+    relative = math.hypot(STATURE_CV, scale)
+    return {"camera": camera.name, "depth_m": float(depth), "depth_uncertainty_m": float(depth * relative),
+            "relative": float(relative), "body_extent_px": extent,
+            "from": "the body's size in the image (shape prior: the mean body)"}  # fmt: skip
+
+
+def ground_depth(camera, detections, model_keypoints, names, up: str) -> dict | None:
+    """A second, independent depth with one camera: where the feet meet the floor.
+
+    Assumes the floor is the calibration world's 0 plane across `up` (Qualisys and
+    Pose2Sim calibrations put their origin on the floor). Per frame, the ray of every
+    detected foot point (ankles, heels, toes; undistorted OpenCV pixels) is cut with the
+    floor, and the point whose cut is nearest relative to its fitted depth is kept: a
+    lifted foot's ray meets the floor behind the foot, the standing foot's at the foot.
+    Returns the medians of those cut depths, of the fitted depths of the same points and
+    of their ratio (cut / fitted; 1 when the fitted size is right), or None (camera not
+    above the floor, no feet seen).
+    """
+    axis, sign = _AXES[up]
+    centre = camera.center
+    if sign * centre[axis] <= 0:
+        return None
+    feet = [k for k, n in enumerate(names) if n.endswith(("ankle", "heel", "big_toe", "small_toe"))]
+    ground, fitted = [], []
+    for det, model in zip(detections, model_keypoints):
+        best = None
+        for k in feet:
+            if det[k, 2] <= 0:
+                continue
+            ray = camera.R.T @ np.linalg.solve(camera.K, np.array([det[k, 0], det[k, 1], 1.0]))  # depth 1
+            fit = (camera.R @ model[k] + camera.t)[2]
+            if sign * ray[axis] >= 0 or fit <= 0:  # at or above the horizon: never meets the floor
+                continue
+            cut = -centre[axis] / ray[axis]
+            if best is None or cut / fit < best[0] / best[1]:
+                best = (cut, fit)
+        if best is not None:
+            ground.append(best[0])
+            fitted.append(best[1])
+    if not ground:
+        return None
+    ground, fitted = np.array(ground), np.array(fitted)
+    return {"ground_depth_m": float(np.median(ground)), "fitted_depth_m": float(np.median(fitted)),
+            "ratio": float(np.median(ground / fitted))}  # fmt: skip
+
+
 def _fill_empty_frames(params: dict, empty: np.ndarray) -> dict:
     """Starting values of frames no view sees copied from the nearest frame that is seen
     (the fit then leaves them to the priors and, in stage 2, to their neighbours)."""
@@ -309,53 +463,92 @@ def fit_recording(
     keypoints_dir,
     calib_path,
     out_dir,
-    layout: str = "body25",
+    layout: str | None = None,
     body="default-low",
     views=None,
     frames: slice | None = None,
     temporal: bool = True,
     masks_dir=None,
-    fps: float = 30.0,
+    fps: float | None = None,
     weights=None,
     progress: bool = True,
     resolve_swaps: bool = True,
+    log=None,
 ) -> dict:
     """Fit SMPL to a multi-camera OpenPose recording and write results to `out_dir`.
 
     Args:
-        keypoints_dir: folder with one OpenPose ``--write_json`` folder per camera.
+        keypoints_dir: folder with one OpenPose ``--write_json`` folder per camera (any
+            per-frame file naming: `formats.openpose`); a Pose2Sim Config.toml in it or
+            its parent (project/pose) gives the layout and fps not passed here.
         calib_path: calibration file (Pose2Sim .toml, Qualisys .qca.txt, EasyMocap
             intri/extri.yml or their folder, jaxmocap .npz); cameras matched to the
             keypoint folders by name (`formats.align_views`).
         out_dir: output folder (created); see the module docstring for what is written.
-        layout: "body25" | "body25b" | "coco18", the model OpenPose ran with.
+        layout: "body25" | "body25b" | "coco18", the model OpenPose ran with; None takes
+            Config.toml's pose_model, else detects it (`app.layout.check_layout`). A named
+            layout is checked against the skeleton too: a clearly worse fit is warned
+            about, an absurd one refused.
         body: "default-low", "default-full", "mannequin" or a model file.
         views: camera folder names to use (default: all).
-        frames: slice of frame numbers (as in the file names) to fit; default all.
+        frames: slice of frame numbers (as in the file names) to fit; default all, or
+            Config.toml's frame_range (Pose2Sim's [start, stop) positions).
         temporal: run stage 2 (DCT temporal prior); otherwise stop after stage 1.
         resolve_swaps: flip back views whose detector swapped the legs before stage 1
             (`methods.multiview.resolve_left_right`); False is MuVS as written.
         masks_dir: optional folder of per-camera PNG person masks (module docstring);
             they add the silhouette term to stage 1.
-        fps: the recording's frame rate (OpenPose files do not store it).
+        fps: the recording's frame rate (OpenPose files do not store it); None takes
+            Config.toml's frame_rate, else `DEFAULT_FPS`.
         weights: `methods.multiview.MuVSWeights` (default: its defaults).
         progress: show a tqdm bar over the stages on stderr.
+        log: called with one line per finding before the fit (cameras and frames read,
+            layout and fps and where they came from; lines starting "warning:" are
+            warnings); None: silent (they are in the report's "notes").
     Returns:
-        The report (also written as report.json): frames, views, reprojection errors,
-        jitter, timings, output paths.
+        The report (also written as report.json): frames, views, layout check,
+        reprojection errors, jitter, timings, output paths; "monocular" (one camera:
+        depth is not observed) with "depth" (`monocular_depth`).
     Raises:
         ValueError (KeypointFileError, CalibrationError) naming the file or argument.
     """
-    from ..formats import align_views, load_calibration, read_openpose
+    from ..formats import align_views, load_calibration, read_config, read_openpose
     from ..methods.multiview import MuVSWeights, camera_data, initialise, resolve_left_right, stage_one, stage_two
     from ..sensors.keypoints import KEYPOINT_FORMATS, keypoint_regressor
-    from ..sensors.triangulation import select_person
+    from ..sensors.triangulation import projection_matrices, select_person
     from ..body.io import resolve_body
+    from .layout import check_layout
 
-    if not fps > 0:
-        raise ValueError(f"fps must be positive, got {fps}.")
+    notes: list[str] = []
+
+    def say(line):
+        notes.append(line)
+        if log is not None:
+            log(line)
+
+    # every input is checked before any fitting: output folder, settings, files
+    out_dir = check_out_dir(out_dir)
+    config = read_config(keypoints_dir) if Path(keypoints_dir).is_dir() else None
+    named, named_by = layout, "--layout"
+    if named is None and config is not None and config.pose_model is not None:
+        named, named_by = config.layout, f"{config.files[-1]} (pose_model = {config.pose_model!r})"
+    fps_note = None  # said once the files are read, so that a bad file is the only message
+    if fps is None:
+        if config is not None and config.fps is not None:
+            fps = config.fps
+            fps_note = f"fps      {fps:g}, from {config.files[-1]} (frame_rate)"
+        else:
+            fps = DEFAULT_FPS
+            fps_note = (f"warning: the frame rate is not known (no fps given, no frame_rate in a Config.toml); "
+                        f"assuming {fps:g} fps: give the recording's (--fps).")  # fmt: skip
+    try:
+        positive = not isinstance(fps, bool) and float(fps) > 0
+    except (TypeError, ValueError):
+        positive = False
+    if not positive:
+        raise ValueError(f"fps must be a positive number of frames per second, got {fps!r}.")
+    fps = float(fps)
     weights = MuVSWeights() if weights is None else weights
-    out_dir = Path(out_dir)
     timings: dict[str, float] = {}
     stages = ["read", "select person", "initialise", "stage 1", "stage 2", "write"]
     if not temporal:
@@ -380,17 +573,39 @@ def fit_recording(
 
     try:
         begin("read")
-        recording = read_openpose(keypoints_dir, layout, views)
+        recording = read_openpose(keypoints_dir, named, views)
+        say(_read_summary(recording))
+        for warning in _overlap_warnings(recording):
+            say(warning)
         keep = _frame_filter(recording.frames, frames)
-        recording = dataclasses.replace(
-            recording, frames=recording.frames[keep], keypoints=tuple(k[keep] for k in recording.keypoints)
-        )
-        cameras = align_views(recording, load_calibration(calib_path))
+        if frames is None and config is not None and config.frame_range is not None:
+            start, stop = config.frame_range  # Pose2Sim's: positions in the frame order
+            keep = keep[start:stop]
+            if not len(keep):
+                raise ValueError(f"{config.files[-1]}: frame_range = [{start}, {stop}] selects no frame; the "
+                                 f"recording has {recording.num_frames}.")  # fmt: skip
+            say(f"frames   positions {start}..{min(stop, recording.num_frames) - 1} (frame numbers "
+                f"{recording.frames[keep[0]]}..{recording.frames[keep[-1]]}), from {config.files[-1]} (frame_range)")
+        recording = _complete_frames(dataclasses.replace(
+            recording, frames=recording.frames[keep], keypoints=tuple(k[keep] for k in recording.keypoints),
+            present=None if recording.present is None else tuple(p[keep] for p in recording.present),
+        ))  # fmt: skip
+        calibration = load_calibration(calib_path)
+        cameras = align_views(recording, calibration)
+        if len(calibration) > len(cameras):
+            unused = sorted({c.name for c in calibration} - {c.name for c in cameras})
+            say(f"calib    {len(calibration)} cameras in {calib_path}; without keypoints, not used: {unused}")
         body_model = resolve_body(body)
+        if fps_note:
+            say(fps_note)
         done("read")
 
         begin("select person")
         subject = select_person(recording, cameras)  # (V, T, K, 3), undistorted, OpenCV centres
+        check = check_layout(subject, projection_matrices(cameras), body_model, subject.shape[2], named, named_by)
+        say(check.message)
+        layout = check.layout
+        recording = dataclasses.replace(recording, layout=layout)
         keypoints = np.moveaxis(subject, 0, 1).copy()  # (T, V, K, 3)
         # never NaN: a view without the subject in a frame is confidence 0 at (0, 0)
         bad = ~np.isfinite(keypoints).all(-1) | (keypoints[..., 2] <= 0)
@@ -401,6 +616,8 @@ def fit_recording(
                 f"{keypoints_dir}: no frame has the same person in two views consistently with "
                 f"{calib_path}; check that the calibration belongs to this recording."
             )
+        if (warning := _one_view_warning(keypoints, recording.frames)) is not None:
+            say(warning)
         done("select person")
 
         begin("initialise")
@@ -440,6 +657,27 @@ def fit_recording(
         if bar is not None:
             bar.close()
     report["resolve_swaps"] = resolve_swaps
+    report["layout_check"] = {"verdict": check.verdict, "named": named, "named_by": named_by if named else None,
+                              "scores": check.scores}  # fmt: skip
+    report["monocular"] = len(cameras) == 1
+    if report["monocular"]:
+        _, joints = _posed(body_model, final["pose"], final["betas"], final["trans"])
+        report["depth"] = monocular_depth(cameras[0], joints, keypoints[:, 0],
+                                          report["reprojection"]["final"]["overall"]["median_px"])
+        d = report["depth"]
+        say(f"warning: one camera ({cameras[0].name}): depth along its line of sight is not observed; it comes from "
+            f"{d['from']}: {d['depth_m']:.2f} m ± {d['depth_uncertainty_m']:.2f} m (1σ). Add a second camera to "
+            "measure it.")  # fmt: skip
+        verts, _ = _posed(body_model, final["pose"], final["betas"], final["trans"])
+        model_kp = np.einsum("kn,tnc->tkc", keypoint_regressor(body_model, layout), verts)
+        floor = ground_depth(cameras[0], keypoints[:, 0], model_kp, KEYPOINT_FORMATS[layout], report["world_up"])
+        d["floor"] = floor
+        if floor is not None and abs(floor["ratio"] - 1) > 2 * d["relative"]:
+            say(f"warning: the feet would meet the floor (the world's 0 plane) at {floor['ground_depth_m']:.2f} m from "
+                f"the camera, but the fit puts them at {floor['fitted_depth_m']:.2f} m: the person is "
+                f"{'smaller' if floor['ratio'] < 1 else 'larger'} than the mean body, "
+                "or the floor is elsewhere.")  # fmt: skip
+    report["notes"] = notes
     report["timings_s"] = {k: round(v, 3) for k, v in timings.items()}
     report["timings_s"]["total"] = round(sum(timings.values()), 3)
     _save_reports(out_dir, report)
@@ -579,6 +817,8 @@ def _save_reports(out_dir: Path, report: dict) -> None:
                       else "fitted keypoints only (no person masks given)."),
         "",
         "Timings (s): " + ", ".join(f"{k} {v:.1f}" for k, v in report["timings_s"].items()) + ".",
+        "",
+        *[f"- {note}" for note in report.get("notes", [])],
         "",
         "Outputs: " + ", ".join([report["outputs"]["smpl"], *report["outputs"]["overlays"], "meshes/"]) + ".",
         "",

@@ -1,7 +1,6 @@
 """OpenPose keypoints per camera folder and frame, and the calibration they belong to.
 
-OpenPose's ``--write_json`` writes one file per frame, ``<name>_<frame:012d>_keypoints.json``
-(any digits before ``_keypoints.json`` are taken as the frame number here):
+OpenPose's ``--write_json`` writes one file per frame, ``<name>_<frame:012d>_keypoints.json``:
 
     {"version": 1.3, "people": [{"person_id": [-1], "pose_keypoints_2d": [u0, v0, c0, u1, ...],
                                  "face_keypoints_2d": [], "hand_left_keypoints_2d": [], ...}]}
@@ -11,13 +10,24 @@ COCO-18: `KEYPOINT_COUNTS`; names in `jaxmocap.sensors.keypoints.KEYPOINT_FORMAT
 centres at integers, undetected keypoints as (0, 0, 0). A recording is one folder per
 camera under a root (Pose2Sim: ``pose/cam01_json/``; EasyMocap: ``openpose/01/``).
 
-`read_openpose` gathers every view into padded arrays over the union of frame numbers: a
-frame whose file is missing in one view, or whose "people" list is empty, has no people
-there (confidence 0). People are kept in the file's order; which one is the subject is
-decided later across views (`jaxmocap.sensors.triangulation.select_person`).
+File names: labs rename these files, so any ``*.json`` file whose name holds a number is
+read, and **the frame number is the last run of digits in the name** (``.json`` and a
+trailing ``_keypoints`` aside): ``cam01_000000000012_keypoints.json`` (OpenPose),
+``cam01_000012.json`` (Pose2Sim/RTMLib), ``cam01.0012.json``, ``frame_0012.json`` and
+``0012.json`` are all frame 12. A name whose number comes before the camera's
+(``0012_cam01.json``) is misread; two files giving one frame number are refused.
+
+`read_openpose` gathers every view into padded arrays over the union of frame numbers,
+matching frames across cameras by their numbers: a frame whose file is missing in one
+view (`KeypointRecording.present`), or whose "people" list is empty, has no people there
+(confidence 0). Cameras that share no frame number with any other camera are refused (an
+unsynchronised or misnamed folder, not a longer recording). People are kept in the
+file's order; which one is the subject is decided later across views
+(`jaxmocap.sensors.triangulation.select_person`).
 
 BODY_25 and BODY_25B both have 25 keypoints and cannot be told apart from the numbers:
-pass the layout the detector ran with.
+`layout=None` reads 25-point files with `KeypointRecording.layout` None, to be decided
+from the data (`jaxmocap.app.layout.detect_layout`).
 """
 
 from __future__ import annotations
@@ -43,7 +53,8 @@ __all__ = [
 ]
 
 KEYPOINT_COUNTS = {"body25": 25, "body25b": 25, "coco18": 18}
-_FRAME = re.compile(r"(\d+)_keypoints\.json$")
+# the last digit run of the stem (module docstring)
+_FRAME = re.compile(r"(\d+)\D*\.json$", re.IGNORECASE)
 _EMPTY_PARTS = (
     "face_keypoints_2d", "hand_left_keypoints_2d", "hand_right_keypoints_2d", "pose_keypoints_3d",
     "face_keypoints_3d", "hand_left_keypoints_3d", "hand_right_keypoints_3d",
@@ -59,16 +70,19 @@ class KeypointRecording:
     """OpenPose detections of several synchronised cameras.
 
     views: camera folder names, one per view.
-    layout: "body25" | "body25b" | "coco18".
+    layout: "body25" | "body25b" | "coco18", or None when the files fit several layouts
+        (25 points: BODY_25 or BODY_25B) and none was named.
     frames: (T,) int frame numbers (union over views, increasing).
     keypoints: per view (T, P_v, K, 3) rows (u, v, confidence) in pixels, people in file
         order padded with zeros to P_v = max(1, most people in any frame of that view).
+    present: per view (T,) bool, whether that view has a file for the frame (None: all).
     """
 
     views: tuple[str, ...]
-    layout: str
+    layout: str | None
     frames: np.ndarray
     keypoints: tuple[np.ndarray, ...]
+    present: tuple[np.ndarray, ...] | None = None
 
     @property
     def num_frames(self) -> int:
@@ -87,19 +101,44 @@ def _layouts_for(count: int) -> list[str]:
     return [name for name, k in KEYPOINT_COUNTS.items() if 3 * k == count]
 
 
-def _read_people(path: Path, layout: str) -> list[np.ndarray]:
-    K = KEYPOINT_COUNTS[layout]
+def _pose_lists(path: Path) -> list:
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
     except (json.JSONDecodeError, UnicodeDecodeError) as e:
         raise KeypointFileError(f"{path}: not valid JSON, truncated or corrupt ({e}).") from None
     if not isinstance(data, dict) or not isinstance(data.get("people"), list):
         raise KeypointFileError(f"{path}: no 'people' list; not an OpenPose --write_json file.")
-    people = []
+    out = []
     for i, person in enumerate(data["people"]):
         flat = person.get("pose_keypoints_2d", []) if isinstance(person, dict) else None
         if not isinstance(flat, list):
             raise KeypointFileError(f"{path}: people[{i}] has no 'pose_keypoints_2d' list.")
+        out.append(flat)
+    return out
+
+
+def _layout_of(files: Sequence[Path]) -> str | None:
+    """The one layout whose count the first detection in `files` has; None when it fits
+    several (BODY_25 / BODY_25B)."""
+    for path in files:
+        for i, flat in enumerate(_pose_lists(path)):
+            if flat:
+                fits = _layouts_for(len(flat))
+                if not fits:
+                    raise KeypointFileError(
+                        f"{path}: people[{i}] has {len(flat)} numbers in pose_keypoints_2d; no known "
+                        "layout has that many ("
+                        + ", ".join(f"{n}: {3 * k}" for n, k in KEYPOINT_COUNTS.items())
+                        + ")."
+                    )
+                return fits[0] if len(fits) == 1 else None
+    return None
+
+
+def _read_people(path: Path, layout: str) -> list[np.ndarray]:
+    K = KEYPOINT_COUNTS[layout]
+    people = []
+    for i, flat in enumerate(_pose_lists(path)):
         if len(flat) == 0:  # e.g. a face- or hand-only detection
             continue
         if len(flat) != 3 * K:
@@ -130,21 +169,23 @@ def _read_people(path: Path, layout: str) -> list[np.ndarray]:
 
 
 def read_openpose(
-    root, layout: str = "body25", views: Sequence[str] | None = None
+    root, layout: str | None = "body25", views: Sequence[str] | None = None
 ) -> KeypointRecording:
     """Read OpenPose JSON from one folder per camera under `root`.
 
     Args:
         root: folder holding one sub-folder per camera (or, for one camera, the JSON files).
-        layout: "body25" | "body25b" | "coco18", the model OpenPose ran with.
+        layout: "body25" | "body25b" | "coco18", the model OpenPose ran with; None takes
+            the count from the files (module docstring).
         views: camera folder names to read, in this order; None reads every sub-folder
-            holding ``*_keypoints.json`` files, in natural order (cam2 before cam10).
+            holding numbered ``*.json`` files, in natural order (cam2 before cam10).
     Raises:
         KeypointFileError naming the folder or file: missing camera folder, no keypoint
-        files, truncated JSON, a keypoint count of another layout.
+        files, truncated JSON, a keypoint count of another layout, cameras whose frame
+        numbers do not overlap.
     """
     root = Path(root)
-    if layout not in KEYPOINT_COUNTS:
+    if layout is not None and layout not in KEYPOINT_COUNTS:
         raise KeypointFileError(
             f"layout={layout!r} is not known; choose from {sorted(KEYPOINT_COUNTS)}."
         )
@@ -161,8 +202,12 @@ def read_openpose(
             folders = [root]  # a single camera's files directly under root
         if not folders:
             raise KeypointFileError(
-                f"{root}: no camera folders with OpenPose '*_keypoints.json' files."
-            )
+                f"{root}: no camera folders with numbered OpenPose '*.json' files (e.g. "
+                "cam01/cam01_000000000012_keypoints.json); give the folder that holds one such "
+                "folder per camera"
+                + (f" ({root / 'pose'}; or the project folder itself as `jaxmocap multiview {root}`)."
+                   if (root / "pose").is_dir() else ".")
+            )  # fmt: skip
     else:
         views = [views] if isinstance(views, str) else list(views)
         present = sorted(p.name for p in root.iterdir() if p.is_dir())
@@ -177,7 +222,10 @@ def read_openpose(
     for folder in folders:
         files = _keypoint_files(folder)
         if not files:
-            raise KeypointFileError(f"{folder}: no OpenPose '<name>_<frame>_keypoints.json' files.")
+            raise KeypointFileError(
+                f"{folder}: no OpenPose JSON files with a frame number in their name "
+                "('<name>_<frame>_keypoints.json', 'cam01.0012.json', ...)."
+            )
         by_frame: dict[int, Path] = {}
         for f in files:
             frame = int(_FRAME.search(f.name).group(1))
@@ -186,10 +234,17 @@ def read_openpose(
                     f"{folder}: frame {frame} appears twice: {by_frame[frame].name} and {f.name}."
                 )
             by_frame[frame] = f
-        per_view.append({frame: _read_people(f, layout) for frame, f in by_frame.items()})
+        per_view.append(by_frame)
+    _check_overlap([f.name for f in folders], per_view)
+    found = layout or _layout_of([f for by_frame in per_view for f in by_frame.values()])
+    # undecided (25 points, none named): read as BODY_25, whose count is the same
+    per_view = [
+        {frame: _read_people(f, found or "body25") for frame, f in by_frame.items()}
+        for by_frame in per_view
+    ]
     frames = np.array(sorted(set().union(*per_view)), np.int64)
     index = {int(f): i for i, f in enumerate(frames)}
-    K = KEYPOINT_COUNTS[layout]
+    K = KEYPOINT_COUNTS[found or "body25"]
     keypoints = []
     for people in per_view:
         P = max([1] + [len(p) for p in people.values()])
@@ -198,16 +253,39 @@ def read_openpose(
             if rows:
                 out[index[frame], : len(rows)] = np.stack(rows)
         keypoints.append(out)
-    return KeypointRecording(tuple(f.name for f in folders), layout, frames, tuple(keypoints))
+    present = tuple(np.isin(frames, list(people)) for people in per_view)
+    return KeypointRecording(tuple(f.name for f in folders), found, frames, tuple(keypoints), present)
 
 
-def write_openpose(root, views, keypoints, layout, frames=None) -> None:
+def _check_overlap(names: list[str], per_view: list[dict]) -> None:
+    """Refuse a camera that shares no frame number with any other: its frames would be
+    other instants, fitted as if they were more frames of the same recording."""
+    if len(per_view) < 2:
+        return
+    for v, frames in enumerate(per_view):
+        others = set().union(*(f for w, f in enumerate(per_view) if w != v))
+        if not others & set(frames):
+            ranges = ", ".join(f"{n} {min(f)}..{max(f)}" for n, f in zip(names, per_view))
+            raise KeypointFileError(
+                f"camera folder {names[v]!r} shares no frame number with the other cameras "
+                f"(frame numbers: {ranges}); frames are matched by the number in the file "
+                "names, so the cameras must be synchronised and numbered alike (Pose2Sim's "
+                "synchronization writes pose-sync/), or leave it out with views=/--views."
+            )
+
+
+OPENPOSE_NAME = "{view}_{frame:012d}_keypoints.json"
+
+
+def write_openpose(root, views, keypoints, layout, frames=None, name: str = OPENPOSE_NAME) -> None:
     """Write detections as OpenPose's ``--write_json`` output, one folder per view.
 
     Args:
         root: output folder; view v goes to ``root/views[v]/<view>_<frame:012d>_keypoints.json``.
         views: camera folder names; keypoints: per view (T, P, K, 3) rows (u, v, c);
         layout: "body25" | "body25b" | "coco18"; frames: (T,) frame numbers (default 0..T-1).
+        name: file name pattern with {view} and {frame} (a lab's renaming, e.g.
+            "{view}.{frame:04d}.json"; `read_openpose` takes the last number as the frame).
     A slot whose confidences are all 0 is padding and not written, so a frame with no one
     gets ``"people": []``.
     """
@@ -245,7 +323,7 @@ def write_openpose(root, views, keypoints, layout, frames=None) -> None:
                 if np.any(person[:, 2] > 0)
             ]
             text = json.dumps({"version": 1.3, "people": people})
-            (folder / f"{view}_{int(frame):012d}_keypoints.json").write_text(text, encoding="utf-8")
+            (folder / name.format(view=view, frame=int(frame))).write_text(text, encoding="utf-8")
 
 
 def normalise_view_name(name: str) -> tuple[str, ...]:

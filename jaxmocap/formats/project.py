@@ -1,0 +1,183 @@
+"""Pose2Sim-style project folders: where the keypoints, the calibration and the settings are.
+
+A Pose2Sim project (https://github.com/perfanalytics/pose2sim, its ``Demo_*`` folders) is
+
+    project/
+        Config.toml              [project] frame_rate = 60 | 'auto'; [pose] pose_model = 'BODY_25B'
+        calibration/Calib*.toml  (often beside the lab's own Calib.qca.txt it was converted from)
+        pose/cam01_json/...      one OpenPose JSON folder per camera (pose-sync/ once
+                                 synchronised, pose-associated/ once one person is chosen)
+
+and a batch session puts several trials, each with its own Config.toml, under a session
+folder holding the shared calibration/ and a Config.toml the trials' values override.
+
+`read_project` finds these pieces with Pose2Sim's rules: the keypoint folder is the first
+of pose-associated/, pose-sync/, pose/ that holds any; the calibration is in a folder
+whose name contains "calib" (the trial's, else the session's): its one .toml, else its
+one calibration of another format (`load_calibration`'s folder rule). `read_config` reads
+the settings jaxmocap uses: ``pose_model`` (Pose2Sim's names, any case; OpenPose's
+BODY_25, BODY_25B and COCO map to jaxmocap's layouts), ``frame_rate`` ('auto' means
+"from the video", which jaxmocap does not read: None) and ``frame_range`` ([start, stop):
+positions in the frame order, as Pose2Sim indexes its sorted files; 'auto', 'all' and
+[] mean every frame).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import tomllib
+from pathlib import Path
+
+__all__ = ["POSE_MODELS", "Project", "ProjectConfig", "ProjectError", "read_config", "read_project"]
+
+#: Pose2Sim ``pose_model`` names (upper case) of OpenPose models jaxmocap reads.
+POSE_MODELS = {"BODY_25": "body25", "BODY_25B": "body25b", "COCO": "coco18", "COCO_18": "coco18"}
+_KEYPOINT_FOLDERS = ("pose-associated", "pose-sync", "pose")
+
+
+class ProjectError(ValueError):
+    """A project folder lacks a piece, or its Config.toml holds a value jaxmocap cannot use."""
+
+
+@dataclasses.dataclass(frozen=True)
+class ProjectConfig:
+    """What Config.toml says. files: the Config.toml files read, session first (the last
+    wins); pose_model: as written (None: not set); fps: frame_rate (None: not set or 'auto');
+    frame_range: (start, stop) positions (None: every frame)."""
+
+    files: tuple[Path, ...] = ()
+    pose_model: str | None = None
+    fps: float | None = None
+    frame_range: tuple[int, int] | None = None
+
+    @property
+    def layout(self) -> str | None:
+        """jaxmocap's layout of `pose_model` (None when not set); ProjectError for a model
+        jaxmocap has no layout for."""
+        if self.pose_model is None:
+            return None
+        layout = POSE_MODELS.get(self.pose_model.upper())
+        if layout is None:
+            raise ProjectError(
+                f"{self.files[-1]}: pose_model = {self.pose_model!r} has no jaxmocap layout; jaxmocap "
+                f"reads OpenPose {', '.join(sorted(POSE_MODELS))} detections. Run OpenPose with "
+                "BODY_25B (or BODY_25), or pass --layout if the files hold one of those."
+            )
+        return layout
+
+
+@dataclasses.dataclass(frozen=True)
+class Project:
+    """The pieces of a project folder: root, keypoints (folder of per-camera JSON folders),
+    calibration (file, or folder for `load_calibration`), config."""
+
+    root: Path
+    keypoints: Path | None
+    calibration: Path | None
+    config: ProjectConfig
+
+
+def _merge(base: dict, top: dict) -> dict:
+    out = dict(base)
+    for k, v in top.items():
+        out[k] = _merge(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) else v
+    return out
+
+
+def read_config(folder) -> ProjectConfig:
+    """The settings of the project holding `folder` (the project, or its keypoint folder).
+
+    Config.toml is looked for in `folder`, then its parent (`folder` = project/pose), and
+    the session's Config.toml one level above a trial's is read first; none found gives an
+    empty ProjectConfig.
+    """
+    folder = Path(folder).resolve()
+    start = next((f for f in (folder, folder.parent) if (f / "Config.toml").is_file()), None)
+    if start is None:
+        return ProjectConfig()
+    files = [start / "Config.toml"]
+    if (start.parent / "Config.toml").is_file():  # a trial in a batch session
+        files.insert(0, start.parent / "Config.toml")
+    data: dict = {}
+    for path in files:
+        try:
+            data = _merge(data, tomllib.loads(path.read_text(encoding="utf-8")))
+        except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
+            raise ProjectError(f"{path}: not valid TOML ({e}).") from None
+    pose, project = data.get("pose", {}), data.get("project", {})
+    model = pose.get("pose_model") if isinstance(pose, dict) else None
+    rate = project.get("frame_rate") if isinstance(project, dict) else None
+    if model is not None and not isinstance(model, str):
+        raise ProjectError(f"{files[-1]}: [pose] pose_model must be a name such as 'BODY_25B', got {model!r}.")
+    fps = None
+    if isinstance(rate, str) and rate.strip().lower() == "auto":
+        fps = None
+    elif rate is not None:
+        if isinstance(rate, bool) or not isinstance(rate, int | float) or not rate > 0:
+            raise ProjectError(
+                f"{files[-1]}: [project] frame_rate must be a positive number of frames per second "
+                f"or 'auto', got {rate!r}."
+            )
+        fps = float(rate)
+    span = project.get("frame_range") if isinstance(project, dict) else None
+    frame_range = None
+    if isinstance(span, list) and span:
+        if len(span) != 2 or not all(isinstance(x, int) and not isinstance(x, bool) and x >= 0 for x in span) \
+                or span[0] >= span[1]:  # fmt: skip
+            raise ProjectError(
+                f"{files[-1]}: [project] frame_range must be [start, stop] with 0 <= start < stop (frame "
+                f"positions), 'auto' or 'all'; got {span!r}."
+            )
+        frame_range = (span[0], span[1])
+    elif span is not None and not (isinstance(span, str) and span.strip().lower() in ("auto", "all")) and span != []:
+        raise ProjectError(f"{files[-1]}: [project] frame_range must be [start, stop], 'auto' or 'all'; got {span!r}.")
+    return ProjectConfig(tuple(files), model, fps, frame_range)
+
+
+def _has_json(folder: Path) -> bool:
+    return folder.is_dir() and any(
+        p.is_dir() and any(f.suffix.lower() == ".json" for f in p.iterdir()) for p in folder.iterdir()
+    )
+
+
+def _calibration(root: Path) -> Path | None:
+    # the session's calibration serves its trials; elsewhere the parent is not ours to search
+    session = (root.parent / "Config.toml").is_file()
+    for where in (root, root.parent) if session else (root,):
+        folders = sorted(p for p in where.iterdir() if p.is_dir() and "calib" in p.name.lower())
+        for folder in folders:
+            tomls = sorted(p for p in folder.iterdir() if p.suffix.lower() == ".toml")
+            if len(tomls) > 1:
+                raise ProjectError(
+                    f"{folder}: several calibration files {[p.name for p in tomls]}; pass the one to "
+                    "use with --calib."
+                )
+            return tomls[0] if tomls else folder
+    return None
+
+
+def read_project(path, need_keypoints: bool = True, need_calibration: bool = True) -> Project:
+    """The keypoints, calibration and settings of a Pose2Sim-style project (module docstring).
+
+    need_keypoints, need_calibration: False when the caller has its own (`--keypoints`,
+    `--calib`): that piece is not looked for (None).
+    Raises:
+        ProjectError naming the folder and the missing piece.
+    """
+    root = Path(path)
+    if not root.is_dir():
+        raise ProjectError(f"{root}: no such folder; give a project folder (Config.toml, calibration/, pose/).")
+    keypoints = next((root / n for n in _KEYPOINT_FOLDERS if need_keypoints and _has_json(root / n)), None)
+    if keypoints is None and need_keypoints:
+        raise ProjectError(
+            f"{root}: no keypoints; a project holds one OpenPose JSON folder per camera under "
+            f"{' or '.join(n + '/' for n in reversed(_KEYPOINT_FOLDERS))} (e.g. pose/cam01_json/). "
+            "Elsewhere, name them with --keypoints DIR."
+        )
+    calibration = _calibration(root) if need_calibration else None
+    if calibration is None and need_calibration:
+        raise ProjectError(
+            f"{root}: no calibration folder (a folder named like 'calibration' here or in "
+            f"{root.parent}); name the calibration file with --calib FILE."
+        )
+    return Project(root, keypoints, calibration, read_config(root))
