@@ -74,3 +74,14 @@ def test_the_sweep_config_shown_in_full_is_the_file():
     shown = _toml_block_after("(`experiments/sweeps/sip_ablation.toml` in full)")
     with open(ROOT / "experiments" / "sweeps" / "sip_ablation.toml", "rb") as f:
         assert shown == tomllib.load(f)
+
+
+def test_sop_start_quotes():
+    gpu = _key("benchmarks/results/cold_start_gpu.json", "entries.sop_batched.run_s")
+    res = json.loads((ROOT / "experiments/results/sop_start.json").read_text())
+    m = re.search(r"takes ([\d.]+) s there, but on (\d+) held-out cmu_cc clips SIP from that start is ([\d.]+) % worse in\s+"
+                  r"MPJPE.*?SIP from x₀\s+itself is ([\d.]+) % worse", README, re.S)  # fmt: skip
+    assert m, "the README's paragraph on the batched SOP start changed; update this test"
+    assert m.group(1) == f"{gpu:.3f}" and int(m.group(2)) == len(res["clips"])
+    assert m.group(3) == f"{res['sip_batched_vs_sequential_mpjpe_percent']:.1f}"
+    assert m.group(4) == f"{res['sip_x0_vs_sequential_mpjpe_percent']:.1f}"
