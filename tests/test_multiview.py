@@ -12,6 +12,7 @@ from scipy.ndimage import distance_transform_edt, map_coordinates
 from jaxmocap.body import default_body, forward
 from jaxmocap.energies import camera as ec
 from jaxmocap.methods import multiview as mv
+from jaxmocap.motion.library import walk
 from jaxmocap.rotation import axis_angle_to_matrix
 from jaxmocap.sensors.camera import intrinsics, project, ring_cameras
 from jaxmocap.sensors.keypoints import KEYPOINT_FORMATS, flip_pairs, keypoint_regressor, person_track, regress_keypoints
@@ -23,13 +24,23 @@ def test_dct_basis_is_orthonormal_and_coefficients_reconstruct_its_span():
     np.testing.assert_allclose(B.T @ B, np.eye(10), atol=1e-12)
     # DCT-II: column k is cos(pi (n + 1/2) k / N), checked at one entry by hand.
     assert B[3, 2] == pytest.approx(np.sqrt(2 / 30) * np.cos(np.pi * 3.5 * 2 / 30))
+    # The basis of E_T: 10 DCT vectors and a trend; a last window of 15 frames has a
+    # 15-frame basis of the same bandwidth (5 vectors and the trend), 3 frames 1 and the
+    # trend; all orthonormal, and a straight line costs nothing.
+    full, short = ec.DCTBasis(30, 10)(30), ec.DCTBasis(30, 10)(15)
+    assert full.shape == (30, 11) and short.shape == (15, 6) and ec.DCTBasis(30, 10)(3).shape == (3, 2)
+    np.testing.assert_allclose(full[:, :10], B) and np.testing.assert_allclose(short[:, :5], ec.dct_basis(15, 5))
+    for b in (full, short, ec.DCTBasis(30, 10)(3)):
+        np.testing.assert_allclose(b.T @ b, np.eye(b.shape[1]), atol=1e-12)
+        line = 0.3 + 0.05 * np.arange(len(b))
+        np.testing.assert_allclose(b @ (b.T @ line), line, atol=1e-12)
     rng = np.random.default_rng(0)
-    windows = ec.dct_window(30).windows
-    coef = rng.normal(size=(2, 10, 24, 3))
-    traj = np.concatenate([np.einsum("lk,kjd->ljd", B, c) for c in coef])[:45]  # last window clipped
-    got = ec.dct_coefficients(traj, windows, 10)
-    np.testing.assert_allclose(np.einsum("lk,kjd->ljd", B, got[0]), traj[:30], atol=1e-10)
-    np.testing.assert_allclose(np.einsum("lk,kjd->ljd", B[:15], got[1]), traj[30:], atol=1e-8)
+    traj = np.concatenate([np.einsum("lk,kjd->ljd", full, rng.normal(size=(11, 24, 3))),
+                           np.einsum("lk,kjd->ljd", short, rng.normal(size=(6, 24, 3)))])  # fmt: skip
+    got = ec.dct_coefficients(traj, 30, 10)
+    assert got.shape == (2, 11, 24, 3) and np.all(got[1, 6:] == 0.0)
+    np.testing.assert_allclose(np.einsum("lk,kjd->ljd", full, got[0]), traj[:30], atol=1e-10)
+    np.testing.assert_allclose(np.einsum("lk,kjd->ljd", short, got[1, :6]), traj[30:], atol=1e-10)
 
 
 def test_bilinear_distance_matches_scipy_and_grows_outside_the_image():
@@ -200,18 +211,73 @@ def test_compact_body_gives_the_same_keypoints_joints_and_silhouette_terms(scene
         mv.compact(small)
 
 
-def test_structured_temporal_solve_matches_the_generic_engine(scene):
-    """`_temporal_lm` (Kronecker-structured elimination of the DCT coefficients) takes the
-    same steps on the same energy as the generic structured solver."""
-    body = scene["body"]
-    data = mv.camera_data(body, scene["K"], scene["R"], scene["t"], scene["kp"] + np.array([2.0, -1.0, 0.0]), "body25")
-    w = mv.MuVSWeights(window=6)
-    p0 = mv.initialise(data, w.num_betas)
-    p1, _ = mv.stage_one(data, p0, w.replace(steps=(3, 3, 3)), silhouettes=False)
-    fast, c_fast = mv.stage_two(data, p1, w, max_steps=5)
-    slow, c_slow = mv.stage_two(data, p1, w, max_steps=5, structured=False)
-    np.testing.assert_allclose(c_fast["temporal"], c_slow["temporal"], rtol=0.02)
-    assert _mpjpe(body, fast, fast["betas"], scene["joints"]) < 40.0
+@pytest.fixture(scope="module")
+def walking():
+    """39 frames of a walk at 30 fps (one 30-frame DCT window and a last one of 9 frames)
+    in 3 ring views: the truth, clean keypoints and keypoints with 2 px noise, and both
+    fitted by stage 1 (one compiled program for both, and one for stage 2)."""
+    body = default_body("low")
+    T = 39
+    motion = walk(T, fps=30.0, body=body)
+    trans = np.asarray(motion.trans) - np.array([0.0, 0.0, 0.6])  # through the ring's centre
+    pose = np.asarray(motion.poses).reshape(T, 24, 3)
+    out = forward(body, jnp.asarray(pose, jnp.float32), jnp.zeros(10, jnp.float32), jnp.asarray(trans, jnp.float32))
+    K = np.repeat(intrinsics(256, 192, 55.0)[None], 3, 0)
+    R, t = ring_cameras(3, 4.0, 1.4, np.array([0.0, 0.9, 0.0]), 0.3)
+    uv, _ = project(jnp.asarray(K)[None], jnp.asarray(R)[None], jnp.asarray(t)[None],
+                    regress_keypoints(keypoint_regressor(body, "body25"), out.vertices)[:, None])  # fmt: skip
+    rng = np.random.default_rng(5)
+    w = mv.MuVSWeights()
+    fits = {}
+    for name, noise in (("clean", 0.0), ("noisy", 2.0)):
+        kp = np.asarray(uv) + noise * rng.normal(size=uv.shape)
+        data = mv.camera_data(body, K, R, t, np.concatenate([kp, np.full(kp.shape[:-1] + (1,), 0.9)], -1), "body25")
+        p1, _ = mv.stage_one(data, mv.initialise(data, w.num_betas), w, silhouettes=False)
+        fits[name] = (data, p1, kp)
+    return {"body": body, "joints": np.asarray(out.joints), "fits": fits, "K": K, "R": R, "t": t}
+
+
+def _reprojection(walking, name, p):
+    """Median distance (px) of the fit's keypoints to the detections."""
+    data, _, kp = walking["fits"][name]
+    body = walking["body"]
+    b = np.broadcast_to(p["betas"], (len(p["pose"]), 10))
+    verts = forward(body, jnp.asarray(p["pose"], jnp.float32), jnp.asarray(b, jnp.float32),
+                    jnp.asarray(p["trans"], jnp.float32)).vertices  # fmt: skip
+    K, R, t = (jnp.asarray(walking[k]) for k in "KRt")
+    uv, _ = project(K[None], R[None], t[None], regress_keypoints(keypoint_regressor(body, "body25"), verts)[:, None])
+    return float(np.median(np.linalg.norm(np.asarray(uv) - kp, axis=-1)))
+
+
+def _jitter(body, p) -> np.ndarray:
+    """Mean joint acceleration (m/s², 30 fps) at each inner frame (T-2,)."""
+    b = np.broadcast_to(p["betas"], (len(p["pose"]), 10))
+    j = np.asarray(forward(body, jnp.asarray(p["pose"], jnp.float32), jnp.asarray(b, jnp.float32),
+                           jnp.asarray(p["trans"], jnp.float32)).joints, np.float64)  # fmt: skip
+    return np.linalg.norm(j[2:] - 2 * j[1:-1] + j[:-2], axis=-1).mean(-1) * 30.0**2
+
+
+def test_temporal_stage_keeps_the_reprojection_of_clean_data(walking):
+    """Eq. 4.7-4.8 on clean keypoints: stage 2 may smooth, not fit worse (issue 49: the DCT
+    vectors' zero slope at the window ends pulled a walking body to a stop there)."""
+    data, p1, _ = walking["fits"]["clean"]
+    p2, costs = mv.stage_two(data, p1, mv.MuVSWeights())
+    before, after = _reprojection(walking, "clean", p1), _reprojection(walking, "clean", p2)
+    assert after <= 1.1 * before, (before, after)
+    assert _mpjpe(walking["body"], p2, p2["betas"], walking["joints"]) <= 1.1 * _mpjpe(walking["body"], p1, p1["betas"], walking["joints"])
+
+
+def test_a_short_last_window_is_smoothed_like_whole_ones(walking):
+    """39 frames: a 30-frame window and one of 9 (its own 9-frame basis, `DCTBasis`). In the
+    first 9 rows of the 30-frame basis that window was fitted exactly: not smoothed."""
+    body = walking["body"]
+    data, p1, _ = walking["fits"]["noisy"]
+    p2, costs = mv.stage_two(data, p1, mv.MuVSWeights())
+    assert costs["temporal_result"] == 0 or costs["temporal_steps"] == mv.MuVSWeights().steps[2]
+    j1, j2 = _jitter(body, p1), _jitter(body, p2)
+    whole, last = j2[:28].mean(), j2[30:].mean()  # accelerations inside each window
+    assert last <= 1.5 * whole and j2.mean() < 0.5 * j1.mean(), (whole, last, j1.mean())
+    assert _mpjpe(body, p2, p2["betas"], walking["joints"]) < _mpjpe(body, p1, p1["betas"], walking["joints"])
 
 
 def test_weights_follow_the_image_resolution(scene):

@@ -23,6 +23,8 @@ from jaxmocap.solve import (
     Huber,
     Problem,
     Term,
+    WindowBasis,
+    basis_term,
     pad_sequences,
     result_message,
     solve,
@@ -38,6 +40,7 @@ from solve_chain import (
     CHAIN,
     motion,
     rot_error,
+    sensors,
     WIN,
     e_heading,
     e_offset,
@@ -678,3 +681,92 @@ def test_reads_name_columns_and_are_validated():
         layout.columns((("pose", (24,)),))
     with pytest.raises(ValueError, match="pairs"):
         Term("a", e_ori, reads=("pose",))
+
+
+# --- basis terms (jaxmocap.solve.basis): the Kronecker elimination against the generic one --
+
+
+def _poly_basis(n: int) -> np.ndarray:
+    """Orthonormal polynomials 1, t, t² over n frames (fewer for a short window)."""
+    t = np.linspace(-1.0, 1.0, n) if n > 1 else np.zeros(1)
+    q, _ = np.linalg.qr(np.stack([t**0, t, t**2], 1)[:, : min(3, n)])
+    return q * np.sign(np.diag(q))[None]  # fixed signs: one basis per length
+
+
+def _chain_features(x, data):
+    _, p = sensors(x)
+    return p.reshape(p.shape[0], -1)  # sensor positions (T, 9)
+
+
+_BASIS_TERM = basis_term("smooth", WindowBasis("coef", _chain_features, _poly_basis, 5), (("rot", None), ("trans", None)),
+                         weight=30.0, loss=GemanMcClure(0.2))  # fmt: skip
+_PER_FRAME = [t for t in CHAIN.terms if t.bandwidth == 0]  # orientations and the translation pin
+_BASIS = Problem([*_PER_FRAME, _BASIS_TERM], {"rot": frame("so3"), "coef": window(5)})
+# The same energy as an ordinary window term: the generic elimination of structured.py.
+_GENERIC = Problem([*_PER_FRAME, Term("smooth", _BASIS_TERM.fn, 30.0, loss=GemanMcClure(0.2), reads=_BASIS_TERM.reads)],
+                   {"rot": frame("so3"), "coef": window(5)})  # fmt: skip
+
+
+def _basis_start(T=12):
+    """The chain's perturbed start, coefficients fitted to its sensor paths and disturbed."""
+    truth, init, data = motion(T)
+    f = np.asarray(_chain_features(to_manifold(init, CHAIN.layout(init)), data))
+    coef = np.random.default_rng(3).normal(scale=0.02, size=(-(-T // 5), 3, 9))
+    for w, start in enumerate(range(0, T, 5)):
+        B = _poly_basis(len(f[start : start + 5]))
+        coef[w, : B.shape[1]] += np.linalg.lstsq(B, f[start : start + 5], rcond=None)[0]
+    return truth, dict(init, coef=jnp.asarray(coef.reshape(-1, 3, 3, 3))), data
+
+
+def test_basis_term_steps_equal_the_generic_window_elimination():
+    """12 frames in windows of 5: the last window has 2 frames and a 2-vector basis."""
+    _, p0, data = _basis_start()
+    window_of, rows = _BASIS_TERM.basis.table(12)
+    np.testing.assert_array_equal(window_of, np.arange(12) // 5)
+    np.testing.assert_allclose(rows[10:, :2], _poly_basis(2)) and np.testing.assert_array_equal(rows[10:, 2], 0.0)
+    fast = solve(_BASIS, p0, data, max_steps=3, rtol=0.0, atol=0.0)
+    slow = solve(_GENERIC, p0, data, max_steps=3, rtol=0.0, atol=0.0)
+    assert float(fast.cost) < 0.5 * float(_BASIS.cost(p0, data))
+    for k in p0:
+        np.testing.assert_allclose(fast.value[k], slow.value[k], atol=1e-9, err_msg=k)
+    # The coefficient the 2-frame window lacks is read by no row: pinned, not singular.
+    np.testing.assert_array_equal(fast.value["coef"][2, 2], p0["coef"][2, 2])
+
+
+def test_basis_term_converges_to_the_least_squares_minimiser():
+    _, p0, data = _basis_start()
+    sol = solve(_BASIS, p0, data, max_steps=200, rtol=1e-9, atol=1e-12)
+    assert int(sol.result) == SUCCESSFUL and int(sol.num_steps) < 200, result_message(sol.result)
+    # Independent reference: SciPy on the same (robust, square-root) residual vector, in the
+    # stored parameters; the pinned coefficient (column 2 of the last window) is left out.
+    keys, shapes = sorted(p0), {k: p0[k].shape for k in p0}
+    pinned = np.zeros(shapes["coef"], bool)
+    pinned[2, 2] = True
+
+    def unflat(v):
+        out, i = {}, 0
+        for k in keys:
+            n = int(np.prod(shapes[k])) - (int(pinned.sum()) if k == "coef" else 0)
+            if k == "coef":
+                c = np.asarray(p0["coef"]).copy()
+                c[~pinned] = v[i : i + n]
+                out[k] = jnp.asarray(c)
+            else:
+                out[k] = jnp.asarray(v[i : i + n].reshape(shapes[k]))
+            i += n
+        return out
+
+    fun = jax.jit(lambda p: jnp.concatenate([r.ravel() for r in _BASIS.residuals(p, data).values()]))
+    v0 = np.concatenate([np.asarray(sol.value[k])[~pinned] if k == "coef" else np.asarray(sol.value[k]).ravel() for k in keys])
+    ref = scipy.optimize.least_squares(lambda v: np.asarray(fun(unflat(v))), v0, xtol=1e-14, ftol=1e-14, gtol=1e-14)
+    np.testing.assert_allclose(float(sol.cost), 0.5 * float(np.sum(ref.fun**2)), rtol=1e-6)
+    np.testing.assert_allclose(np.asarray(sol.value["trans"]), np.asarray(unflat(ref.x)["trans"]), atol=1e-5)
+
+
+def test_basis_terms_refuse_coupled_problems():
+    _, p0, data = _basis_start()
+    coupled = Problem([*CHAIN.terms, _BASIS_TERM], {"rot": frame("so3"), "coef": window(5)})  # E_acc couples frames
+    with pytest.raises(ValueError, match="per-frame terms"):
+        solve(coupled, p0, data, max_steps=1)
+    with pytest.raises(ValueError, match="reads=\\(\\('pose', None\\),\\)"):
+        basis_term("b", _BASIS_TERM.basis, None)

@@ -22,9 +22,10 @@ Choices that are ours (the thesis leaves them open):
     (measured, §4.2.3) and t fitted; without the IMU all six degrees from a DLT start.
     Measured on a training scene (2 wearers, 3 bystanders): the detection with the
     lowest f_un is the right one in 97.5 % of frames with the rotation known, 90 % with it
-    free — a free rotation also fits a bystander who faces another way. 12
-    Levenberg-Marquardt steps in normalised image coordinates (pixels / focal length), so
-    the features do not depend on the image size.
+    free — a free rotation also fits a bystander who faces another way. Fitted by
+    `jaxmocap.solve` (LM, Marquardt damping, at most 30 steps, the engine's stopping
+    rules) in normalised image coordinates (pixels / focal length), so the features do
+    not depend on the image size.
   - e_img divides by Σ w_k instead of N_joints (eq. 4.13): otherwise a detection with few or
     low-confidence keypoints (typical of false detections) looks consistent for that alone.
   - Root r_t = mid-hip, root orientation R_t = the frame of the hip line and the mid-hip →
@@ -92,8 +93,9 @@ import numpy as np
 import scipy.optimize
 import scipy.sparse
 
-from ..rotation import axis_angle_to_matrix
+from ..rotation import axis_angle_to_matrix, matrix_to_axis_angle
 from ..sensors.keypoints import COCO18_NAMES, flip_pairs
+from ..solve import Problem, Term, frame, solve
 
 __all__ = ["AssociationModel", "Association", "AssociationGraph", "HypothesisFeatures", "load_model", "associate",
            "association_graph", "solve_graph", "hypothesis_features", "pair_features", "solve_labelling", "camera_fit",
@@ -198,43 +200,43 @@ def _dlt_rotation(X, uv, w):
     return jnp.where(jnp.linalg.det(R) < 0, -R, R)
 
 
-def camera_fit(X, uv, w, R0, group, num_groups: int, free_rotation: bool = True, steps: int = 12):
-    """Levenberg-Marquardt fit of a world-to-camera pose to 2D points.
+def _reprojection(x, data):
+    """√w_k (π(R X_k + t_g(k)) − uv_k), (1, N, 2): the camera fit's residual (eq. 4.13's e_k)."""
+    R = x["rot"][0] if "rot" in x else data["R0"]
+    q = data["X"] @ R.T + x["trans"][0][data["group"]]
+    return (data["sw"][:, None] * (q[:, :2] / jnp.maximum(q[:, 2:], _MIN_DEPTH) - data["uv"]))[None]
+
+
+#: The camera fit as an engine problem: one "frame" holding the pose, the rotation on SO(3)
+#: (left-perturbed, as the LM's own) or, measured by the camera IMU, fixed in the data.
+_CAMERA_FIT = {
+    True: Problem([Term("reprojection", _reprojection)], {"rot": frame("so3"), "trans": frame()}),
+    False: Problem([Term("reprojection", _reprojection)], {"trans": frame()}),
+}
+
+
+def camera_fit(X, uv, w, R0, group, num_groups: int, free_rotation: bool = True, max_steps: int = 30):
+    """World-to-camera pose from 2D points: least squares by `jaxmocap.solve` (LM).
 
     X (N, 3) world points, uv (N, 2) normalised image points (K⁻¹ applied), w (N,)
     confidences (0 = absent), R0 (3, 3) start rotation, group (N,) the translation each
     point uses (0 .. num_groups−1; eq. 4.18's meta camera with unknown positions has two);
-    free_rotation=False keeps R = R0 (a rotation measured by the camera IMU).
-    Returns R (3, 3), t (num_groups, 3), per-point error ‖e_k‖ (N,) and depth ‖R X + t‖ (N,).
+    free_rotation=False keeps R = R0 (a rotation measured by the camera IMU). The
+    translations start at their linear least-squares values for R0. Marquardt damping
+    (eq. 2.54: the rotation in radians and the translation in metres share no scale).
+    Returns R (3, 3), t (num_groups, 3), per-point error ‖e_k‖ (N,), depth ‖R X + t‖ (N,)
+    and the solve's result code (0: converged).
     """
-    sw = jnp.sqrt(w)
-
-    def pose(p):
-        return axis_angle_to_matrix(p[:3]) @ R0, p[3:].reshape(num_groups, 3)
-
-    def residual(p):
-        R, t = pose(p)
-        q = X @ R.T + t[group]
-        return (sw[:, None] * (q[:, :2] / jnp.maximum(q[:, 2:], _MIN_DEPTH) - uv)).ravel()
-
-    def step(carry, _):
-        p, lam, cost = carry
-        r, J = residual(p), jax.jacfwd(residual)(p)
-        if not free_rotation:
-            J = J.at[:, :3].set(0.0)
-        H = J.T @ J
-        d = -jnp.linalg.solve(H + lam * jnp.diag(jnp.diag(H)) + 1e-12 * jnp.eye(len(p)), J.T @ r)
-        new = residual(p + d) @ residual(p + d)
-        ok = new < cost
-        return (jnp.where(ok, p + d, p), jnp.where(ok, lam * 0.3, lam * 10.0), jnp.where(ok, new, cost)), None
-
-    p0 = jnp.concatenate([jnp.zeros(3, X.dtype), _translation(R0, X, uv, w, group, num_groups).ravel()])
-    r0 = residual(p0)
-    (p, _, _), _ = jax.lax.scan(step, (p0, jnp.asarray(1e-3, X.dtype), r0 @ r0), None, length=steps)
-    R, t = pose(p)
+    data = {"X": X, "uv": uv, "sw": jnp.sqrt(w), "group": group, "R0": R0}
+    p0 = {"trans": _translation(R0, X, uv, w, group, num_groups)[None]}
+    if free_rotation:
+        p0["rot"] = matrix_to_axis_angle(R0)[None]
+    sol = solve(_CAMERA_FIT[free_rotation], p0, data, max_steps=max_steps, damping="marquardt")
+    R = axis_angle_to_matrix(sol.value["rot"][0]) if free_rotation else R0
+    t = sol.value["trans"][0]
     q = X @ R.T + t[group]
     err = jnp.linalg.norm(q[:, :2] / jnp.maximum(q[:, 2:], _MIN_DEPTH) - uv, axis=-1)
-    return R, t, err, jnp.linalg.norm(q, axis=-1)
+    return R, t, err, jnp.linalg.norm(q, axis=-1), sol.result
 
 
 @functools.partial(jax.jit, static_argnames=("use_imu",))
@@ -331,7 +333,7 @@ def hypothesis_features(joints3d, K, cam_orientation, detections) -> HypothesisF
     Rs, ts = np.zeros((P, T, D, 3, 3)), np.zeros((P, T, D, 3))
     out = _batched(_unary_fits, [joints3d[l, t], uv[t, v], w[t, v], R_imu[t]], use_imu=cam_orientation is not None)
     if out is not None:
-        R, tt, err, depth = out
+        R, tt, err, depth, _ = out
         ww = w[t, v]
         e_img = (ww * err).sum(-1) / ww.sum(-1)  # eq. 4.13 (ours: / Σ w_k)
         e_cam = depth.mean(-1)  # mean distance of the 3D keypoints to the camera centre
@@ -453,7 +455,7 @@ def pair_features(hyp: HypothesisFeatures, keep, joints3d, K, detections, window
         lb, _, vb = np.unravel_index(b, (P, T, D))
         uv, w = _normalised(np.asarray(detections, np.float64), K)
         X = np.concatenate([joints3d[la, ta], joints3d[lb, ta]], 1)
-        R, tt, _, _ = _batched(_meta_fits, [X, np.concatenate([uv[ta, va], uv[ta, vb]], 1),
+        R, tt, _, _, _ = _batched(_meta_fits, [X, np.concatenate([uv[ta, va], uv[ta, vb]], 1),
                                             np.concatenate([w[ta, va], w[ta, vb]], 1), hyp.R.reshape(-1, 3, 3)[a]],
                                shared=positions_known, free_rotation=not (positions_known and imu_rotation))  # fmt: skip
         centre = lambda R, t: -np.einsum("nba,nb->na", R, t)  # noqa: E731  c = −Rᵀ t

@@ -29,10 +29,9 @@ a root facing the camera, turned round when the detected hips say the person fac
 The problems are `jaxmocap.solve.Problem`s of the terms in `energies.camera`. Speed (ours,
 same energies): the terms run on a `compact` body (the keypoints as rigidly skinned points
 per joint, a fixed subsample of model points for E_S, no pose blend shapes when the body
-has none); stage 2 is solved by `_temporal_lm`, a Levenberg-Marquardt that uses the
-Kronecker structure of the DCT term (the engine linearises the per-frame terms), 10x
-faster per step than the generic window elimination; every solve takes `MuVSWeights.steps`
-LM steps.
+has none); E_T is a basis term, whose DCT coefficients the engine eliminates by their
+Kronecker structure (`jaxmocap.solve.basis`, 10x faster per step than the generic window
+elimination); every solve takes at most `MuVSWeights.steps` LM steps.
 """
 
 from __future__ import annotations
@@ -48,12 +47,11 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..body.compact import compact_body
-from ..body.kinematics import forward, forward_rotations, shaped_joints
+from ..body.kinematics import forward, shaped_joints
 from ..body.model import Body
 from ..energies.camera import (
     CameraData,
     Silhouettes,
-    dct_basis,
     dct_coefficients,
     dct_window,
     keypoint_term,
@@ -68,8 +66,7 @@ from ..rotation import matrix_to_axis_angle
 from ..sensors.camera import intrinsics
 from ..sensors.keypoints import KEYPOINT_FORMATS, flip_pairs, keypoint_regressor
 from ..sensors.triangulation import triangulate
-from ..solve import Args, GemanMcClure, Problem, frame, linearise, solve, solve_batch, with_weights
-from ..solve.unknowns import from_manifold, retract, to_manifold
+from ..solve import Problem, frame, solve, solve_batch, with_weights
 
 __all__ = ["MuVSWeights", "MuVSResult", "camera_data", "compact", "initialise", "resolve_left_right", "stage_one", "stage_two", "multiview_smplify", "mask_views", "stack"]
 
@@ -465,10 +462,9 @@ def _stage_one_problem(sigma: float, stride: int, slack: float, silhouettes: boo
 @functools.lru_cache(maxsize=None)
 def _stage_two_problem(sigma: float, stride: int, slack: float, silhouettes: bool, length: int, num_dct: int,
                        temporal_sigma: float, huber: float = 1.0) -> Problem:
-    windows = dct_window(length)
-    terms = [keypoint_term(sigma), pose_prior_term(), temporal_term(windows.windows, num_dct, temporal_sigma)]
+    terms = [keypoint_term(sigma), pose_prior_term(), temporal_term(length, num_dct, temporal_sigma)]
     terms += _silhouettes(silhouettes, stride, slack, huber)
-    return Problem(terms, {"pose": frame("so3"), "trans": frame(), "coef": windows})
+    return Problem(terms, {"pose": frame("so3"), "trans": frame(), "coef": dct_window(length)})
 
 
 def _silhouettes(on: bool, stride: int, slack: float, huber: float) -> list:
@@ -567,182 +563,42 @@ def stage_one(data: CameraData, params0: dict, weights: MuVSWeights = MuVSWeight
 
 
 def stage_two(data: CameraData, params1: dict, weights: MuVSWeights = MuVSWeights(), silhouettes: bool = False,
-              max_steps: int | None = None, structured: bool = True) -> tuple[dict, dict]:
+              max_steps: int | None = None) -> tuple[dict, dict]:
     """Temporal fit (eq. 4.7-4.8) with β = median of the stage-1 shapes.
 
-    `structured`: solve with `_temporal_lm`, which uses the Kronecker structure of the
-    DCT term (same energy and steps; False: the generic engine, 10x slower per step).
-
-    Returns ({pose, trans, betas (B,), coef}, {"temporal": cost}).
+    E_T is a basis term (`energies.camera.temporal_term`): the engine eliminates the DCT
+    coefficients by their Kronecker structure (`jaxmocap.solve.basis`).
+    Returns ({pose, trans, betas (B,), coef}, {"temporal": cost, "temporal_steps",
+    "temporal_result"}).
     """
     dtype = data.K.dtype
     betas = np.median(np.asarray(params1["betas"]), -2)  # over frames: (B,) or (batch, B)
     data2 = dataclasses_replace(data, betas=jnp.asarray(betas, dtype))
-    # A sequence shorter than a window gets a window of its length and the same bandwidth
-    # (10 of 30 frames): the first frames of a 30-frame DCT basis are so ill-conditioned
-    # that E_T would pull towards huge float32 coefficients instead of smoothing.
-    length = min(weights.window, data.keypoints.shape[-4])
-    num_dct = max(1, min(weights.num_dct, round(weights.num_dct * length / weights.window)))
-    windows = dct_window(length).windows
     body = _member(data, 0).body if _batched(data) else data.body
     posed = forward(body, jnp.asarray(params1["pose"], dtype), data2.betas[..., None, :],
                     jnp.asarray(params1["trans"], dtype))  # fmt: skip
     joints = np.asarray(posed.joints)
     if _batched(data):
-        coef = np.stack([dct_coefficients(j, windows, num_dct) for j in joints])
+        coef = np.stack([dct_coefficients(j, weights.window, weights.num_dct) for j in joints])
     else:
-        coef = dct_coefficients(joints, windows, num_dct)
+        coef = dct_coefficients(joints, weights.window, weights.num_dct)
     p = {"pose": jnp.asarray(params1["pose"], dtype), "trans": jnp.asarray(params1["trans"], dtype),
          "coef": jnp.asarray(coef, dtype)}  # fmt: skip
     use_sil = silhouettes and data.silhouettes is not None
     data2 = compact(data2, weights.silhouette_points if use_sil else 0, weights.silhouette_stride)
     max_steps = weights.steps[2] if max_steps is None else max_steps
     w, delta = _in_pixels(weights, data)
-    sigma = _sigma(data, w)
-    if not structured:
-        prob = _stage_two_problem(sigma, w.silhouette_stride, w.silhouette_slack, use_sil, length, num_dct,
-                                  w.temporal_sigma, delta)
-        sol = _solve(_weighted(prob, w, dtype), p, data2, max_steps)
-        out = {k: np.asarray(v) for k, v in sol.value.items()}
-        out["betas"] = betas
-        return out, {"temporal": np.asarray(sol.cost).tolist(), "temporal_steps": np.asarray(sol.num_steps).tolist()}
-    prob = _weighted(_stage_data_problem(sigma, w.silhouette_stride, w.silhouette_slack, use_sil, delta), w, dtype)
-    basis = dct_basis(length, num_dct)
-
-    def run(pose, trans, coef, d):
-        return _temporal_lm(prob, {"pose": pose, "trans": trans}, coef, d, jnp.asarray(w.temporal, dtype),
-                            jnp.asarray(w.temporal_sigma, dtype), jnp.asarray(basis, dtype), jnp.asarray(max_steps))  # fmt: skip
-
-    if _batched(data):
-        run = jax.vmap(run)
-    y, coef, cost = run(p["pose"], p["trans"], p["coef"], data2)
-    out = {"pose": np.asarray(y["pose"]), "trans": np.asarray(y["trans"]), "coef": np.asarray(coef), "betas": betas}
-    return out, {"temporal": np.asarray(cost).tolist(), "temporal_steps": np.full(np.shape(cost), max_steps).tolist()}
-
-
-@functools.lru_cache(maxsize=None)
-def _stage_data_problem(sigma, stride, slack, silhouettes, huber: float = 1.0) -> Problem:
-    terms = [keypoint_term(sigma), pose_prior_term()] + _silhouettes(silhouettes, stride, slack, huber)
-    return Problem(terms, {"pose": frame("so3"), "trans": frame()})
-
-
-@eqx.filter_jit
-def _temporal_lm(problem: Problem, params: dict, coef, data: CameraData, temporal, sigma, basis, steps):
-    """Levenberg-Marquardt on E_2 = Σ E_M + λ_T E_T (eq. 4.7-4.8) with the DCT structure used.
-
-    Unknowns: per frame x_t = (pose, trans) (75, left-perturbed rotations, as the engine),
-    per non-overlapping window w its coefficients c_w (num_dct, 24, 3). Row (t, j, d) of
-    E_T reads x_t and only the num_dct coefficients of joint j, coordinate d of t's
-    window, with ∂r/∂c = -g b_t (b_t the row of the DCT basis at t's position in the
-    window, g the robust loss's slope): H_cc is block diagonal in (j, d) and the frame
-    blocks eliminated per frame fill the window block as Σ_t M_t ⊗ b_t b_tᵀ (M_t 72 x 72).
-    The generic engine built the same 720-column window block by 720 Jacobian-vector
-    products and dense products (a step: 300 ms against ~25 ms for 30 frames).
-    Same energy, same damped Gauss-Newton step (δ = -(H + λI)⁻¹ g, λ₀ = 10, x10 / x0.1 on a
-    rejected / accepted step); `problem` holds the per-frame terms (E_J, E_θ, [E_S]).
-    """
-    dtype = params["trans"].dtype
-    layout = problem.layout(params)
-    args = Args(problem, data, None, layout)
-    st = args.structure()
-    T = layout.T
-    L, K = basis.shape
-    t = np.arange(T)
-    window, bt = jnp.asarray(t // L), jnp.asarray(basis, dtype)[t % L]  # (T,), (T, K)
-    W = coef.shape[0]
-    loss = GemanMcClure(sigma)
-    root_w = jnp.sqrt(jnp.asarray(temporal, dtype))
-    body, betas = data.body, data.betas
-
-    def joints(x):  # manifold params -> (T, 72)
-        out = _joints_of(body, x["pose"], betas, x["trans"])
-        return out.reshape(T, -1)
-
-    def temporal_rows(y, c):
-        e = joints(to_manifold(y, layout)) - jnp.einsum("tk,tkq->tq", bt, c.reshape(W, K, -1)[window])
-        r, g = jax.jvp(lambda e_: root_w * loss(e_[..., None])[..., 0], (e,), (jnp.ones_like(e),))
-        return r, g  # g = dr/de, elementwise (per coordinate ρ)
-
-    def cost(y, c):
-        res = problem.residuals(y, data)
-        r, _ = temporal_rows(y, c)
-        return 0.5 * (sum(jnp.sum(v * v) for v in res.values()) + jnp.sum(r * r))
-
-    def frame_joints_jacobian(y):  # (T, 72, 75): ∂ joints / ∂ tangent, per frame
-        x = to_manifold(y, layout)
-
-        def one(pose, trans):
-            def f(d):
-                moved = retract({"pose": pose[None], "trans": trans[None]},
-                                {"pose": d[:72].reshape(1, 24, 3), "trans": d[None, 72:]}, layout)
-                return _joints_of(body, moved["pose"], betas, moved["trans"]).reshape(-1)
-
-            return jax.jacfwd(f)(jnp.zeros(75, dtype))
-
-        return jax.vmap(one)(x["pose"], x["trans"])
-
-    def linearise_all(y, c):  # the engine's per-frame blocks plus the DCT rows
-        normal, (gF, _, _), data_cost = linearise(y, args, st, dtype, dtype)
-        r, g = temporal_rows(y, c)
-        Jx = g[..., None] * frame_joints_jacobian(y)  # (T, 72, 75)
-        H = normal.FF[0] + jnp.einsum("tqi,tqj->tij", Jx, Jx)
-        gx = gF + jnp.einsum("tqi,tq->ti", Jx, r)
-        U = jnp.swapaxes(Jx, 1, 2) * g[:, None, :]  # (T, 75, 72): H_xc = -U ⊗ b_tᵀ
-        Hcc = jnp.einsum("wlq,wlk,wlm->wqkm", by_window(g * g), bw, bw)  # (W, 72, K, K)
-        gc = -jnp.einsum("wlq,wlk->wqk", by_window(g * r), bw)  # (W, 72, K)
-        return H, gx, U, Hcc, gc, data_cost + 0.5 * jnp.sum(r * r)
-
-    pad = W * L - T
-
-    def by_window(x):  # (T, ...) -> (W, L, ...), zeros for the frames past the end
-        x = jnp.concatenate([x, jnp.zeros((pad,) + x.shape[1:], x.dtype)]) if pad else x
-        return x.reshape((W, L) + x.shape[1:])
-
-    bw = by_window(bt)  # (W, L, K)
-
-    def solve_step(lin, lam):
-        H, gx, U, Hcc, gc, _ = lin
-        A = jnp.linalg.cholesky(H + lam * jnp.eye(H.shape[-1], dtype=dtype))
-        cho = jax.vmap(lambda a, b: jax.scipy.linalg.cho_solve((a, True), b))
-        Y, yv = cho(A, U), cho(A, gx)  # A⁻¹ U (T, 75, 72), A⁻¹ g_x (T, 75)
-        M = jnp.einsum("tiq,tip->tqp", U, Y)  # (T, 72, 72)
-        Q = M.shape[-1]
-        fill = jnp.einsum("wlqp,wlk,wlm->wqkpm", by_window(M), bw, bw)  # Σ_t M_t ⊗ b_t b_tᵀ
-        S = jnp.einsum("qp,wqkm->wqkpm", jnp.eye(Q, dtype=dtype), Hcc + lam * jnp.eye(K, dtype=dtype)) - fill
-        rhs = -gc - jnp.einsum("wlq,wlk->wqk", by_window(jnp.einsum("tiq,ti->tq", U, yv)), bw)
-        S, rhs = S.reshape(W, Q * K, Q * K), rhs.reshape(W, Q * K)
-        dc = jax.vmap(lambda a, b: jax.scipy.linalg.cho_solve((jnp.linalg.cholesky(a), True), b))(S, rhs).reshape(W, Q, K)
-        v = jnp.einsum("tqk,tk->tq", dc[window], bt)  # (T, 72)
-        return -yv + jnp.einsum("tiq,tq->ti", Y, v), dc
-
-    def body_fn(_, state):
-        y, c, lam, lin = state
-        dx, dc = solve_step(lin, lam)
-        delta = layout.unravel(dx)
-        y_new = from_manifold(retract(to_manifold(y, layout), delta, layout), layout)
-        c_new = c + jnp.moveaxis(dc, 1, 2).reshape(c.shape)
-        new_cost = cost(y_new, c_new)
-        accept = jnp.isfinite(new_cost) & (new_cost < lin[-1])
-        y = jax.tree_util.tree_map(lambda a, b: jnp.where(accept, a, b), y_new, y)
-        c = jnp.where(accept, c_new, c)
-        lin = jax.lax.cond(accept, lambda: linearise_all(y, c), lambda: lin)
-        return y, c, jnp.where(accept, lam * 0.1, lam * 10.0), lin
-
-    y0 = {"pose": params["pose"], "trans": params["trans"]}
-    state = (y0, coef, jnp.asarray(10.0, dtype), linearise_all(y0, coef))
-    y, c, _, lin = jax.lax.fori_loop(0, steps, body_fn, state)
-    return y, c, lin[-1]
-
-
-def _joints_of(body: Body, rotations, betas, trans):
-    """Joints (T, 24, 3) of local rotation matrices (T, 24, 3, 3) on `body`, betas (B,) shared."""
-    return forward_rotations(body, rotations, jnp.broadcast_to(betas, rotations.shape[:1] + betas.shape), trans).joints
+    prob = _stage_two_problem(_sigma(data, w), w.silhouette_stride, w.silhouette_slack, use_sil, w.window,
+                              w.num_dct, w.temporal_sigma, delta)  # fmt: skip
+    sol = _solve(_weighted(prob, w, dtype), p, data2, max_steps)
+    out = {k: np.asarray(v) for k, v in sol.value.items()}
+    out["betas"] = betas
+    return out, {"temporal": np.asarray(sol.cost).tolist(), "temporal_steps": np.asarray(sol.num_steps).tolist(),
+                 "temporal_result": np.asarray(sol.result).tolist()}  # fmt: skip
 
 
 def dataclasses_replace(data: CameraData, **changes) -> CameraData:
     """`data` with fields replaced (an equinox Module is immutable)."""
-    import equinox as eqx
-
     keys = list(changes)
     return eqx.tree_at(lambda d: [getattr(d, k) for k in keys], data, [changes[k] for k in keys],
                        is_leaf=lambda x: x is None)

@@ -7,6 +7,8 @@ call `solve` (one sequence, through `optx.least_squares`) or `solve_batch` (many
 padded with masks, per-member weights). Solves are differentiable (implicit adjoint).
 """
 
+from .basis import WindowBasis as WindowBasis
+from .basis import basis_term as basis_term
 from .batch import BatchPlan as BatchPlan
 from .batch import bytes_per_sequence as bytes_per_sequence
 from .batch import free_memory_bytes as free_memory_bytes

@@ -203,6 +203,9 @@ class Term(eqx.Module):
             left perturbation R ← exp(δ^) R). Keys left out are zero. A per-frame term
             (bandwidth 0) may give a key's Jacobian as a `BlockJacobian` instead. Without
             it the solver takes the blocks by forward-mode AD.
+        basis: a `basis.WindowBasis` when the term is a per-window basis term (built by
+            `basis_term`, whose `fn` is then `basis.residual`): the LM solves its problem
+            with the Kronecker elimination of `jaxmocap.solve.basis`.
     """
 
     name: str = eqx.field(static=True)
@@ -213,6 +216,7 @@ class Term(eqx.Module):
     mask: Callable[[Any], Array] | None = eqx.field(static=True, default=None)
     reads: tuple[tuple[str, tuple[int, ...] | None], ...] | None = eqx.field(static=True, default=None)
     jacobian: Callable[[Any, Any], dict[str, Array]] | None = eqx.field(static=True, default=None)
+    basis: Any = eqx.field(static=True, default=None)
 
     def __check_init__(self):
         if not isinstance(self.name, str) or not self.name:

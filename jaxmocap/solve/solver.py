@@ -47,7 +47,8 @@ from .._checks import concrete
 from .._progress import report
 from .._compat import DIVERGENCE, MAX_STEPS, SUCCESSFUL, result_code
 from .._compat import result_message as optx_message
-from .residuals import BlockJacobian, Problem, _sanitise
+from .basis import BasisNormal, basis_factor, basis_normal, basis_solve
+from .residuals import BlockJacobian, Params, Problem, _sanitise
 from .structured import (
     FactoredBlocks,
     Structure,
@@ -214,16 +215,19 @@ def _analytic_blocks(term, x, clean, data, frame_mask, layout: Layout, st: Struc
 def linearise(y: dict, args: Args, st: Structure, dtype, factor_dtype, tridiagonal: str | None = None):
     """Residuals at y and their blocks in the left-perturbation tangent: (Normal, grad, cost).
 
-    One Gauss-Newton linearisation of `args.problem` (st = `args.structure()`), for methods
-    that drive their own loop (e.g. MuVS's temporal stage) and for `factor` /
-    `solve_factored`; `dtype` of the residuals, `factor_dtype` of the normal blocks;
-    `tridiagonal` as `solve`'s ("rows" keeps the frame band as coupling rows).
+    One Gauss-Newton linearisation of `args.problem` (st = `args.structure()`), for
+    `factor` / `solve_factored` (the LM's step, benchmarks); `dtype` of the residuals,
+    `factor_dtype` of the normal blocks; `tridiagonal` as `solve`'s ("rows" keeps the
+    frame band as coupling rows).
 
     Terms with an analytic `jacobian` supply their frame blocks; everything else (other
     terms, and any term's window and sequence blocks) comes from forward-mode AD by
-    colouring over the columns the term reads.
+    colouring over the columns the term reads. A problem with a basis term
+    (`Term.basis`) gives a `basis.BasisNormal` instead (`_linearise_basis`).
     """
     problem, layout = args.problem, args.layout
+    if any(t.basis is not None for t in problem.terms):
+        return _linearise_basis(y, args, dtype, factor_dtype)
     x = to_manifold(y, layout)
     terms = {t.name: t for t in problem.terms}
     names = args.names
@@ -265,6 +269,50 @@ def linearise(y: dict, args: Args, st: Structure, dtype, factor_dtype, tridiagon
             continue
         blocks[k] = TermBlocks(r, JF, None if extra is None else extra.JW, None if extra is None else extra.JG)
     return normal_equations([blocks[k] for k in names], st, factor_dtype, args.frame_mask, tridiagonal)
+
+
+def _linearise_basis(y: dict, args: Args, dtype, factor_dtype):
+    """`linearise` of a problem with one basis term (`jaxmocap.solve.basis`): the other
+    (per-frame) terms by the engine's own blocks, the basis term's rows by one
+    forward-mode pass over the per-frame tangent; (BasisNormal, grad, cost)."""
+    problem, layout = args.problem, args.layout
+    (bt, *more) = [t for t in problem.terms if t.basis is not None]
+    key = bt.basis.key
+    others = [t for t in problem.terms if t.basis is None]
+    spec = {k: u for k, u in problem.spec.items() if k != key}
+    bad = [t.name for t in others if t.bandwidth or (t.reads is not None and key in t.read_keys())]
+    kinds = {k: c for k, c in zip(layout.keys, layout.kinds) if k != key}
+    if more or bad or set(kinds.values()) != {"frame"} or layout.windows.stride != layout.windows.length:
+        raise ValueError(
+            f"a basis term ({bt.name!r}) is solved with per-frame terms and per-frame unknowns only, one basis "
+            f"term, windows that do not overlap; got other basis terms {[t.name for t in more]}, coupled terms "
+            f"{bad}, unknowns {kinds}, windows {layout.windows}."
+        )  # fmt: skip
+    yf = {k: v for k, v in y.items() if k != key}
+    lf = Layout.of(yf, spec)
+    T, n = lf.T, lf.n
+    if others:
+        sub = Args(Problem(others, spec), args.data, args.frame_mask, lf)
+        normal, (gF, _, _), cost = linearise(yf, sub, sub.structure(), dtype, factor_dtype)
+        H = normal.FF[0]
+    else:
+        H, gF, cost = jnp.zeros((T, n, n), factor_dtype), jnp.zeros((T, n), factor_dtype), jnp.zeros((), factor_dtype)
+    x = to_manifold(yf, lf)
+    clean = _sanitise(args.data)
+    coef = y[key]
+
+    def features(dF):
+        view = Params(retract(x, lf.unravel(dF), lf), term=bt.name)
+        return bt.basis.features(view, bt._input(clean, args.data)).astype(dtype)
+
+    f, lin = jax.linearize(features, jnp.zeros((T, n), dtype))
+    # Bandwidth 0: one tangent e_k on every frame gives column k of every frame's block.
+    Jf = jnp.moveaxis(jax.vmap(lin)(jnp.broadcast_to(jnp.eye(n, dtype=dtype)[:, None], (n, T, n))), 0, -1)
+    e = f - bt.basis.fit(coef.astype(dtype), T)
+    finish = lambda e_: bt.finish(e_[:, None, :, None], args.data, args.frame_mask, T)  # noqa: E731
+    r, g = jax.jvp(finish, (e,), (jnp.ones_like(e),))  # ρ per coordinate: g = ∂r/∂e elementwise
+    normal, grad = basis_normal(H.astype(factor_dtype), gF.astype(factor_dtype), r, g, Jf, bt.basis, factor_dtype)
+    return normal, grad, cost + _cost([r], factor_dtype)
 
 
 #: `linearise` as a nested jit: init's shape query and step's call share one trace.
@@ -341,8 +389,10 @@ class VonMarcardLM(optx.AbstractLeastSquaresSolver):
             lambda: _linearise_once(y, args, st, dtype, fdtype, self.tridiagonal)[:2],
             lambda: (state.normal, state.grad),
         )  # fmt: skip
-        f = factor(normal, st, state.lam, self.marquardt, self.tridiagonal)
-        dF, dW, dG = solve_factored(f, *grad)
+        if isinstance(normal, BasisNormal):
+            dF, dW, dG = basis_solve(basis_factor(normal, state.lam, self.marquardt), *grad)
+        else:
+            dF, dW, dG = solve_factored(factor(normal, st, state.lam, self.marquardt, self.tridiagonal), *grad)
         cast = lambda d: None if d is None else (-d).astype(dtype)  # noqa: E731
         delta = layout.unravel(cast(st.from_solver_order(dF)), cast(dW), cast(dG))
         y_new = from_manifold(retract(to_manifold(y, layout), delta, layout), layout)
