@@ -395,3 +395,51 @@ def test_converted_cmu_motion_has_amass_betas(tmp_path):
         assert f["betas"].shape == (16,)
     with zipfile.ZipFile(path) as z:
         assert "betas.npy" in z.namelist()
+
+
+# --- any batch size: no axis guessed from its length (issue 50, goal 2) --------------------
+
+
+def test_scenario_with_as_many_sequences_as_sensors_and_frames(ctx):
+    """Six sequences of six frames with the six-IMU set: N = S = T. `sequence(i)` once took
+    the shared (S,) sensor arrays for per-sequence ones and returned scalars."""
+    motions = [ctx.motion[i : i + 6] for i in range(6)]
+    config = sensors.ScenarioConfig(max_frames=6)
+    six = sensors.make_scenario(motions, config, body=ctx.body)
+    five = sensors.make_scenario(motions, config, body=ctx.body, num_sequences=5)
+    assert six["imu_ori"].shape[:4] == (6, 1, 6, 6)
+    for i in (0, 5):
+        seq = six.sequence(i)
+        assert {k: v.shape for k, v in seq.items() if k != "length"} == {
+            k: v.shape for k, v in five.sequence(min(i, 4)).items() if k != "length"
+        }
+        assert seq["imu_bones"].tolist() == list(ctx.placement.bones)
+    setup = I.from_scenario(six, 5, ctx.body)  # raised a TypeError on scalar bones
+    assert setup.bones == tuple(ctx.placement.bones)
+
+
+@pytest.mark.parametrize("B", [3, 24])  # B = coordinates, B = joints
+def test_forward_batch_equal_to_other_axes(ctx, B):
+    rng = np.random.default_rng(B)
+    pose, betas, trans = 0.3 * rng.normal(size=(B, 24, 3)), rng.normal(size=(B, 10)), rng.normal(size=(B, 3))
+    out = jaxmocap.forward(ctx.body, pose, betas, trans)
+    assert out.vertices.shape == (B, ctx.body.num_vertices, 3) and out.joints.shape == (B, 24, 3)
+    one = jaxmocap.forward(ctx.body, pose[B - 1], betas[B - 1], trans[B - 1])
+    np.testing.assert_allclose(out.joints[B - 1], one.joints, atol=1e-5)
+
+
+@pytest.mark.parametrize("B", [2, 3])  # B = the per-frame size, B = the frame count
+def test_solve_batch_equal_to_other_axes(B):
+    target = np.arange(B)[:, None, None] + np.zeros((B, 3, 2))
+    problem = Problem([Term("fit", lambda p, d: p["x"] - d)])
+    sol = solve_batch(problem, {"x": jnp.zeros((B, 3, 2))}, jnp.asarray(target), rtol=np.full(B, 1e-8))
+    assert sol.value["x"].shape == (B, 3, 2)
+    np.testing.assert_allclose(sol.value["x"], target, atol=1e-6)
+    padded, mask = pad_sequences([np.zeros((3, 2))] * 3)  # as many sequences as frames
+    assert padded.shape == (3, 3, 2) and mask.shape == (3, 3)
+
+
+def test_stack_setups_as_many_as_sensors(ctx):
+    batch = I.stack_setups([ctx.setup] * 6)  # B = S = 6
+    assert batch.data.orientation.shape[:3] == (6, 4, 6)
+    assert np.asarray(I._unless_observed(batch.data, jnp.zeros(6, int))).tolist() == [0] * 6

@@ -188,15 +188,17 @@ class Scenario:
 
     def sequence(self, i: int) -> dict:
         """Sequence i unpadded: arrays with a frame axis cut to its length."""
-        n, T = int(self.arrays["length"][i]), self.arrays["mask"].shape[1]
+        n = int(self.arrays["length"][i])
         out = {}
         for k, v in self.arrays.items():
-            if v.ndim and v.shape[0] == self.num_sequences and k not in ("length",):
-                v = v[i]
-                axes = [a for a in range(v.ndim) if v.shape[a] == T and _time_axis(k) == a]
-                out[k] = v[(slice(None),) * axes[0] + (slice(0, n),)] if axes else v
-            else:
+            # By key, never by shape: with as many sequences as sensors (or object
+            # vertices) a shape test took the shared (S,) arrays for per-sequence ones.
+            if k in _SHARED:
                 out[k] = v
+                continue
+            v = v[i]
+            ax = _time_axis(k)
+            out[k] = v[(slice(None),) * ax + (slice(0, n),)] if ax >= 0 else v
         return out
 
 
@@ -209,6 +211,10 @@ _TIME_AXIS = {
     "labels": 1, "depth_points": 1, "depth_labels": 1, "depth_valid": 1, "visible": 1,
     "obj_R": 0, "obj_t": 0, "contact": 0,
 }  # fmt: skip
+
+
+# Arrays shared by every sequence (no leading sequence axis); all others have one.
+_SHARED = frozenset({"length", "imu_vertices", "imu_bones", "obj_vertices", "obj_faces", "contact_vertices"})
 
 
 def _time_axis(key):
