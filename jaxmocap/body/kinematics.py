@@ -16,6 +16,7 @@ import numpy as np
 from jax import Array
 from jax.custom_derivatives import SymbolicZero
 
+from .._checks import check_finite, concrete
 from ..rotation import axis_angle_to_matrix
 from .model import Body
 
@@ -381,6 +382,7 @@ def forward(body: Body, pose, betas=None, trans=None) -> BodyOutput:
     pose long sequences in chunks with `jaxmocap.body.posed_vertices(body, motion,
     chunk=256)`.
     """
+    _check_values("pose", pose, betas, trans)
     pose = jnp.asarray(pose)
     J = body.num_joints
     if pose.ndim < 2 or pose.shape[-2:] != (J, 3):
@@ -413,7 +415,25 @@ def forward_rotations(body: Body, local_rotations, betas=None, trans=None) -> Bo
         BodyOutput with vertices (..., V, 3), joints (..., J, 3) and global
         joint_rotations (..., J, 3, 3); batch axes broadcast across the inputs.
     """
+    _check_values("local_rotations", local_rotations, betas, trans)
     return _forward_rotations(body, local_rotations, betas, trans)
+
+
+def _check_values(pose_name: str, pose, betas, trans) -> None:
+    """The value checks of the public entry points, on concrete inputs only (a traced
+    call inside a user's jit is not slowed): a NaN anywhere would make every vertex NaN
+    without a word, an empty batch fails deep inside XLA, and a complex pose would be
+    cast to its real part."""
+    for name, x in ((pose_name, pose), ("betas", betas), ("trans", trans)):
+        if x is None:
+            continue
+        if jnp.issubdtype(jnp.result_type(x), jnp.complexfloating):
+            raise ValueError(f"{name} is complex ({jnp.result_type(x)}); give real numbers (x.real if the "
+                             "imaginary part is zero).")  # fmt: skip
+        check_finite(name, x)
+    v = concrete(pose)
+    if v is not None and v.size == 0:
+        raise ValueError(f"{pose_name} has shape {v.shape}: an empty batch (zero frames?); give at least one.")
 
 
 def _forward_rotations(
