@@ -258,6 +258,9 @@ CASES = [
     ("solve-check-bandwidth", lambda c: solve(WRONG_BAND, {"x": jnp.zeros((7, 2))}, check_bandwidth=True), ValueError, r"Term 'shift'"),
     ("batch-weights-negative", lambda c: solve_batch(SIMPLE, {"x": jnp.zeros((2, 3, 2))}, None, weights={"fit": jnp.array([1.0, -1.0])}), ValueError, r"weights\['fit'\]"),
     ("batch-max-steps", lambda c: solve_batch(SIMPLE, {"x": jnp.zeros((2, 3, 2))}, None, max_steps=0), ValueError, r"max_steps"),
+    ("term-reads-typo", lambda c: solve(Problem([Term("fit", lambda p, d: p["x"] - 1.0, reads=(("xx", None),))]), {"x": jnp.zeros((3, 2))}), ValueError, r"Term 'fit' reads \['xx'\], which is not among the unknowns \['x'\]"),
+    ("term-reads-typo-one-of-two", lambda c: solve(Problem([Term("fit", lambda p, d: p["x"] - 1.0, reads=(("x", None), ("y", None)))]), {"x": jnp.zeros((3, 2))}), ValueError, r"reads \['y'\]"),
+    ("term-reads-typo-batch", lambda c: solve_batch(Problem([Term("fit", lambda p, d: p["x"] - 1.0, reads=(("pose", None),))]), {"x": jnp.zeros((2, 3, 2))}, None), ValueError, r"Term 'fit' reads \['pose'\].*fix the reads"),
     ("with-weights-unknown", lambda c: with_weights(SIMPLE, {"nope": 1.0}), ValueError, r"nope"),
     ("pad-sequences-short", lambda c: pad_sequences([np.zeros((5, 2))], length=3), ValueError, r"length=3"),
     # --- physics -------------------------------------------------------------------------
