@@ -24,9 +24,31 @@ __all__ = ["FORMAT_VERSION", "find_cmu_dir", "load_motion", "save_motion"]
 FORMAT_VERSION = 1
 
 
-def save_motion(motion: Motion, path) -> Path:
-    """Write `motion` as jaxmocap's own npz (y up, no conversion)."""
+def output_npz(path, who: str = "save_motion") -> Path:
+    """The `.npz` file that `np.savez(path)` writes (it appends `.npz` to other names),
+    refused with a ValueError when that is an existing folder or its folder is missing."""
     path = Path(path)
+    target = path if path.suffix == ".npz" else path.with_name(path.name + ".npz")
+    # np.savez would quietly write "<folder>.npz" beside a folder the user named.
+    if path.is_dir():
+        raise ValueError(f"{who}: path {str(path)!r} is a folder; give a file name, e.g. {str(path / 'motion.npz')!r}.")
+    if target.is_dir():
+        raise ValueError(f"{who}: path {str(path)!r} would be written as {str(target)!r}, which is a folder; "
+                         "give another file name.")  # fmt: skip
+    if not target.parent.is_dir():
+        raise ValueError(f"{who}: the folder {str(target.parent)!r} of path {str(path)!r} does not exist; create it first.")
+    return target
+
+
+def save_motion(motion: Motion, path) -> Path:
+    """Write `motion` as jaxmocap's own npz (y up, no conversion).
+
+    `path` gets `.npz` appended unless it ends so; an existing folder is refused
+    (ValueError): name the file. Returns the path written.
+    """
+    if not isinstance(motion, Motion):
+        raise ValueError(f"save_motion: motion must be a jaxmocap.motion.Motion, got {type(motion).__name__}.")
+    path = output_npz(path)
     np.savez(
         path,
         jaxmocap_motion=np.array(FORMAT_VERSION),
@@ -37,7 +59,7 @@ def save_motion(motion: Motion, path) -> Path:
         gender=np.array(motion.gender),
         name=np.array(motion.name),
     )
-    return path if path.suffix == ".npz" else path.with_name(path.name + ".npz")
+    return path
 
 
 def _load_own(path: Path, d: dict) -> Motion:
