@@ -21,7 +21,9 @@ import numpy as np
 import pytest
 
 import jaxmocap
+import jaxmocap.app
 from jaxmocap import formats, metrics, sensors
+from jaxmocap.app import SweepConfigError
 from jaxmocap.body.io import BodyFileError
 from jaxmocap.methods import inertial as I
 from jaxmocap.motion import Motion, MotionFileError, load_motion
@@ -118,6 +120,35 @@ def _shift_term(p, d):
 
 SIMPLE = Problem([Term("fit", lambda p, d: p["x"] - 1.0)])
 WRONG_BAND = Problem([Term("fit", lambda p, d: p["x"] - 1.0), Term("shift", _shift_term)])
+
+def _sweep(edit=None, **sweep):
+    """A valid toy sweep config (tests/sweep_toy.py), one entry spoilt by `edit`, validated."""
+    from jaxmocap.app.sweep import validate_config
+
+    config = {
+        "sweep": {"name": "toy", "methods": ["sweep_toy:ToyMethod"], "datasets": ["tracks"], "sensor_errors": ["low"],
+                  "metric": "rmse", **sweep},
+        "grid": {"weights": {"smooth": [1.0]}},
+        "datasets": {"tracks": {"motions": ["walk"], "sequences": 2, "frames": 8}},
+        "sensor_errors": {"low": {"acc_noise": 0.05}},
+    }  # fmt: skip
+    if edit:
+        config["datasets"]["tracks"].update(edit)
+    return validate_config(config, source="toy.toml")
+
+
+def _sweep_store(c, manifest: str | None = None, cell: str | None = None):
+    """A sweep folder holding a `manifest` text as sweep.json and/or one cell file."""
+    from jaxmocap.app.sweep import Store
+
+    root = c.dir / f"sweep{len(list(c.dir.glob('sweep*')))}"
+    (root / "cells").mkdir(parents=True)
+    if manifest is not None:
+        (root / "sweep.json").write_text(manifest)
+    if cell is not None:
+        (root / "cells" / "0123.json").write_text(cell)
+    return Store(root, _sweep())
+
 
 # (id, action(ctx), exception type, regex the message must match)
 CASES = [
@@ -268,6 +299,32 @@ CASES = [
     ("term-reads-typo-batch", lambda c: solve_batch(Problem([Term("fit", lambda p, d: p["x"] - 1.0, reads=(("pose", None),))]), {"x": jnp.zeros((2, 3, 2))}, None), ValueError, r"Term 'fit' reads \['pose'\].*fix the reads"),
     ("with-weights-unknown", lambda c: with_weights(SIMPLE, {"nope": 1.0}), ValueError, r"nope"),
     ("pad-sequences-short", lambda c: pad_sequences([np.zeros((5, 2))], length=3), ValueError, r"length=3"),
+    # --- sweep configs: refused before anything is written --------------------------------
+    ("sweep-max-steps-zero", lambda c: _sweep(max_steps=0), SweepConfigError, r"toy\.toml: \[sweep\] max_steps must be an integer >= 1, got 0; e\.g\. max_steps = 20"),
+    ("sweep-max-steps-float", lambda c: _sweep(max_steps=2.5), SweepConfigError, r"\[sweep\] max_steps"),
+    ("sweep-max-steps-bool", lambda c: _sweep(max_steps=True), SweepConfigError, r"\[sweep\] max_steps"),
+    ("sweep-memory-fraction-5", lambda c: _sweep(memory_fraction=5), SweepConfigError, r"\[sweep\] memory_fraction must be a finite number > 0 and <= 1, got 5"),
+    ("sweep-memory-fraction-0", lambda c: _sweep(memory_fraction=0.0), SweepConfigError, r"memory_fraction"),
+    ("sweep-memory-fraction-text", lambda c: _sweep(memory_fraction="half"), SweepConfigError, r"memory_fraction.*'half'"),
+    ("sweep-rtol-negative", lambda c: _sweep(rtol=-1e-6), SweepConfigError, r"\[sweep\] rtol"),
+    ("sweep-atol-nan", lambda c: _sweep(atol=float("nan")), SweepConfigError, r"\[sweep\] atol"),
+    ("sweep-batch-size-zero", lambda c: _sweep(batch_size=0), SweepConfigError, r"batch_size"),
+    ("sweep-fps-negative", lambda c: _sweep({"fps": -30}), SweepConfigError, r"\[datasets\.tracks\] fps must be a finite number > 0, got -30; frames per second"),
+    ("sweep-fps-zero", lambda c: _sweep({"fps": 0}), SweepConfigError, r"\[datasets\.tracks\] fps"),
+    ("sweep-fps-inf", lambda c: _sweep({"fps": float("inf")}), SweepConfigError, r"\[datasets\.tracks\] fps"),
+    ("sweep-frames-zero", lambda c: _sweep({"frames": 0}), SweepConfigError, r"\[datasets\.tracks\] frames must be an integer >= 1, got 0"),
+    ("sweep-frames-float", lambda c: _sweep({"frames": 12.5}), SweepConfigError, r"\[datasets\.tracks\] frames"),
+    ("sweep-sequences-zero", lambda c: _sweep({"sequences": 0}), SweepConfigError, r"\[datasets\.tracks\] sequences must be an integer >= 1"),
+    ("sweep-sequences-negative", lambda c: _sweep({"sequences": -2}), SweepConfigError, r"sequences"),
+    ("sweep-seed-negative", lambda c: _sweep({"seed": -1}), SweepConfigError, r"\[datasets\.tracks\] seed"),
+    ("sweep-betas-std-negative", lambda c: _sweep({"betas_std": -1.0}), SweepConfigError, r"\[datasets\.tracks\] betas_std"),
+    ("sweep-vary-text", lambda c: _sweep({"vary": "yes"}), SweepConfigError, r"\[datasets\.tracks\] vary must be true or false"),
+    ("sweep-imu-set", lambda c: _sweep({"imu_set": "sip7"}), SweepConfigError, r"\[datasets\.tracks\] imu_set must be one of .*'sip6'.*got 'sip7'"),
+    ("sweep-toml-truncated", lambda c: jaxmocap.app.load_config(c.file("cut.toml", "[sweep]\nname = \"to")), SweepConfigError, r"cut\.toml: not valid TOML"),
+    ("sweep-json-truncated", lambda c: _sweep_store(c, manifest='{"hash": "ab').open(), SweepConfigError, r"sweep\d*/sweep\.json: damaged, not JSON.*delete it"),
+    ("sweep-json-a-list", lambda c: _sweep_store(c, manifest="[1, 2]").open(), SweepConfigError, r"sweep\.json: not a sweep manifest"),
+    ("sweep-cell-truncated", lambda c: _sweep_store(c, cell='{"config_hash": "x", "cell": "a').records(), SweepConfigError, r"0123\.json: a damaged cell file.*run the sweep again"),
+    ("sweep-cell-no-record", lambda c: _sweep_store(c, cell='{"config_hash": "x"}').records(), SweepConfigError, r"0123\.json: a damaged cell file"),
     # --- physics -------------------------------------------------------------------------
     ("check-trans-shape", lambda c: jaxmocap.physics.check(c.scene, np.zeros((3, 24, 3)), np.zeros((3, 2))), ValueError, r"trans has shape \(3, 2\)"),
     ("check-pose-shape", lambda c: jaxmocap.physics.check(c.scene, np.zeros((3, 72)), np.zeros((3, 3))), ValueError, r"poses has shape"),

@@ -229,7 +229,9 @@ def test_killed_sweep_resumes_losing_and_repeating_nothing(tmp_path):
     assert 6 <= len(before) < total
     assert all(json.loads(t)["cell"] for t in before.values())  # no half-written cell
     done = subprocess.run(cmd, env={**ENV, "SWEEP_TOY_LOG": str(log2)}, capture_output=True, text=True, timeout=300)
-    assert done.returncode == 0, done.stderr[-3000:]
+    # 28 cells fail (below): status 1 and a line saying so, so that scripts notice.
+    assert done.returncode == 1, done.stderr[-3000:]
+    assert "jaxmocap sweep: 28 of 48 cells failed" in done.stderr
     after = _cells(out)
     assert len(after) == total
     assert all(after[k] == v for k, v in before.items()), "a finished cell was rewritten"
@@ -255,6 +257,44 @@ def test_killed_sweep_resumes_losing_and_repeating_nothing(tmp_path):
     assert all(json.loads(t)["config_hash"] == json.loads((out / "sweep.json").read_text())["hash"] for t in after.values())
     summary = (out / "summary.md").read_text()
     assert "paired" in summary.lower() and (out / "boxplot.png").stat().st_size > 0 and (out / "weights.png").exists()
+
+
+def test_refused_config_writes_nothing_and_a_failed_sweep_locks_nothing(tmp_path, capsys):
+    """max_steps = 0 is refused before the folder exists (status 2, naming the key); a
+    sweep whose every cell failed does not keep its folder from the corrected config."""
+    from jaxmocap.cli import main
+
+    out, cfg = tmp_path / "out", tmp_path / "toy.toml"
+    cfg.write_text(toml(toy_config(max_steps=0)))
+    assert main(["sweep", str(cfg), "--out", str(out), "--no-progress"]) == 2
+    assert "[sweep] max_steps must be an integer >= 1" in capsys.readouterr().err
+    assert not out.exists()
+    failing = toy_config()
+    failing["grid"]["weights"]["data"] = [0.0]  # every cell raises in the solve
+    run_sweep(validate_config(failing), out, progress=False, summary=False)
+    assert _solved(out) == 0 and len(_cells(out)) == 24  # 4 variants x 2 presets x 3
+    config = toy_config()
+    config["grid"] = {"weights": {"smooth": [1.0]}}
+    run_sweep(validate_config(config), out, progress=False, summary=False)
+    assert len(_cells(out)) == 6 and _solved(out) == 5  # sequence 2 at high noise fails to prepare
+
+
+def test_damaged_cell_files_are_run_again(tmp_path):
+    config = toy_config()
+    config["grid"] = {"weights": {"smooth": [1.0]}}
+    config = validate_config(config)
+    run_sweep(config, tmp_path, progress=False, summary=False)
+    before = _cells(tmp_path)
+    solved = sorted(k for k, t in before.items() if '"metrics"' in t)
+    (tmp_path / "cells" / solved[0]).write_text(before[solved[0]][:25])  # cut short
+    (tmp_path / "cells" / solved[1]).write_text("")
+    run_sweep(config, tmp_path, progress=False, summary=False)
+    timeless = lambda cells: {k: {**json.loads(t), "seconds": 0} for k, t in cells.items()}  # noqa: E731
+    assert timeless(_cells(tmp_path)) == timeless(before)  # the two redone, the others kept
+    assert all(_cells(tmp_path)[k] == before[k] for k in before if k not in solved[:2])
+    (tmp_path / "sweep.json").write_text('{"hash": ')
+    with pytest.raises(SweepConfigError, match=r"sweep\.json: damaged, not JSON"):
+        run_sweep(config, tmp_path, progress=False, summary=False)
 
 
 DISTRIBUTED = """
