@@ -22,6 +22,8 @@ import pytest
 
 import jaxmocap
 import jaxmocap.app
+import jaxmocap.motion.corpus
+import jaxmocap.motion.io
 from jaxmocap import formats, metrics, sensors
 from jaxmocap.app import SweepConfigError
 from jaxmocap.body.io import BodyFileError
@@ -150,6 +152,15 @@ def _sweep_store(c, manifest: str | None = None, cell: str | None = None):
     return Store(root, _sweep())
 
 
+def _with_env(name: str, value: str, fn):
+    old = os.environ.get(name)
+    os.environ[name] = value
+    try:
+        return fn()
+    finally:
+        os.environ.pop(name) if old is None else os.environ.__setitem__(name, old)
+
+
 # (id, action(ctx), exception type, regex the message must match)
 CASES = [
     # --- motion files --------------------------------------------------------------------
@@ -182,6 +193,8 @@ CASES = [
     ("motion-fps-zero", lambda c: Motion(np.zeros((2, 24, 3)), np.zeros((2, 3)), 0.0), ValueError, r"Motion\.fps"),
     ("motion-fps-nan", lambda c: Motion(np.zeros((2, 24, 3)), np.zeros((2, 3)), float("nan")), ValueError, r"Motion\.fps"),
     ("motion-nan-pose", lambda c: Motion(np.full((2, 24, 3), np.nan), np.zeros((2, 3)), 30.0), ValueError, r"poses/trans"),
+    ("cmu-dir-nowhere", lambda c: _with_env("JAXMOCAP_CMU", str(c.dir / "nowhere"), jaxmocap.motion.io.find_cmu_dir), ValueError, r"\$JAXMOCAP_CMU='.*nowhere' is not a folder.*unset it"),
+    ("cmu-cc-dir-file", lambda c: _with_env("JAXMOCAP_CMU_CC", str(c.file("cc.txt", "x")), jaxmocap.motion.corpus.find_cmu_cc_dir), ValueError, r"\$JAXMOCAP_CMU_CC=.*cc\.txt' is not a folder"),
     ("motion-resample-negative", lambda c: c.motion.resample(-30), ValueError, r"fps"),
     ("save-motion-folder", lambda c: jaxmocap.motion.save_motion(c.motion, c.dir), ValueError, r"save_motion: path .* is a folder; give a file name, e\.g\. .*motion\.npz"),
     ("save-motion-folder-npz", lambda c: jaxmocap.motion.save_motion(c.motion, (c.dir / "d.npz").mkdir(exist_ok=True) or c.dir / "d"), ValueError, r"written as .*d\.npz', which is a folder"),
@@ -368,15 +381,17 @@ CLI_CASES = [
     ("convert-output-suffix", ["convert", str(CMU / "02_01.amc"), "{dir}/out.txt"], r"out\.txt.*\.npz"),
     ("check-body-name", ["check", "{dir}/nope.amc", "--body", "default-medium"], r"default-medium.*default-low"),
     ("check-ground", ["check", "{dir}/nope.amc", "--ground", "floor"], r"--ground"),
+    ("demo-cmu-nowhere", ["demo", "--out", "{dir}/demo", "--body", "default-low", "--no-fit"], r"\$JAXMOCAP_CMU='/no/such/cmu' is not a folder"),
     ("check-out-folder", ["check", "{dir}/nope.amc", "--out", "{dir}/cli_text.npz/sub"], r"--out .*cli_text\.npz/sub"),
     ("export-missing", ["export", "{dir}/nope.bvh", "{dir}/exported"], r"nope\.bvh"),
 ]
 
 
 @pytest.mark.parametrize("argv", [c[1] for c in CLI_CASES], ids=[c[0] for c in CLI_CASES])
-def test_cli_bad_input(ctx, capsys, argv):
+def test_cli_bad_input(ctx, capsys, monkeypatch, argv):
     from jaxmocap.cli import main
 
+    monkeypatch.setenv("JAXMOCAP_CMU", "/no/such/cmu")  # only the demo case reads it
     ctx.file("cli_text.npz", "hello")
     match = dict((tuple(c[1]), c[2]) for c in CLI_CASES)[tuple(argv)]
     status = main([a.format(dir=ctx.dir) for a in argv])

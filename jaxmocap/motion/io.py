@@ -128,10 +128,15 @@ def find_cmu_dir() -> Path | None:
 
 
 def find_data_dir(variable: str, name: str) -> Path | None:
-    """$`variable` if set (None if it is not a folder), else `shared/data/<name>` beside or in the repository."""
+    """$`variable` if set, else `shared/data/<name>` beside or in the repository (None if
+    there is none). A $`variable` that names no folder is a ValueError: a typo there
+    must not fall back silently to other data (the demo's procedural walk)."""
     env = os.environ.get(variable)
     if env:
-        return Path(env) if Path(env).is_dir() else None
+        if not Path(env).is_dir():
+            raise ValueError(f"${variable}={env!r} is not a folder; point it at the folder holding the clips, "
+                             f"or unset it to use shared/data/{name} beside the repository.")  # fmt: skip
+        return Path(env)
     repo = Path(__file__).resolve().parents[2]
     for candidate in (repo.parent / "shared" / "data" / name, repo / "shared" / "data" / name):
         if candidate.is_dir():
