@@ -382,6 +382,8 @@ CLI_CASES = [
     ("check-body-name", ["check", "{dir}/nope.amc", "--body", "default-medium"], r"default-medium.*default-low"),
     ("check-ground", ["check", "{dir}/nope.amc", "--ground", "floor"], r"--ground"),
     ("demo-cmu-nowhere", ["demo", "--out", "{dir}/demo", "--body", "default-low", "--no-fit"], r"\$JAXMOCAP_CMU='/no/such/cmu' is not a folder"),
+    ("multiview-out-file", ["multiview", "--keypoints", "{dir}/nope", "--calib", "{dir}/nope.toml", "--out", "{dir}/cli_text.npz"], r"--out.*cli_text\.npz' is a file, not a folder"),
+    ("multiview-out-uncreatable", ["multiview", "--keypoints", "{dir}/nope", "--calib", "{dir}/nope.toml", "--out", "{dir}/cli_text.npz/sub"], r"--out.*cli_text\.npz/sub' cannot be created"),
     ("check-out-folder", ["check", "{dir}/nope.amc", "--out", "{dir}/cli_text.npz/sub"], r"--out .*cli_text\.npz/sub"),
     ("export-missing", ["export", "{dir}/nope.bvh", "{dir}/exported"], r"nope\.bvh"),
 ]
