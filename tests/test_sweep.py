@@ -275,8 +275,11 @@ def test_refused_config_writes_nothing_and_a_failed_sweep_locks_nothing(tmp_path
     assert _solved(out) == 0 and len(_cells(out)) == 24  # 4 variants x 2 presets x 3
     config = toy_config()
     config["grid"] = {"weights": {"smooth": [1.0]}}
-    run_sweep(validate_config(config), out, progress=False, summary=False)
+    messages = []
+    run_sweep(validate_config(config), out, progress=False, summary=False, log=messages.append)
     assert len(_cells(out)) == 6 and _solved(out) == 5  # sequence 2 at high noise fails to prepare
+    assert "earlier sweep solved no cell" in messages[0]
+    assert "loading dataset 'tracks' with sensor errors 'high' for 'sweep_toy:ToyMethod' (2 of 2)" in messages
 
 
 def test_damaged_cell_files_are_run_again(tmp_path):
@@ -338,3 +341,36 @@ def test_two_processes_joined_by_jax_distributed_equal_one_process(tmp_path):
         if "metrics" in a[k]:
             np.testing.assert_allclose(a[k]["metrics"]["rmse"], b[k]["metrics"]["rmse"], rtol=1e-12)
     assert (two / "summary.md").exists()
+
+
+def test_summary_plots_label_units_and_ticks_at_the_swept_weights(tmp_path, monkeypatch):
+    """Ticks only at the grid's weights (log axes labelled their minor ticks over each
+    other), the metric's unit on the y axis, readable variant labels, legends off the curves."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from jaxmocap.app import sweep_report as R
+
+    figures = []
+    monkeypatch.setattr(plt, "close", figures.append)
+    config = validate_config(toy_config())  # smooth [0.1, 1, 10], data [0, 1], smooth on/off
+    var = variants(config)
+    key = ("sweep_toy:ToyMethod", "tracks", "low")
+    values = {key: {v: {0: float(i), 1: i + 0.5} for i, v in enumerate(var)}}
+    R._weight_plot(plt, tmp_path / "weights.png", config, [key], values, var, "mpjpe")
+    data_ax, smooth_ax = figures[0].axes[:2]
+    assert [t.get_text() for t in smooth_ax.get_xticklabels()] == ["0.1", "1", "10"]
+    assert [t.get_text() for t in data_ax.get_xticklabels()] == ["0", "1"]
+    assert not [t for t in smooth_ax.get_xticklabels(minor=True) if t.get_text()]
+    assert smooth_ax.get_ylabel() == "mean MPJPE (mm, Procrustes-aligned)"
+    assert "-smooth" in [t.get_text() for t in data_ax.get_legend().get_texts()]
+    renderer = figures[0].canvas.get_renderer()
+    assert data_ax.get_legend().get_window_extent(renderer).x0 >= data_ax.get_window_extent(renderer).x1
+    analysis = {"|".join(key): {"baseline": next(iter(var))}}
+    R._boxplot(plt, tmp_path, [key], values, "mpjae", analysis)
+    ax = figures[1].axes[0]
+    assert ax.get_ylabel() == "MPJAE (degrees)"
+    labels = ax.get_xticklabels()
+    assert min(t.get_fontsize() for t in labels) >= 8 and "data=1 smooth=10" in [t.get_text() for t in labels]

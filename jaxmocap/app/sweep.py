@@ -454,7 +454,8 @@ def run_sweep(config: dict, out=None, *, prepare_only: bool = False, summary: bo
                 _wait_for(cache / f".{d}__{e}.ready", 1800)
     grid, errors_by_cell = [], {}
     items_of = {}
-    for name, m, d, spec, e, errors in groups:
+    for k, (name, m, d, spec, e, errors) in enumerate(groups):
+        log(f"loading dataset {d!r} with sensor errors {e!r} for {name!r} ({k + 1} of {len(groups)})")
         try:
             items = m.sequences(spec, errors, cache)
         except Exception as err:  # noqa: BLE001 - the whole group fails, the sweep goes on
