@@ -63,8 +63,8 @@ def load_config(path) -> dict:
     if not path.is_file():
         raise SweepConfigError(f"sweep config {str(path)!r} does not exist.")
     try:
-        raw = tomllib.loads(path.read_text())
-    except tomllib.TOMLDecodeError as e:
+        raw = tomllib.loads(path.read_text(encoding="utf-8"))
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
         raise SweepConfigError(f"{path}: not valid TOML ({e}).") from None
     return validate_config(raw, source=str(path))
 
