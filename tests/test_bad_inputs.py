@@ -24,6 +24,10 @@ import jaxmocap
 import jaxmocap.app
 import jaxmocap.motion.corpus
 import jaxmocap.motion.io
+import jaxmocap.priors
+import jaxmocap.rotation
+import jaxmocap.viz.mesh
+import jaxmocap.viz.plot
 from jaxmocap import formats, metrics, sensors
 from jaxmocap.app import SweepConfigError
 from jaxmocap.body.io import BodyFileError
@@ -150,6 +154,18 @@ def _sweep_store(c, manifest: str | None = None, cell: str | None = None):
     if cell is not None:
         (root / "cells" / "0123.json").write_text(cell)
     return Store(root, _sweep())
+
+
+def _easymocap_extri(c, line: str):
+    """An EasyMocap pair whose extri.yml has `line` where a matrix should be."""
+    folder = c.dir / f"easy{len(list(c.dir.glob('easy*')))}"
+    folder.mkdir()
+    formats.save_calibration(folder, [formats.CalibratedCamera(
+        name="cam01", K=np.array([[800.0, 0, 320], [0, 800, 240], [0, 0, 1]]), dist=np.zeros(5), R=np.eye(3),
+        t=np.array([0.0, 0.0, 4.0]), width=640, height=480)], "easymocap")  # fmt: skip
+    (folder / "extri.yml").write_text(f"%YAML:1.0\nnames:\n  - \"cam01\"\n{line}\nT_cam01: !!opencv-matrix\n"
+                                      "  rows: 3\n  cols: 1\n  dt: d\n  data: [0, 0, 4]\n")  # fmt: skip
+    return formats.load_calibration(folder / "intri.yml", format="easymocap")
 
 
 def _with_env(name: str, value: str, fn):
@@ -338,6 +354,69 @@ CASES = [
     ("sweep-json-a-list", lambda c: _sweep_store(c, manifest="[1, 2]").open(), SweepConfigError, r"sweep\.json: not a sweep manifest"),
     ("sweep-cell-truncated", lambda c: _sweep_store(c, cell='{"config_hash": "x", "cell": "a').records(), SweepConfigError, r"0123\.json: a damaged cell file.*run the sweep again"),
     ("sweep-cell-no-record", lambda c: _sweep_store(c, cell='{"config_hash": "x"}').records(), SweepConfigError, r"0123\.json: a damaged cell file"),
+    # --- the general sweep of public entry points (issue 50: "validate every entry point") --
+    ("motion-complex-poses", lambda c: Motion(np.zeros((2, 24, 3), complex), np.zeros((2, 3)), 30.0), ValueError, r"Motion\.poses is complex"),
+    ("motion-complex-trans", lambda c: Motion(np.zeros((2, 24, 3)), np.zeros((2, 3), complex), 30.0), ValueError, r"Motion\.trans is complex"),
+    ("motion-nan-betas", lambda c: Motion(np.zeros((2, 24, 3)), np.zeros((2, 3)), 30.0, betas=np.full(10, np.nan)), ValueError, r"Motion\.betas contain NaN"),
+    ("motion-inf-trans", lambda c: Motion(np.zeros((2, 24, 3)), np.full((2, 3), np.inf), 30.0), ValueError, r"poses/trans contain NaN or inf"),
+    ("motion-fps-list", lambda c: Motion(np.zeros((2, 24, 3)), np.zeros((2, 3)), [30.0, 60.0]), ValueError, r"Motion\.fps"),
+    ("motion-replace-nan", lambda c: c.motion.replace(trans=np.full((12, 3), np.nan)), ValueError, r"NaN"),
+    ("walk-zero-frames", lambda c: jaxmocap.motion.library.walk(0, body=c.body), ValueError, r"0 frames"),
+    ("walk-negative-fps", lambda c: jaxmocap.motion.library.walk(10, fps=-30.0, body=c.body), ValueError, r"fps"),
+    ("posed-vertices-chunk", lambda c: jaxmocap.body.posed_vertices(c.body, c.motion, chunk=0), ValueError, r"chunk must be an int >= 1"),
+    ("posed-vertices-arrays", lambda c: jaxmocap.body.posed_vertices(c.body, c.motion.poses), ValueError, r"motion must be a jaxmocap\.motion\.Motion.*Motion\(poses, trans, fps\)"),
+    ("posed-vertices-no-frames", lambda c: jaxmocap.body.posed_vertices(c.body, c.motion, frames=slice(5, 5)), ValueError, r"frames=slice\(5, 5, None\) selects no frame"),
+    ("export-mesh-nan", lambda c: jaxmocap.viz.mesh.export_mesh(np.full((3, 3), np.nan), np.array([[0, 1, 2]]), c.dir / "nan.ply"), ValueError, r"vertices contain NaN or inf \(vertex 0 first\)"),
+    ("export-mesh-suffix", lambda c: jaxmocap.viz.mesh.export_mesh(np.zeros((3, 3)), np.array([[0, 1, 2]]), c.dir / "m.xyz"), ValueError, r"m\.xyz: unknown mesh format"),
+    ("export-mesh-faces", lambda c: jaxmocap.viz.mesh.export_mesh(np.zeros((3, 3)), np.array([[0, 1, 5]]), c.dir / "m.ply"), ValueError, r"faces index outside the 3 vertices"),
+    ("export-sequence-empty", lambda c: jaxmocap.viz.mesh.export_sequence(np.zeros((0, 3, 3)), np.array([[0, 1, 2]]), c.dir / "seq"), ValueError, r"no frames to write"),
+    ("export-sequence-every", lambda c: jaxmocap.viz.mesh.export_sequence(np.zeros((2, 3, 3)), np.array([[0, 1, 2]]), c.dir / "seq", every=0), ValueError, r"every must be a positive integer"),
+    ("export-sequence-format", lambda c: jaxmocap.viz.mesh.export_sequence(np.zeros((2, 3, 3)), np.array([[0, 1, 2]]), c.dir / "seq", fmt="stl"), ValueError, r"unknown mesh format 'stl'"),
+    ("plot-error-curves-fps", lambda c: jaxmocap.viz.plot.plot_error_curves({"sip": np.ones(3)}, c.dir / "e.png", fps=0), ValueError, r"fps must be a finite number > 0"),
+    ("axis-angle-shape", lambda c: jaxmocap.rotation.axis_angle_to_matrix(jnp.zeros(4)), ValueError, r"omega has shape \(4,\); expected \(\.\.\., 3\)"),
+    ("synth-nan-pose", lambda c: sensors.synthesize_imu(c.body, c.placement, np.full((3, 24, 3), np.nan), fps=30.0), ValueError, r"poses contains NaN"),
+    ("synth-inf-trans", lambda c: sensors.synthesize_imu(c.body, c.placement, np.zeros((3, 24, 3)), trans=np.full((3, 3), np.inf), fps=30.0), ValueError, r"trans contains NaN"),
+    ("synth-nan-betas", lambda c: sensors.synthesize_imu(c.body, c.placement, np.zeros((3, 24, 3)), np.full(10, np.nan), fps=30.0), ValueError, r"betas contains NaN"),
+    ("scenario-num-sequences-zero", lambda c: sensors.make_scenario([c.motion], body=c.body, num_sequences=0), ValueError, r"num_sequences must be an int >= 1"),
+    ("scenario-num-sequences-negative", lambda c: sensors.make_scenario([c.motion], body=c.body, num_sequences=-1), ValueError, r"num_sequences"),
+    ("scenario-seed-negative", lambda c: sensors.make_scenario([c.motion], body=c.body, seed=-1), ValueError, r"seed must be an int >= 0, got -1"),
+    ("scenario-seed-float", lambda c: sensors.make_scenario([c.motion], body=c.body, seed=1.5), ValueError, r"seed"),
+    ("scenario-unknown-motion", lambda c: sensors.make_scenario(["wlak"], body=c.body), ValueError, r"'wlak' is neither a library motion"),
+    ("scenario-unknown-object", lambda c: sensors.make_scenario([c.motion], sensors.ScenarioConfig(object="table", imu_set=None), body=c.body), ValueError, r"'table'.*box"),
+    ("scenario-unknown-imu-set", lambda c: sensors.make_scenario([c.motion], sensors.ScenarioConfig(imu_set="sip7"), body=c.body), ValueError, r"sip7"),
+    ("scenario-num-betas", lambda c: sensors.make_scenario([c.motion], sensors.ScenarioConfig(num_betas=300), body=c.body), ValueError, r"num_betas=300"),
+    ("scenario-depth-points", lambda c: sensors.ScenarioConfig(depth_points=-1), ValueError, r"depth_points"),
+    ("scenario-reach", lambda c: sensors.ScenarioConfig(reach="yes"), ValueError, r"reach must be True or False"),
+    ("scenario-spacing-nan", lambda c: sensors.ScenarioConfig(spacing=float("nan")), ValueError, r"spacing"),
+    ("camera-distance", lambda c: sensors.scenario.CameraConfig(distance=0.0), ValueError, r"distance"),
+    ("camera-views", lambda c: sensors.scenario.CameraConfig(num_views=0), ValueError, r"num_views"),
+    ("save-scenario-folder", lambda c: sensors.save_scenario(sensors.Scenario({}, {}), c.dir), ValueError, r"save_scenario: path .* is a folder; give a file name"),
+    ("load-scenario-missing", lambda c: sensors.load_scenario(c.dir / "nope.npz"), FileNotFoundError, r"nope\.npz"),
+    ("detector-negative", lambda c: sensors.DetectorErrorModel(pixel_noise=-1.0), ValueError, r"DetectorErrorModel\.pixel_noise must be a finite number >= 0"),
+    ("detector-probability", lambda c: sensors.DetectorErrorModel(miss_rate=1.5), ValueError, r"DetectorErrorModel\.miss_rate is a probability"),
+    ("detector-text", lambda c: sensors.DetectorErrorModel(swap_length="long"), ValueError, r"swap_length"),
+    ("depth-noise-rate", lambda c: sensors.DepthNoiseModel(missing_rate=2.0), ValueError, r"DepthNoiseModel\.missing_rate is a probability"),
+    ("depth-noise-negative", lambda c: sensors.DepthNoiseModel(lateral=-0.01), ValueError, r"DepthNoiseModel\.lateral"),
+    ("imu-errors-nan", lambda c: sensors.IMUErrorModel(acc_noise=float("nan")), ValueError, r"IMUErrorModel\.acc_noise"),
+    ("imu-placement-not-body", lambda c: sensors.imu_placement(np.zeros(3), "sip6"), ValueError, r"imu_placement: body must be a jaxmocap Body"),
+    ("keypoint-regressor-not-body", lambda c: sensors.keypoint_regressor(None, "coco18"), ValueError, r"keypoint_regressor: body must be a jaxmocap Body"),
+    ("look-at-nan", lambda c: sensors.look_at((np.nan, 0, 0), (0, 0, 0)), ValueError, r"look_at: eye and target must be finite"),
+    ("look-at-same-point", lambda c: sensors.look_at((1, 1, 1), (1, 1, 1)), ValueError, r"look_at: eye and target are the same point"),
+    ("intrinsics-fov", lambda c: sensors.camera.intrinsics(640, 480, 0.0), ValueError, r"fov_y_degrees must lie in \(0, 180\)"),
+    ("intrinsics-size", lambda c: sensors.camera.intrinsics(0, 480, 50.0), ValueError, r"width and height must be > 0"),
+    ("save-body-folder", lambda c: jaxmocap.save_body(c.body, c.dir), ValueError, r"save_body: path .* is a folder; give a file name, e\.g\. .*body\.npz"),
+    ("save-body-not-body", lambda c: jaxmocap.save_body(c.motion, c.dir / "b.npz"), ValueError, r"save_body: body must be a jaxmocap Body, got Motion"),
+    ("calibration-format", lambda c: formats.load_calibration(c.dir, format="opencv"), formats.CalibrationError, r"unknown calibration format 'opencv'"),
+    ("calibration-missing", lambda c: formats.load_calibration(c.dir / "nope.toml"), formats.CalibrationError, r"nope\.toml: no such file"),
+    ("calibration-extri-text", lambda c: _easymocap_extri(c, "Rot_cam01: hello"), formats.CalibrationError, r"extri\.yml: Rot_cam01 is not numeric"),
+    ("calibration-xml-encoding", lambda c: formats.load_calibration(c.file("enc.qca.txt", '<?xml version="1.0" encoding="AaCII"?><calibration/>'), format="qualisys"), formats.CalibrationError, r"enc\.qca\.txt: not valid XML \(unknown encoding"),
+    ("threedpw-missing", lambda c: formats.load_threedpw(c.dir / "nope.pkl"), FileNotFoundError, r"nope\.pkl"),
+    ("threedpw-a-list", lambda c: formats.load_threedpw(c.pickle("tpw.pkl", [1, 2])), MotionFileError, r"tpw\.pkl: the pickle holds a list"),
+    ("threedpw-keys", lambda c: formats.load_threedpw(c.pickle("tpw_keys.pkl", {"poses": []})), MotionFileError, r"tpw_keys\.pkl: missing key"),
+    ("prior-missing", lambda c: jaxmocap.priors.PosePrior.load(c.dir / "nope_prior.npz"), FileNotFoundError, r"nope_prior\.npz"),
+    ("prior-text", lambda c: jaxmocap.priors.PosePrior.load(c.file("prior.npz", "hello")), ValueError, r"prior\.npz.*not a readable \.npz pose prior"),
+    ("sweep-config-missing", lambda c: jaxmocap.app.load_config(c.dir / "nope.toml"), SweepConfigError, r"nope\.toml' does not exist"),
+    ("sweep-config-binary", lambda c: jaxmocap.app.load_config(c.file("bin.toml", b"\x80\x81[sweep]")), SweepConfigError, r"bin\.toml: not valid TOML"),
     # --- physics -------------------------------------------------------------------------
     ("check-trans-shape", lambda c: jaxmocap.physics.check(c.scene, np.zeros((3, 24, 3)), np.zeros((3, 2))), ValueError, r"trans has shape \(3, 2\)"),
     ("check-pose-shape", lambda c: jaxmocap.physics.check(c.scene, np.zeros((3, 72)), np.zeros((3, 3))), ValueError, r"poses has shape"),
@@ -368,8 +447,8 @@ def test_bad_input(ctx, action, error, match):
 
 def test_table_is_large_and_unique():
     ids = [c[0] for c in CASES]
-    assert len(set(ids)) == len(ids)
-    assert len(ids) + len(CLI_CASES) >= 80
+    assert len(set(ids)) == len(ids) and len(set(c[0] for c in CLI_CASES)) == len(CLI_CASES)
+    assert len(ids) + len(CLI_CASES) >= 250  # issue 50 asks for 250 cases or more
 
 
 # --- the command line: exit status 2 and one line naming the file or the option ----------

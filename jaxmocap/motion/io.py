@@ -24,14 +24,14 @@ __all__ = ["FORMAT_VERSION", "find_cmu_dir", "load_motion", "save_motion"]
 FORMAT_VERSION = 1
 
 
-def output_npz(path, who: str = "save_motion") -> Path:
+def output_npz(path, who: str = "save_motion", example: str = "motion.npz") -> Path:
     """The `.npz` file that `np.savez(path)` writes (it appends `.npz` to other names),
     refused with a ValueError when that is an existing folder or its folder is missing."""
     path = Path(path)
     target = path if path.suffix == ".npz" else path.with_name(path.name + ".npz")
     # np.savez would quietly write "<folder>.npz" beside a folder the user named.
     if path.is_dir():
-        raise ValueError(f"{who}: path {str(path)!r} is a folder; give a file name, e.g. {str(path / 'motion.npz')!r}.")
+        raise ValueError(f"{who}: path {str(path)!r} is a folder; give a file name, e.g. {str(path / example)!r}.")
     if target.is_dir():
         raise ValueError(f"{who}: path {str(path)!r} would be written as {str(target)!r}, which is a folder; "
                          "give another file name.")  # fmt: skip

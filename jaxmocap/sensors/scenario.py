@@ -188,6 +188,8 @@ class Scenario:
 
     def sequence(self, i: int) -> dict:
         """Sequence i unpadded: arrays with a frame axis cut to its length."""
+        if isinstance(i, bool) or not isinstance(i, (int, np.integer)) or not -self.num_sequences <= i < self.num_sequences:
+            raise IndexError(f"sequence {i!r}: this scenario has {self.num_sequences} sequences (0 .. {self.num_sequences - 1}).")
         n = int(self.arrays["length"][i])
         out = {}
         for k, v in self.arrays.items():
@@ -313,6 +315,11 @@ def make_scenario(
         raise ValueError(f"num_betas={config.num_betas} but the body has {body.num_betas}.")
     if len(motions) == 0:
         raise ValueError("make_scenario needs at least one motion.")
+    if num_sequences is not None and (isinstance(num_sequences, bool) or not isinstance(num_sequences, (int, np.integer))
+                                      or num_sequences < 1):  # fmt: skip
+        raise ValueError(f"num_sequences must be an int >= 1 (or None: one per motion), got {num_sequences!r}.")
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise ValueError(f"seed must be an int >= 0, got {seed!r}.")
     N = len(motions) if num_sequences is None else num_sequences
     cache = _MOTION_CACHE
     placement = imu_placement(body, config.imu_set) if config.imu_set else None
@@ -643,10 +650,16 @@ def _pad_and_stack(seqs: list[dict]) -> dict:
 
 
 def save_scenario(scenario: Scenario, path) -> Path:
-    """Write jaxmocap's own npz (compressed; atomic: temp file + rename)."""
+    """Write jaxmocap's own npz (compressed; atomic: temp file + rename). `.npz` is
+    appended to other names; missing folders are created; an existing folder is refused."""
     path = Path(path)
+    if path.is_dir():
+        raise ValueError(f"save_scenario: path {str(path)!r} is a folder; give a file name, e.g. "
+                         f"{str(path / 'scenario.npz')!r}.")  # fmt: skip
     if path.suffix != ".npz":
         path = path.with_name(path.name + ".npz")
+    if path.is_dir():
+        raise ValueError(f"save_scenario: {str(path)!r} is a folder; give another file name.")
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.name + ".tmp.npz")
     np.savez_compressed(tmp, meta_json=np.array(json.dumps(scenario.meta)), **scenario.arrays)
