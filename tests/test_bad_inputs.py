@@ -127,8 +127,9 @@ def _shift_term(p, d):
 SIMPLE = Problem([Term("fit", lambda p, d: p["x"] - 1.0)])
 WRONG_BAND = Problem([Term("fit", lambda p, d: p["x"] - 1.0), Term("shift", _shift_term)])
 
-def _sweep(edit=None, **sweep):
-    """A valid toy sweep config (tests/sweep_toy.py), one entry spoilt by `edit`, validated."""
+def _sweep(edit=None, raw=None, **sweep):
+    """A valid toy sweep config (tests/sweep_toy.py), one entry spoilt by `edit` (dataset
+    keys) or `raw(config)` (anything), validated."""
     from jaxmocap.app.sweep import validate_config
 
     config = {
@@ -140,6 +141,8 @@ def _sweep(edit=None, **sweep):
     }  # fmt: skip
     if edit:
         config["datasets"]["tracks"].update(edit)
+    if raw:
+        raw(config)
     return validate_config(config, source="toy.toml")
 
 
@@ -349,6 +352,20 @@ CASES = [
     ("sweep-betas-std-negative", lambda c: _sweep({"betas_std": -1.0}), SweepConfigError, r"\[datasets\.tracks\] betas_std"),
     ("sweep-vary-text", lambda c: _sweep({"vary": "yes"}), SweepConfigError, r"\[datasets\.tracks\] vary must be true or false"),
     ("sweep-imu-set", lambda c: _sweep({"imu_set": "sip7"}), SweepConfigError, r"\[datasets\.tracks\] imu_set must be one of .*'sip6'.*got 'sip7'"),
+    ("sweep-methods-int", lambda c: _sweep(methods=[1]), SweepConfigError, r"\[sweep\] methods must be a list of names \(strings\), got \[1\]"),
+    ("sweep-datasets-int", lambda c: _sweep(datasets=[3]), SweepConfigError, r"\[sweep\] datasets must be a list of names"),
+    ("sweep-metric-int", lambda c: _sweep(metric=5), SweepConfigError, r"\[sweep\] metric must be a string"),
+    ("sweep-out-int", lambda c: _sweep(out=3), SweepConfigError, r"\[sweep\] out must be a string"),
+    ("sweep-baseline-int", lambda c: _sweep(baseline=3), SweepConfigError, r"\[sweep\] baseline must be a table of weights"),
+    ("sweep-baseline-text", lambda c: _sweep(baseline={"smooth": "x"}), SweepConfigError, r"\[sweep\] baseline\.smooth must be a finite number"),
+    ("sweep-options-section", lambda c: _sweep(raw=lambda d: d.update(options={"max_steps": 5})), SweepConfigError, r"unknown section\(s\) \['options'\]"),
+    ("sweep-grid-weights-int", lambda c: _sweep(raw=lambda d: d["grid"].update(weights=3)), SweepConfigError, r"\[grid\.weights\] must be a table"),
+    ("sweep-weight-inf", lambda c: _sweep(raw=lambda d: d["grid"]["weights"].update(smooth=[1.0, float("inf")])), SweepConfigError, r"\[grid\.weights\] smooth must be a list of weights >= 0"),
+    ("sweep-dataset-int", lambda c: _sweep(raw=lambda d: d["datasets"].update(tracks=3)), SweepConfigError, r"\[datasets\.tracks\] must be a table"),
+    ("sweep-motions-int", lambda c: _sweep({"motions": [1]}), SweepConfigError, r"\[datasets\.tracks\] motions must be a list of library names or paths"),
+    ("sweep-scenario-int", lambda c: _sweep(raw=lambda d: d["datasets"].update(tracks={"scenario": 3})), SweepConfigError, r"\[datasets\.tracks\] scenario must be a string"),
+    ("sweep-preset-int", lambda c: _sweep(raw=lambda d: d["sensor_errors"].update(low=3)), SweepConfigError, r"\[sensor_errors\.low\] must be a table"),
+    ("sweep-section-int", lambda c: _sweep(raw=lambda d: d.update(grid=3)), SweepConfigError, r"grid must be a \[grid\] table"),
     ("sweep-toml-truncated", lambda c: jaxmocap.app.load_config(c.file("cut.toml", "[sweep]\nname = \"to")), SweepConfigError, r"cut\.toml: not valid TOML"),
     ("sweep-json-truncated", lambda c: _sweep_store(c, manifest='{"hash": "ab').open(), SweepConfigError, r"sweep\d*/sweep\.json: damaged, not JSON.*delete it"),
     ("sweep-json-a-list", lambda c: _sweep_store(c, manifest="[1, 2]").open(), SweepConfigError, r"sweep\.json: not a sweep manifest"),

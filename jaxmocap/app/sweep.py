@@ -81,10 +81,37 @@ def validate_config(raw: dict, source: str = "config") -> dict:
     axes, non-positive weights, missing dataset files, undefined presets.
     """
     raw = dict(raw)
-    unknown = sorted(set(raw) - {"sweep", "grid", "datasets", "sensor_errors", "options"})
+    # No [options] table: its keys live in [sweep] (max_steps, rtol, ...); one would be ignored.
+    unknown = sorted(set(raw) - {"sweep", "grid", "datasets", "sensor_errors"})
     if unknown:
         _fail(source, f"unknown section(s) {unknown}; a sweep config has [sweep], [grid], [datasets], [sensor_errors].")
+    # Types first: a value of the wrong kind (methods = [1], [datasets] tracks = 3) would
+    # otherwise surface as a TypeError deep in the checks below.
+    for section in ("sweep", "grid", "datasets", "sensor_errors"):
+        if not isinstance(raw.get(section, {}), dict):
+            _fail(source, f"{section} must be a [{section}] table, got {raw[section]!r}.")
     sw = dict(raw.get("sweep", {}))
+    for key in ("methods", "datasets", "sensor_errors"):
+        if isinstance(sw.get(key), list) and not all(isinstance(x, str) for x in sw[key]):
+            _fail(source, f"[sweep] {key} must be a list of names (strings), got {sw[key]!r}.")
+    for key in ("name", "metric", "out"):
+        if key in sw and not isinstance(sw[key], str):
+            _fail(source, f"[sweep] {key} must be a string, got {sw[key]!r}.")
+    if not isinstance(sw.get("baseline", {}), dict):
+        _fail(source, f"[sweep] baseline must be a table of weights, e.g. baseline = {{acc = 2.0}}; got {sw['baseline']!r}.")
+    for k, v in dict(sw.get("baseline", {})).items():
+        _check_number(source, f"[sweep] baseline.{k}", v, 0.0, None, "a weight")
+    for d, spec in dict(raw.get("datasets", {})).items():
+        if not isinstance(spec, dict):
+            _fail(source, f"[datasets.{d}] must be a table (motions = [...], sequences = ..., ...), got {spec!r}.")
+        for key in ("scenario", "prior"):
+            if key in spec and not isinstance(spec[key], str):
+                _fail(source, f"[datasets.{d}] {key} must be a string, got {spec[key]!r}.")
+        if isinstance(spec.get("motions"), list) and not all(isinstance(m, str) for m in spec["motions"]):
+            _fail(source, f"[datasets.{d}] motions must be a list of library names or paths, got {spec['motions']!r}.")
+    for e, spec in dict(raw.get("sensor_errors", {})).items():
+        if not isinstance(spec, dict):
+            _fail(source, f"[sensor_errors.{e}] must be a table of IMU error fields, got {spec!r}.")
     bad = sorted(set(sw) - _SWEEP_KEYS)
     if bad:
         _fail(source, f"unknown key(s) {bad} in [sweep]; allowed: {sorted(_SWEEP_KEYS)}.")
@@ -101,6 +128,9 @@ def validate_config(raw: dict, source: str = "config") -> dict:
     bad = sorted(set(grid) - {"weights", "terms"})
     if bad:
         _fail(source, f"unknown [grid] table(s) {bad}; use [grid.weights] and [grid.terms].")
+    for axis in ("weights", "terms"):
+        if not isinstance(grid.get(axis, {}), dict):
+            _fail(source, f"[grid.{axis}] must be a table (name = [values]), got {grid[axis]!r}.")
     gw, gt = dict(grid.get("weights", {})), dict(grid.get("terms", {}))
     for name, m in methods.items():
         for w in gw:
@@ -109,7 +139,7 @@ def validate_config(raw: dict, source: str = "config") -> dict:
         for t in gt:
             if t not in m.terms:
                 _fail(source, f"[grid.terms] {t!r} is not a switchable term of method {name!r}; its terms are {sorted(m.terms)}.")
-    for axis, table, ok in (("weights", gw, lambda v: isinstance(v, (int, float)) and not isinstance(v, bool) and v >= 0),
+    for axis, table, ok in (("weights", gw, lambda v: isinstance(v, (int, float)) and not isinstance(v, bool) and 0 <= v < math.inf),
                             ("terms", gt, lambda v: isinstance(v, bool))):  # fmt: skip
         for k, vals in table.items():
             if not isinstance(vals, list) or not vals:
