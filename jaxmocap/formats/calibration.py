@@ -274,9 +274,12 @@ def save_calibration(path, cameras, format: str) -> None:
 
 
 def _rodrigues(rvec, where) -> np.ndarray:
-    rvec = np.asarray(rvec, np.float64).reshape(-1)
-    if rvec.shape != (3,):
-        raise CalibrationError(f"{where}: a Rodrigues rotation needs 3 numbers, got {rvec.size}.")
+    try:
+        rvec = np.asarray(rvec, np.float64).reshape(-1)
+    except (TypeError, ValueError):
+        raise CalibrationError(f"{where}: a Rodrigues rotation needs 3 numbers, got {str(rvec)[:40]!r}.") from None
+    if rvec.shape != (3,) or not np.isfinite(rvec).all():
+        raise CalibrationError(f"{where}: a Rodrigues rotation needs 3 finite numbers, got {rvec.tolist()}.")
     return Rotation.from_rotvec(rvec).as_matrix()
 
 
@@ -573,7 +576,7 @@ def _parse_opencv_yaml(path: Path) -> dict:
                     fields[name.strip()] = _yaml_scalar(value)
             try:
                 rows, cols, data = int(fields["rows"]), int(fields["cols"]), fields["data"]
-            except (KeyError, ValueError):
+            except (KeyError, ValueError, TypeError, OverflowError):  # OverflowError: rows: inf
                 raise CalibrationError(
                     f"{path}: matrix {key!r} needs rows, cols and data; got {sorted(fields)}."
                 ) from None
