@@ -159,6 +159,17 @@ def _sweep_store(c, manifest: str | None = None, cell: str | None = None):
     return Store(root, _sweep())
 
 
+_POSE2SIM = """[cam01]
+name = "cam01"
+size = [ 640.0, 480.0]
+matrix = [ [ 800.0, 0.0, 320.0], [ 0.0, 800.0, 240.0], [ 0.0, 0.0, 1.0]]
+distortions = [ 0.0, 0.0, 0.0, 0.0]
+rotation = [ 0.0, 0.0, 0.0]
+translation = [ 0.0, 0.0, 4.0]
+fisheye = false
+"""
+
+
 def _easymocap_extri(c, line: str):
     """An EasyMocap pair whose extri.yml has `line` where a matrix should be."""
     folder = c.dir / f"easy{len(list(c.dir.glob('easy*')))}"
@@ -427,6 +438,9 @@ CASES = [
     ("calibration-missing", lambda c: formats.load_calibration(c.dir / "nope.toml"), formats.CalibrationError, r"nope\.toml: no such file"),
     ("calibration-extri-text", lambda c: _easymocap_extri(c, "Rot_cam01: hello"), formats.CalibrationError, r"extri\.yml: Rot_cam01 is not numeric"),
     ("calibration-xml-encoding", lambda c: formats.load_calibration(c.file("enc.qca.txt", '<?xml version="1.0" encoding="AaCII"?><calibration/>'), format="qualisys"), formats.CalibrationError, r"enc\.qca\.txt: not valid XML \(unknown encoding"),
+    ("calibration-rotation-text", lambda c: formats.load_calibration(c.file("rot.toml", _POSE2SIM.replace("rotation = [ 0.0, 0.0, 0.0]", 'rotation = [ "", 0.0, 0.0]')), format="pose2sim"), formats.CalibrationError, r"rot\.toml.*Rodrigues rotation needs 3 numbers"),
+    ("calibration-rotation-inf", lambda c: formats.load_calibration(c.file("rotinf.toml", _POSE2SIM.replace("rotation = [ 0.0, 0.0, 0.0]", "rotation = [ inf, 0.0, 0.0]")), format="pose2sim"), formats.CalibrationError, r"rotinf\.toml.*3 finite numbers"),
+    ("calibration-yml-rows-inf", lambda c: _easymocap_extri(c, "Rot_cam01: !!opencv-matrix\n  rows: 1e400\n  cols: 3\n  dt: d\n  data: [1, 0, 0, 0, 1, 0, 0, 0, 1]"), formats.CalibrationError, r"extri\.yml: matrix 'Rot_cam01' needs rows, cols and data"),
     ("threedpw-missing", lambda c: formats.load_threedpw(c.dir / "nope.pkl"), FileNotFoundError, r"nope\.pkl"),
     ("threedpw-a-list", lambda c: formats.load_threedpw(c.pickle("tpw.pkl", [1, 2])), MotionFileError, r"tpw\.pkl: the pickle holds a list"),
     ("threedpw-keys", lambda c: formats.load_threedpw(c.pickle("tpw_keys.pkl", {"poses": []})), MotionFileError, r"tpw_keys\.pkl: missing key"),
