@@ -427,10 +427,14 @@ def _check_values(pose_name: str, pose, betas, trans) -> None:
     for name, x in ((pose_name, pose), ("betas", betas), ("trans", trans)):
         if x is None:
             continue
-        if jnp.issubdtype(jnp.result_type(x), jnp.complexfloating):
-            raise ValueError(f"{name} is complex ({jnp.result_type(x)}); give real numbers (x.real if the "
-                             "imaginary part is zero).")  # fmt: skip
-        check_finite(name, x)
+        v = concrete(x)  # lists too; None when traced
+        dtype = x.dtype if v is None else v.dtype
+        if jnp.issubdtype(dtype, jnp.complexfloating):
+            raise ValueError(f"{name} is complex ({dtype}); give real numbers (x.real if the imaginary part "
+                             "is zero).")  # fmt: skip
+        if v is not None and v.dtype.kind not in "biuf":
+            raise ValueError(f"{name} must be a numeric array, got dtype {v.dtype}.")
+        check_finite(name, v)
     v = concrete(pose)
     if v is not None and v.size == 0:
         raise ValueError(f"{pose_name} has shape {v.shape}: an empty batch (zero frames?); give at least one.")
