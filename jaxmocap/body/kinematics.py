@@ -378,6 +378,9 @@ def forward(body: Body, pose, betas=None, trans=None) -> BodyOutput:
         BodyOutput with vertices (..., V, 3), joints (..., J, 3) and global
         joint_rotations (..., J, 3, 3); batch axes broadcast across the inputs.
 
+    Raises ValueError for a NaN/inf, complex or empty input; checked on concrete inputs
+    only, so a call inside the user's `jit` costs nothing and is not checked.
+
     Memory grows with the batch (about 1.4 GiB per 1000 frames on the full default body):
     pose long sequences in chunks with `jaxmocap.body.posed_vertices(body, motion,
     chunk=256)`.
