@@ -187,9 +187,11 @@ def _configure_export(p: argparse.ArgumentParser) -> None:
 
 
 def _run_export(args) -> int:
+    from ._checks import output_folder
     from .app.demo import export_motion
     from .body.io import resolve_body
 
+    output_folder(args.outdir, "OUTDIR")  # before the motion is loaded and posed
     body = resolve_body(args.body)
     motion = _load_motion(args.motion, fps=args.fps, body=body)
     result = export_motion(

@@ -42,12 +42,13 @@ import dataclasses
 import functools
 import json
 import math
-import os
 import re
 import time
 from pathlib import Path
 
 import numpy as np
+
+from .._checks import output_folder
 
 __all__ = ["fit_recording", "jitter", "read_masks", "reprojection_errors", "world_to_y_up"]
 
@@ -306,22 +307,6 @@ def _overlay(path, cam, view, frame_numbers, picks, detections, model_kp, vertic
     return save_figure(fig, path)
 
 
-def _output_folder(out_dir) -> Path:
-    """`out_dir` created (or found) and writable, checked before the minute of fitting
-    rather than when the results are written."""
-    out_dir = Path(out_dir)
-    if out_dir.exists() and not out_dir.is_dir():
-        raise ValueError(f"out_dir (--out) {str(out_dir)!r} is a file, not a folder; give a folder to write into.")
-    try:
-        out_dir.mkdir(parents=True, exist_ok=True)
-    except OSError as e:
-        raise ValueError(f"out_dir (--out) {str(out_dir)!r} cannot be created ({e.strerror}); give a folder "
-                         "you can write to.") from None  # fmt: skip
-    if not os.access(out_dir, os.W_OK | os.X_OK):
-        raise ValueError(f"out_dir (--out) {str(out_dir)!r} is not writable; give a folder you can write to.")
-    return out_dir
-
-
 def fit_recording(
     keypoints_dir,
     calib_path,
@@ -372,7 +357,7 @@ def fit_recording(
     if not fps > 0:
         raise ValueError(f"fps must be positive, got {fps}.")
     weights = MuVSWeights() if weights is None else weights
-    out_dir = _output_folder(out_dir)
+    out_dir = output_folder(out_dir)  # before the minute of fitting, not when writing
     timings: dict[str, float] = {}
     stages = ["read", "select person", "initialise", "stage 1", "stage 2", "write"]
     if not temporal:
