@@ -273,12 +273,14 @@ def test_refused_config_writes_nothing_and_a_failed_sweep_locks_nothing(tmp_path
     failing["grid"]["weights"]["data"] = [0.0]  # every cell raises in the solve
     run_sweep(validate_config(failing), out, progress=False, summary=False)
     assert _solved(out) == 0 and len(_cells(out)) == 24  # 4 variants x 2 presets x 3
+    (out / "datasets" / "stale.npz").write_bytes(b"")
     config = toy_config()
     config["grid"] = {"weights": {"smooth": [1.0]}}
     messages = []
     run_sweep(validate_config(config), out, progress=False, summary=False, log=messages.append)
     assert len(_cells(out)) == 6 and _solved(out) == 5  # sequence 2 at high noise fails to prepare
     assert "earlier sweep solved no cell" in messages[0]
+    assert not (out / "datasets" / "stale.npz").exists()  # generated data is cached by name: gone too
     assert "loading dataset 'tracks' with sensor errors 'high' for 'sweep_toy:ToyMethod' (2 of 2)" in messages
 
 

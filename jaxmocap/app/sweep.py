@@ -31,6 +31,7 @@ import hashlib
 import json
 import math
 import os
+import shutil
 import sys
 import time
 import tomllib
@@ -352,6 +353,8 @@ class Store:
             log(f"{self.root}: its earlier sweep solved no cell; starting over with this config")
             for p in self.cells.glob("*.json"):
                 p.unlink()
+            # Its generated datasets too: they are cached by name, not by their settings.
+            shutil.rmtree(self.root / "datasets", ignore_errors=True)
         self.cells.mkdir(parents=True, exist_ok=True)
         atomic_write(manifest, json.dumps({"hash": self.hash, "config": _identity(self.config)}, indent=1))
 
@@ -399,12 +402,17 @@ def _read_json(path: Path, fix: str):
         raise SweepConfigError(f"{path}: damaged, not JSON ({e}); {fix}.") from None
 
 
-def _read_cell(path: Path) -> dict | None:
-    """A cell file's record, or None if it is missing or damaged."""
+def _try_json(path: Path):
+    """The JSON in `path`, or None if it is missing or not JSON."""
     try:
-        r = json.loads(path.read_text())
+        return json.loads(path.read_text())
     except (OSError, ValueError, UnicodeDecodeError):
         return None
+
+
+def _read_cell(path: Path) -> dict | None:
+    """A cell file's record, or None if it is missing or damaged."""
+    r = _try_json(path)
     ok = isinstance(r, dict) and isinstance(r.get("cell"), str) and ("metrics" in r or "error" in r)
     return r if ok else None
 
@@ -454,7 +462,8 @@ def run_sweep(config: dict, out=None, *, prepare_only: bool = False, summary: bo
     if rank == 0:
         store.open(log)
     else:
-        _wait_for(root / "sweep.json", 600)
+        # Process 0 alone writes (or takes over) the folder: wait for this config's manifest.
+        _wait_for(root / "sweep.json", 600, lambda p: isinstance(m := _try_json(p), dict) and m.get("hash") == store.hash)
         store.open(log)
     var = variants(config)
     cache = root / "datasets"
@@ -594,9 +603,9 @@ def _progress(total: int, enabled: bool):
     return tqdm(total=total, desc="cells", unit="cell", disable=not enabled, file=sys.stderr, smoothing=0.1)
 
 
-def _wait_for(path: Path, timeout: float) -> None:
+def _wait_for(path: Path, timeout: float, ready=None) -> None:
     start = time.monotonic()
-    while not path.exists():
+    while not path.exists() or (ready is not None and not ready(path)):
         if time.monotonic() - start > timeout:
             raise TimeoutError(f"waited {timeout:.0f} s for {path} (written by process 0).")
         time.sleep(0.2)
