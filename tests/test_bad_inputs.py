@@ -212,6 +212,7 @@ CASES = [
     ("amc-garbage", lambda c: load_motion(c.file("bad.amc", "1\nroot a b c\n"), asf=CMU / "02.asf"), MotionFileError, r"bad\.amc"),
     ("asf-garbage", lambda c: load_motion(CMU / "02_01.amc", asf=c.file("bad.asf", "nothing here")), MotionFileError, r"bad\.asf"),
     ("bvh-not-bvh", lambda c: load_motion(c.file("bad.bvh", "MOTION\nFrames: 1\n")), MotionFileError, r"bad\.bvh.*HIERARCHY"),
+    ("bvh-channels-outside-joint", lambda c: load_motion(c.file("chan.bvh", "HIERARCHY\nROOT hips CHANNELS 3 Xrotation Yrotation Zrotation\n{\nOFFSET 0 0 0\n}\nMOTION\nFrames: 1\nFrame Time: 0.1\n0 0 0\n")), MotionFileError, r"chan\.bvh, line 2: CHANNELS outside a joint"),
     ("bvh-truncated", lambda c: load_motion(c.file("cut.bvh", "HIERARCHY\nROOT hips\n{\nOFFSET 0 0")), MotionFileError, r"cut\.bvh"),
     ("load-fps-zero", lambda c: load_motion(c.amass("ok0.npz"), fps=0), ValueError, r"fps"),
     ("load-fps-negative", lambda c: load_motion(c.amass("ok1.npz"), fps=-30), ValueError, r"fps"),
