@@ -186,7 +186,10 @@ def test_bad_config_is_refused_naming_the_problem(edit, message):
 
 def test_changed_config_refuses_to_resume_naming_the_change(tmp_path):
     config = validate_config(toy_config())
-    Store(tmp_path, config).open()
+    store = Store(tmp_path, config)
+    store.open()
+    # One solved cell: results to protect (a folder that solved none is taken over instead).
+    (store.cells / "solved.json").write_text(json.dumps({"config_hash": store.hash, "cell": "c", "metrics": {"rmse": 1.0}}))
     changed = toy_config()
     changed["grid"]["weights"]["smooth"] = [0.1, 1.0, 30.0]
     changed["sensor_errors"]["high"]["acc_noise"] = 0.3
