@@ -94,15 +94,25 @@ def check_rotations(name: str, R, atol: float = 1e-3, allow_nan: bool = False) -
         )
 
 
-def output_folder(path, name: str = "out_dir (--out)"):
+def output_folder(path, name: str = "out_dir (--out)", create: bool = True):
     """`path` created (or found) and writable, as a Path: called before minutes of work,
-    so that a file given as the folder, or a folder that cannot be made, fails at once."""
+    so that a file given as the folder, or a folder that cannot be made, fails at once.
+    With `create=False` nothing is written: its nearest existing folder must be writable."""
     import os
     from pathlib import Path
 
     path = Path(path)
     if path.exists() and not path.is_dir():
         raise ValueError(f"{name} {str(path)!r} is a file, not a folder; give a folder to write into.")
+    if not create:
+        base = path
+        while not base.exists():
+            base = base.parent
+        if not base.is_dir():
+            raise ValueError(f"{name} {str(path)!r} cannot be created ({str(base)!r} is a file); give another folder.")
+        if not os.access(base, os.W_OK | os.X_OK):
+            raise ValueError(f"{name} {str(path)!r} cannot be created ({str(base)!r} is not writable).")
+        return path
     try:
         path.mkdir(parents=True, exist_ok=True)
     except OSError as e:

@@ -357,7 +357,8 @@ def fit_recording(
     if not fps > 0:
         raise ValueError(f"fps must be positive, got {fps}.")
     weights = MuVSWeights() if weights is None else weights
-    out_dir = output_folder(out_dir)  # before the minute of fitting, not when writing
+    # Checked before the minute of fitting, created only when the inputs are good.
+    out_dir = output_folder(out_dir, create=False)
     timings: dict[str, float] = {}
     stages = ["read", "select person", "initialise", "stage 1", "stage 2", "write"]
     if not temporal:
