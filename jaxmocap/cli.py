@@ -191,7 +191,7 @@ def _run_export(args) -> int:
     from .app.demo import export_motion
     from .body.io import resolve_body
 
-    output_folder(args.outdir, "OUTDIR")  # before the motion is loaded and posed
+    output_folder(args.outdir, "OUTDIR", create=False)  # before the motion is loaded and posed
     body = resolve_body(args.body)
     motion = _load_motion(args.motion, fps=args.fps, body=body)
     result = export_motion(

@@ -130,7 +130,7 @@ def run_demo(
     frame) and `sop_vs_sip_joints.png` (MPJAE per joint).
     """
     start = time.perf_counter()
-    output_folder(out_dir)  # a file given as --out fails now, not after the walk is posed
+    output_folder(out_dir, create=False)  # a file given as --out fails now, not after the walk is posed
     body = resolve_body(body)
     motion, source = _demo_motion(body, fps, seconds)
     result = export_motion(motion, body, out_dir, fmt="ply", every=every, pictures=True, glb=True, progress=progress)
