@@ -12,7 +12,7 @@ import math
 import jax
 import numpy as np
 
-__all__ = ["concrete", "check_rate", "check_weight", "check_frames", "check_rotations", "check_finite"]
+__all__ = ["concrete", "check_rate", "check_weight", "check_frames", "check_rotations", "check_finite", "output_folder"]
 
 
 def concrete(x) -> np.ndarray | None:
@@ -92,3 +92,31 @@ def check_rotations(name: str, R, atol: float = 1e-3, allow_nan: bool = False) -
             f"{name} holds matrices that are not rotations (RᵀR = I, det = +1): matrix "
             f"{int(index[i])} (flattened) has |RᵀR - I| = {ortho[i]:.3g}, det = {det[i]:.3g}."
         )
+
+
+def output_folder(path, name: str = "out_dir (--out)", create: bool = True):
+    """`path` created (or found) and writable, as a Path: called before minutes of work,
+    so that a file given as the folder, or a folder that cannot be made, fails at once.
+    With `create=False` nothing is written: its nearest existing folder must be writable."""
+    import os
+    from pathlib import Path
+
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise ValueError(f"{name} {str(path)!r} is a file, not a folder; give a folder to write into.")
+    if not create:
+        base = path
+        while not base.exists():
+            base = base.parent
+        if not base.is_dir():
+            raise ValueError(f"{name} {str(path)!r} cannot be created ({str(base)!r} is a file); give another folder.")
+        if not os.access(base, os.W_OK | os.X_OK):
+            raise ValueError(f"{name} {str(path)!r} cannot be created ({str(base)!r} is not writable).")
+        return path
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise ValueError(f"{name} {str(path)!r} cannot be created ({e.strerror}); give a folder you can write to.") from None
+    if not os.access(path, os.W_OK | os.X_OK):
+        raise ValueError(f"{name} {str(path)!r} is not writable; give a folder you can write to.")
+    return path

@@ -187,9 +187,11 @@ def _configure_export(p: argparse.ArgumentParser) -> None:
 
 
 def _run_export(args) -> int:
+    from ._checks import output_folder
     from .app.demo import export_motion
     from .body.io import resolve_body
 
+    output_folder(args.outdir, "OUTDIR", create=False)  # before the motion is loaded and posed
     body = resolve_body(args.body)
     motion = _load_motion(args.motion, fps=args.fps, body=body)
     result = export_motion(
@@ -216,16 +218,25 @@ def _configure_demo(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-fit", action="store_true", help="skip the IMU simulation and the SOP/SIP fits")
 
 
+def _mesh_lines(meshes) -> list[str]:
+    """One line per folder of PLY files: the demo writes meshes/, meshes_sop/ and
+    meshes_sip/, and one count for all three read as 54 files in meshes/."""
+    folders: dict[Path, list[Path]] = {}
+    for p in meshes:
+        if p.suffix == ".ply":
+            folders.setdefault(p.parent, []).append(p)
+    return [f"meshes   {len(set(ps))} PLY in {folder} ({ps[0].name} .. {ps[-1].name})" for folder, ps in folders.items()]
+
+
 def _run_demo(args) -> int:
     from .app.demo import run_demo
 
     result = run_demo(args.out, body=args.body, seconds=args.seconds, every=args.every,
                       progress=sys.stderr.isatty(), fit=not args.no_fit)
-    plys = [p for p in result.meshes if p.suffix == ".ply"]
     glbs = [p for p in result.meshes if p.suffix == ".glb"]
     print(f"motion   {result.source}: {result.num_frames} frames at {result.fps:g} fps")
-    if plys:
-        print(f"meshes   {len(plys)} PLY in {plys[0].parent} ({plys[0].name} .. {plys[-1].name})")
+    for line in _mesh_lines(result.meshes):
+        print(line)
     for p in glbs:
         print(f"scene    {p} (one node per kept frame, y up)")
     for p in result.pictures:

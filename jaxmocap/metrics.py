@@ -24,6 +24,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
+from ._checks import check_finite
 from .body.model import SMPL_JOINT_NAMES
 from .rotation import geodesic_angle
 
@@ -169,6 +170,10 @@ def _posed_pair(body, pred_poses, true_poses, betas, pred_trans, true_trans):
             f"pred_poses has shape {jnp.shape(pred_poses)} but true_poses has {jnp.shape(true_poses)}; "
             "both must be (T, 24, 3) with the same T (trim or resample one of them)."
         )
+    for name, x in (("pred_poses", pred_poses), ("true_poses", true_poses), ("pred_trans", pred_trans),
+                    ("true_trans", true_trans)):  # fmt: skip
+        if x is not None:
+            check_finite(name, x)  # named here: forward's own check would say "pose"
     return forward(body, pred_poses, betas, pred_trans), forward(body, true_poses, betas, true_trans)
 
 

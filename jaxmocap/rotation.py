@@ -82,6 +82,8 @@ def axis_angle_to_matrix(omega: Array) -> Array:
 
     Von Marcard eq. 2.14. (..., 3) -> (..., 3, 3).
     """
+    if jnp.shape(omega)[-1:] != (3,):  # a shape check: free at trace time
+        raise ValueError(f"omega has shape {jnp.shape(omega)}; expected (..., 3) axis-angle vectors.")
     theta2 = jnp.sum(omega * omega, axis=-1)
     small, safe2 = _safe_theta2(theta2)
     theta = jnp.sqrt(safe2)

@@ -138,3 +138,13 @@ def test_demo_without_cmu_uses_procedural_walk(tmp_path, monkeypatch, capsys):
     out = capsys.readouterr().out
     assert "procedural walk" in out and "16 frames" in out
     assert len(list((tmp_path / "demo" / "meshes").glob("*.ply"))) == 2
+
+
+def test_demo_counts_meshes_per_folder(tmp_path):
+    """meshes/, meshes_sop/ and meshes_sip/ of 18 PLY each: three lines of 18, not one of 54."""
+    from jaxmocap.cli import _mesh_lines
+
+    paths = [tmp_path / d / f"frame_{i:04d}.ply" for d in ("meshes", "meshes_sop", "meshes_sip") for i in range(0, 90, 5)]
+    lines = _mesh_lines(paths + [tmp_path / "meshes" / "sequence.glb"])
+    assert lines == [f"meshes   18 PLY in {tmp_path / d} (frame_0000.ply .. frame_0085.ply)"
+                     for d in ("meshes", "meshes_sop", "meshes_sip")]  # fmt: skip

@@ -258,3 +258,121 @@ def test_openpose_json_bytes(tmp_path, data):
     path = root / "cam01" / "cam01_000000000000_keypoints.json"
     path.write_bytes(data)
     _reads_or_names(path, KeypointFileError, lambda p: read_openpose(root, "body25"))
+
+
+# --- the other readers (issue 50, goal 4): EasyMocap extrinsics, 3DPW, jaxmocap's own motion
+# and scenario files, pose priors, sweep configs --------------------------------------------
+
+from jaxmocap.app.sweep import SweepConfigError, load_config  # noqa: E402
+from jaxmocap.formats.threedpw import load_threedpw  # noqa: E402
+from jaxmocap.motion import load_motion  # noqa: E402
+from jaxmocap.priors.pose_prior import load_pose_prior  # noqa: E402
+from jaxmocap.sensors.scenario import load_scenario  # noqa: E402
+
+
+def _threedpw_seed(T: int = 3) -> bytes:
+    """One person, T frames, 3DPW's keys and shapes (values need not be a real recording)."""
+    cam = np.tile(np.eye(4), (T, 1, 1))
+    cam[:, 2, 3] = 4.0
+    data = {
+        "sequence": "fuzz_00", "genders": [b"m"], "betas": [np.zeros(10)], "poses": [np.zeros((T, 72))],
+        "trans": [np.zeros((T, 3))], "poses2d": [np.ones((T, 3, 18))], "jointPositions": [np.zeros((T, 72))],
+        "cam_poses": cam, "cam_intrinsics": np.array([[1000.0, 0, 540], [0, 1000, 960], [0, 0, 1]]),
+        "campose_valid": [np.ones(T, bool)], "img_frame_ids": np.arange(T),
+    }  # fmt: skip
+    # As 3DPW's files are: protocol 2, NumPy 1's reconstructor path (tests/threedpw_file.py).
+    return pickle.dumps(data, protocol=2).replace(b"numpy._core.", b"numpy.core.")
+
+
+THREEDPW_SEED = _threedpw_seed()
+OWN_MOTION_SEED = _npz_bytes(jaxmocap_motion=np.array(1), poses=np.zeros((3, 24, 3)), trans=np.zeros((3, 3)),
+                             fps=np.array(30.0), betas=np.zeros(0), gender=np.array("neutral"), name=np.array("m"))  # fmt: skip
+PRIOR_SEED = _npz_bytes(mean=np.zeros(69), covariance=np.eye(69), lower=np.full(69, -3.0), upper=np.full(69, 3.0))
+SWEEP_SEED = b"""[sweep]
+name = "fuzz"
+methods = ["sweep_toy:ToyMethod"]
+datasets = ["tracks"]
+sensor_errors = ["low"]
+metric = "rmse"
+max_steps = 5
+
+[grid.weights]
+smooth = [0.1, 1.0]
+
+[grid.terms]
+smooth = [true, false]
+
+[datasets.tracks]
+motions = ["walk"]
+sequences = 2
+frames = 8
+fps = 30.0
+
+[sensor_errors.low]
+acc_noise = 0.05
+"""
+
+
+def _scenario_seed() -> bytes:
+    import json
+
+    meta = {"format": "jaxmocap_scenario", "version": 1, "seed": 0, "config": {}, "names": ["a"]}
+    return _npz_bytes(meta_json=np.array(json.dumps(meta)), mask=np.ones((1, 3), bool), length=np.array([3]),
+                      poses=np.zeros((1, 1, 3, 24, 3)))  # fmt: skip
+
+
+SCENARIO_SEED = _scenario_seed()
+
+
+def test_more_seeds_are_valid(tmp_path):
+    load_threedpw(_write(tmp_path, ".pkl", THREEDPW_SEED))
+    load_motion(_write(tmp_path, ".npz", OWN_MOTION_SEED))
+    load_pose_prior(_write(tmp_path, ".npz", PRIOR_SEED))
+    load_config(_write(tmp_path, ".toml", SWEEP_SEED))
+    load_scenario(_write(tmp_path, ".npz", SCENARIO_SEED))
+    folder = tmp_path / "easy"
+    folder.mkdir()
+    (folder / "intri.yml").write_bytes(CALIB["easymocap"][1])
+    (folder / "extri.yml").write_bytes(CALIB["extri"])
+    load_calibration(folder / "intri.yml", format="easymocap")
+
+
+@FUZZ
+@given(data=spoiled(CALIB["extri"]))
+def test_easymocap_extri_bytes(tmp_path, data):
+    folder = tmp_path / uuid.uuid4().hex[:8]
+    folder.mkdir()
+    (folder / "intri.yml").write_bytes(CALIB["easymocap"][1])
+    (folder / "extri.yml").write_bytes(data)
+    # The error names the file at fault, extri.yml, though intri.yml was the one named.
+    _reads_or_names(folder / "extri.yml", CalibrationError, lambda p: load_calibration(p.parent / "intri.yml", format="easymocap"))
+
+
+@FUZZ
+@given(data=spoiled(THREEDPW_SEED))
+def test_threedpw_pkl_bytes(tmp_path, data):
+    _reads_or_names(_write(tmp_path, ".pkl", data), MotionFileError, load_threedpw)
+
+
+@FUZZ
+@given(data=spoiled(OWN_MOTION_SEED))
+def test_own_motion_npz_bytes(tmp_path, data):
+    _reads_or_names(_write(tmp_path, ".npz", data), MotionFileError, load_motion)
+
+
+@FUZZ
+@given(data=spoiled(SCENARIO_SEED))
+def test_scenario_npz_bytes(tmp_path, data):
+    _reads_or_names(_write(tmp_path, ".npz", data), MotionFileError, load_scenario)
+
+
+@FUZZ
+@given(data=spoiled(PRIOR_SEED))
+def test_pose_prior_npz_bytes(tmp_path, data):
+    _reads_or_names(_write(tmp_path, ".npz", data), ValueError, load_pose_prior)
+
+
+@FUZZ
+@given(data=spoiled(SWEEP_SEED))
+def test_sweep_toml_bytes(tmp_path, data):
+    _reads_or_names(_write(tmp_path, ".toml", data), SweepConfigError, load_config)

@@ -221,7 +221,7 @@ def test_inputs_are_checked_before_any_fit(recording, tmp_path, capsys):
     calib = root / "Calib.qca.txt"
     (tmp_path / "file").write_text("")
     code, io = _run(["--keypoints", root / "pose", "--calib", calib, "--out", tmp_path / "file"], capsys)
-    assert code == 2 and "file: the output folder exists as a file" in io.err and io.out == ""
+    assert code == 2 and "file' is a file, not a folder" in io.err and io.out == ""
     code, io = _run(["--keypoints", root / "pose", "--calib", calib, "--out", tmp_path / "file" / "sub"], capsys)
     assert code == 2 and "cannot be created" in io.err
     code, io = _run([], capsys)

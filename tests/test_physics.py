@@ -440,3 +440,31 @@ def test_physics_terms_share_one_posed_body(body64):
     assert [r.shape for r in out] == [(T, V, 1), (T, 4, 3), (T, V, 1)]
     assert float(out[2].max()) > 0.05  # the box sits in the torso
     assert float(jnp.abs(out[1][-1]).max()) == 0.0  # padding row
+
+
+def test_check_plot_title_is_the_file_name_and_the_legend_beside_the_curve(tmp_path):
+    """A synthetic report (no MJX): the title had the absolute path, the legend sat on the curve."""
+    from matplotlib.figure import Figure
+
+    from jaxmocap.physics.report import PlausibilityReport, plot_report
+
+    T = 30
+    lowest = 0.01 * np.sin(np.linspace(0, 6, T))
+    report = PlausibilityReport(
+        name="/very/long/absolute/folder/02_01.amc", fps=30.0, ground_height=0.0, lowest_mesh=lowest,
+        lowest_capsules=lowest + 0.005, foot_heights=np.zeros((T, 4)), foot_contact=np.zeros((T, 4), bool),
+        skating=np.full((T - 1, 4), np.nan), heatmap=np.zeros(10), summary={}, feet={},
+    )  # fmt: skip
+    figures = []
+    original = Figure.savefig
+    Figure.savefig = lambda self, *a, **k: (figures.append(self), original(self, *a, **k))[1]
+    try:
+        plot_report(report, tmp_path / "check.png")
+    finally:
+        Figure.savefig = original
+    ax = figures[0].axes[0]
+    assert ax.get_title() == "plausibility: 02_01.amc"
+    renderer = figures[0].canvas.get_renderer()
+    legend, axes = ax.get_legend().get_window_extent(renderer), ax.get_window_extent(renderer)
+    assert legend.x0 >= axes.x1  # entirely right of the plotting area
+    assert legend.x1 <= figures[0].bbox.x1  # and still inside the picture

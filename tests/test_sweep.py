@@ -186,7 +186,10 @@ def test_bad_config_is_refused_naming_the_problem(edit, message):
 
 def test_changed_config_refuses_to_resume_naming_the_change(tmp_path):
     config = validate_config(toy_config())
-    Store(tmp_path, config).open()
+    store = Store(tmp_path, config)
+    store.open()
+    # One solved cell: results to protect (a folder that solved none is taken over instead).
+    (store.cells / "solved.json").write_text(json.dumps({"config_hash": store.hash, "cell": "c", "metrics": {"rmse": 1.0}}))
     changed = toy_config()
     changed["grid"]["weights"]["smooth"] = [0.1, 1.0, 30.0]
     changed["sensor_errors"]["high"]["acc_noise"] = 0.3
@@ -229,7 +232,9 @@ def test_killed_sweep_resumes_losing_and_repeating_nothing(tmp_path):
     assert 6 <= len(before) < total
     assert all(json.loads(t)["cell"] for t in before.values())  # no half-written cell
     done = subprocess.run(cmd, env={**ENV, "SWEEP_TOY_LOG": str(log2)}, capture_output=True, text=True, timeout=300)
-    assert done.returncode == 0, done.stderr[-3000:]
+    # 28 cells fail (below): status 1 and a line saying so, so that scripts notice.
+    assert done.returncode == 1, done.stderr[-3000:]
+    assert "jaxmocap sweep: 28 of 48 cells failed" in done.stderr
     after = _cells(out)
     assert len(after) == total
     assert all(after[k] == v for k, v in before.items()), "a finished cell was rewritten"
@@ -255,6 +260,49 @@ def test_killed_sweep_resumes_losing_and_repeating_nothing(tmp_path):
     assert all(json.loads(t)["config_hash"] == json.loads((out / "sweep.json").read_text())["hash"] for t in after.values())
     summary = (out / "summary.md").read_text()
     assert "paired" in summary.lower() and (out / "boxplot.png").stat().st_size > 0 and (out / "weights.png").exists()
+
+
+def test_refused_config_writes_nothing_and_a_failed_sweep_locks_nothing(tmp_path, capsys):
+    """max_steps = 0 is refused before the folder exists (status 2, naming the key); a
+    sweep whose every cell failed does not keep its folder from the corrected config."""
+    from jaxmocap.cli import main
+
+    out, cfg = tmp_path / "out", tmp_path / "toy.toml"
+    cfg.write_text(toml(toy_config(max_steps=0)))
+    assert main(["sweep", str(cfg), "--out", str(out), "--no-progress"]) == 2
+    assert "[sweep] max_steps must be an integer >= 1" in capsys.readouterr().err
+    assert not out.exists()
+    failing = toy_config()
+    failing["grid"]["weights"]["data"] = [0.0]  # every cell raises in the solve
+    run_sweep(validate_config(failing), out, progress=False, summary=False)
+    assert _solved(out) == 0 and len(_cells(out)) == 24  # 4 variants x 2 presets x 3
+    (out / "datasets" / "stale.npz").write_bytes(b"")
+    config = toy_config()
+    config["grid"] = {"weights": {"smooth": [1.0]}}
+    messages = []
+    run_sweep(validate_config(config), out, progress=False, summary=False, log=messages.append)
+    assert len(_cells(out)) == 6 and _solved(out) == 5  # sequence 2 at high noise fails to prepare
+    assert "earlier sweep solved no cell" in messages[0]
+    assert not (out / "datasets" / "stale.npz").exists()  # generated data is cached by name: gone too
+    assert "loading dataset 'tracks' with sensor errors 'high' for 'sweep_toy:ToyMethod' (2 of 2)" in messages
+
+
+def test_damaged_cell_files_are_run_again(tmp_path):
+    config = toy_config()
+    config["grid"] = {"weights": {"smooth": [1.0]}}
+    config = validate_config(config)
+    run_sweep(config, tmp_path, progress=False, summary=False)
+    before = _cells(tmp_path)
+    solved = sorted(k for k, t in before.items() if '"metrics"' in t)
+    (tmp_path / "cells" / solved[0]).write_text(before[solved[0]][:25])  # cut short
+    (tmp_path / "cells" / solved[1]).write_text("")
+    run_sweep(config, tmp_path, progress=False, summary=False)
+    timeless = lambda cells: {k: {**json.loads(t), "seconds": 0} for k, t in cells.items()}  # noqa: E731
+    assert timeless(_cells(tmp_path)) == timeless(before)  # the two redone, the others kept
+    assert all(_cells(tmp_path)[k] == before[k] for k in before if k not in solved[:2])
+    (tmp_path / "sweep.json").write_text('{"hash": ')
+    with pytest.raises(SweepConfigError, match=r"sweep\.json: damaged, not JSON"):
+        run_sweep(config, tmp_path, progress=False, summary=False)
 
 
 DISTRIBUTED = """
@@ -298,3 +346,36 @@ def test_two_processes_joined_by_jax_distributed_equal_one_process(tmp_path):
         if "metrics" in a[k]:
             np.testing.assert_allclose(a[k]["metrics"]["rmse"], b[k]["metrics"]["rmse"], rtol=1e-12)
     assert (two / "summary.md").exists()
+
+
+def test_summary_plots_label_units_and_ticks_at_the_swept_weights(tmp_path, monkeypatch):
+    """Ticks only at the grid's weights (log axes labelled their minor ticks over each
+    other), the metric's unit on the y axis, readable variant labels, legends off the curves."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from jaxmocap.app import sweep_report as R
+
+    figures = []
+    monkeypatch.setattr(plt, "close", figures.append)
+    config = validate_config(toy_config())  # smooth [0.1, 1, 10], data [0, 1], smooth on/off
+    var = variants(config)
+    key = ("sweep_toy:ToyMethod", "tracks", "low")
+    values = {key: {v: {0: float(i), 1: i + 0.5} for i, v in enumerate(var)}}
+    R._weight_plot(plt, tmp_path / "weights.png", config, [key], values, var, "mpjpe")
+    data_ax, smooth_ax = figures[0].axes[:2]
+    assert [t.get_text() for t in smooth_ax.get_xticklabels()] == ["0.1", "1", "10"]
+    assert [t.get_text() for t in data_ax.get_xticklabels()] == ["0", "1"]
+    assert not [t for t in smooth_ax.get_xticklabels(minor=True) if t.get_text()]
+    assert smooth_ax.get_ylabel() == "mean MPJPE (mm, Procrustes-aligned)"
+    assert "-smooth" in [t.get_text() for t in data_ax.get_legend().get_texts()]
+    renderer = figures[0].canvas.get_renderer()
+    assert data_ax.get_legend().get_window_extent(renderer).x0 >= data_ax.get_window_extent(renderer).x1
+    analysis = {"|".join(key): {"baseline": next(iter(var))}}
+    R._boxplot(plt, tmp_path, [key], values, "mpjae", analysis)
+    ax = figures[1].axes[0]
+    assert ax.get_ylabel() == "MPJAE (degrees)"
+    labels = ax.get_xticklabels()
+    assert min(t.get_fontsize() for t in labels) >= 8 and "data=1 smooth=10" in [t.get_text() for t in labels]

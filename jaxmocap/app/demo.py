@@ -10,6 +10,7 @@ import dataclasses
 import time
 from pathlib import Path
 
+from .._checks import output_folder
 from ..body.io import resolve_body
 from ..body.model import Body
 from ..motion.io import find_cmu_dir
@@ -46,7 +47,7 @@ def export_motion(
     from ..viz.mesh import export_sequence
     from ..viz.plot import plot_body, plot_sequence
 
-    out_dir = Path(out_dir)
+    out_dir = output_folder(out_dir, "out_dir")  # before posing, not when writing
     vertices, joints = posed_vertices(body, motion, progress=progress)
     meshes = export_sequence(vertices, body.faces, out_dir / "meshes", fmt=fmt, every=every, progress=progress)
     if glb and fmt != "glb":
@@ -129,6 +130,7 @@ def run_demo(
     frame) and `sop_vs_sip_joints.png` (MPJAE per joint).
     """
     start = time.perf_counter()
+    output_folder(out_dir, create=False)  # a file given as --out fails now, not after the walk is posed
     body = resolve_body(body)
     motion, source = _demo_motion(body, fps, seconds)
     result = export_motion(motion, body, out_dir, fmt="ply", every=every, pictures=True, glb=True, progress=progress)

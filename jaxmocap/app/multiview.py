@@ -49,6 +49,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .._checks import output_folder
+
 __all__ = ["fit_recording", "jitter", "read_masks", "reprojection_errors", "world_to_y_up"]
 
 #: Detections with at least this confidence count in the reprojection statistics.
@@ -229,14 +231,9 @@ def _complete_frames(recording):
 
 
 def check_out_dir(out_dir) -> Path:
-    """`out_dir` as a Path, after checking it is a folder or can be made (before any fit)."""
-    out = Path(out_dir)
-    if out.exists() and not out.is_dir():
-        raise ValueError(f"{out}: the output folder exists as a file; give a folder (it is created if missing).")
-    base = next(p for p in (out.absolute(), *out.absolute().parents) if p.exists())
-    if not base.is_dir() or not os.access(base, os.W_OK | os.X_OK):
-        raise ValueError(f"{out}: the output folder cannot be created or written ({base} is not a writable folder).")
-    return out
+    """`out_dir` as a Path, after checking it is a folder or can be made (before any fit;
+    nothing is created: `_checks.output_folder` without creating)."""
+    return output_folder(out_dir, "out_dir (--out)", create=False)
 
 
 def _ranges(numbers) -> str:
@@ -527,7 +524,7 @@ def fit_recording(
             log(line)
 
     # every input is checked before any fitting: output folder, settings, files
-    out_dir = check_out_dir(out_dir)
+    out_dir = check_out_dir(out_dir)  # created only once the inputs are good
     config = read_config(keypoints_dir) if Path(keypoints_dir).is_dir() else None
     named, named_by = layout, "--layout"
     if named is None and config is not None and config.pose_model is not None:

@@ -29,7 +29,9 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 import os
+import shutil
 import sys
 import time
 import tomllib
@@ -62,8 +64,8 @@ def load_config(path) -> dict:
     if not path.is_file():
         raise SweepConfigError(f"sweep config {str(path)!r} does not exist.")
     try:
-        raw = tomllib.loads(path.read_text())
-    except tomllib.TOMLDecodeError as e:
+        raw = tomllib.loads(path.read_text(encoding="utf-8"))
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
         raise SweepConfigError(f"{path}: not valid TOML ({e}).") from None
     return validate_config(raw, source=str(path))
 
@@ -80,10 +82,37 @@ def validate_config(raw: dict, source: str = "config") -> dict:
     axes, non-positive weights, missing dataset files, undefined presets.
     """
     raw = dict(raw)
-    unknown = sorted(set(raw) - {"sweep", "grid", "datasets", "sensor_errors", "options"})
+    # No [options] table: its keys live in [sweep] (max_steps, rtol, ...); one would be ignored.
+    unknown = sorted(set(raw) - {"sweep", "grid", "datasets", "sensor_errors"})
     if unknown:
         _fail(source, f"unknown section(s) {unknown}; a sweep config has [sweep], [grid], [datasets], [sensor_errors].")
+    # Types first: a value of the wrong kind (methods = [1], [datasets] tracks = 3) would
+    # otherwise surface as a TypeError deep in the checks below.
+    for section in ("sweep", "grid", "datasets", "sensor_errors"):
+        if not isinstance(raw.get(section, {}), dict):
+            _fail(source, f"{section} must be a [{section}] table, got {raw[section]!r}.")
     sw = dict(raw.get("sweep", {}))
+    for key in ("methods", "datasets", "sensor_errors"):
+        if isinstance(sw.get(key), list) and not all(isinstance(x, str) for x in sw[key]):
+            _fail(source, f"[sweep] {key} must be a list of names (strings), got {sw[key]!r}.")
+    for key in ("name", "metric", "out"):
+        if key in sw and not isinstance(sw[key], str):
+            _fail(source, f"[sweep] {key} must be a string, got {sw[key]!r}.")
+    if not isinstance(sw.get("baseline", {}), dict):
+        _fail(source, f"[sweep] baseline must be a table of weights, e.g. baseline = {{acc = 2.0}}; got {sw['baseline']!r}.")
+    for k, v in dict(sw.get("baseline", {})).items():
+        _check_number(source, f"[sweep] baseline.{k}", v, 0.0, None, "a weight")
+    for d, spec in dict(raw.get("datasets", {})).items():
+        if not isinstance(spec, dict):
+            _fail(source, f"[datasets.{d}] must be a table (motions = [...], sequences = ..., ...), got {spec!r}.")
+        for key in ("scenario", "prior"):
+            if key in spec and not isinstance(spec[key], str):
+                _fail(source, f"[datasets.{d}] {key} must be a string, got {spec[key]!r}.")
+        if isinstance(spec.get("motions"), list) and not all(isinstance(m, str) for m in spec["motions"]):
+            _fail(source, f"[datasets.{d}] motions must be a list of library names or paths, got {spec['motions']!r}.")
+    for e, spec in dict(raw.get("sensor_errors", {})).items():
+        if not isinstance(spec, dict):
+            _fail(source, f"[sensor_errors.{e}] must be a table of IMU error fields, got {spec!r}.")
     bad = sorted(set(sw) - _SWEEP_KEYS)
     if bad:
         _fail(source, f"unknown key(s) {bad} in [sweep]; allowed: {sorted(_SWEEP_KEYS)}.")
@@ -100,6 +129,9 @@ def validate_config(raw: dict, source: str = "config") -> dict:
     bad = sorted(set(grid) - {"weights", "terms"})
     if bad:
         _fail(source, f"unknown [grid] table(s) {bad}; use [grid.weights] and [grid.terms].")
+    for axis in ("weights", "terms"):
+        if not isinstance(grid.get(axis, {}), dict):
+            _fail(source, f"[grid.{axis}] must be a table (name = [values]), got {grid[axis]!r}.")
     gw, gt = dict(grid.get("weights", {})), dict(grid.get("terms", {}))
     for name, m in methods.items():
         for w in gw:
@@ -108,7 +140,7 @@ def validate_config(raw: dict, source: str = "config") -> dict:
         for t in gt:
             if t not in m.terms:
                 _fail(source, f"[grid.terms] {t!r} is not a switchable term of method {name!r}; its terms are {sorted(m.terms)}.")
-    for axis, table, ok in (("weights", gw, lambda v: isinstance(v, (int, float)) and not isinstance(v, bool) and v >= 0),
+    for axis, table, ok in (("weights", gw, lambda v: isinstance(v, (int, float)) and not isinstance(v, bool) and 0 <= v < math.inf),
                             ("terms", gt, lambda v: isinstance(v, bool))):  # fmt: skip
         for k, vals in table.items():
             if not isinstance(vals, list) or not vals:
@@ -176,6 +208,32 @@ def validate_config(raw: dict, source: str = "config") -> dict:
     bs = sw.get("batch_size", 256)
     if not isinstance(bs, int) or bs < 1:
         _fail(source, f"[sweep] batch_size must be a positive integer, got {bs!r}.")
+    # Numbers that pass TOML but fail every cell (max_steps = 0) or build no dataset
+    # (fps = -30) are refused here, before the output folder is written.
+    _check_int(source, "[sweep] max_steps", sw.get("max_steps", 20), 1, "e.g. max_steps = 20")
+    for key, default in (("rtol", 1e-6), ("atol", 1e-10)):
+        _check_number(source, f"[sweep] {key}", sw.get(key, default), 0.0, None, f"e.g. {key} = {default:g}")
+    _check_number(source, "[sweep] memory_fraction", sw.get("memory_fraction", 0.6), 0.0, 1.0,
+                  "a fraction of the device's free memory in (0, 1], e.g. memory_fraction = 0.6", open_low=True)  # fmt: skip
+    for d, spec in datasets.items():
+        where = f"[datasets.{d}]"
+        if "fps" in spec:
+            _check_number(source, f"{where} fps", spec["fps"], 0.0, None, "frames per second, e.g. fps = 30", open_low=True)
+        if "frames" in spec:
+            _check_int(source, f"{where} frames", spec["frames"], 1, "the most frames per sequence, e.g. frames = 120")
+        if "sequences" in spec:
+            _check_int(source, f"{where} sequences", spec["sequences"], 1, "e.g. sequences = 8")
+        if "seed" in spec:
+            _check_int(source, f"{where} seed", spec["seed"], 0, "e.g. seed = 0")
+        if "betas_std" in spec:
+            _check_number(source, f"{where} betas_std", spec["betas_std"], 0.0, None, "e.g. betas_std = 1.0")
+        if "vary" in spec and not isinstance(spec["vary"], bool):
+            _fail(source, f"{where} vary must be true or false, got {spec['vary']!r}.")
+        if "imu_set" in spec:
+            from ..sensors.imu import SENSOR_SETS
+
+            if spec["imu_set"] not in SENSOR_SETS:
+                _fail(source, f"{where} imu_set must be one of {sorted(SENSOR_SETS)}, got {spec['imu_set']!r}.")
     return {
         "name": str(sw.get("name", Path(source).stem)),
         "methods": list(sw["methods"]),
@@ -190,6 +248,20 @@ def validate_config(raw: dict, source: str = "config") -> dict:
         "batch_size": bs,  # how many cells per solve call; not part of the results' identity
         "out": sw.get("out"),
     }  # fmt: skip
+
+
+def _check_int(source, key: str, v, low: int, example: str) -> None:
+    if isinstance(v, bool) or not isinstance(v, int) or v < low:
+        _fail(source, f"{key} must be an integer >= {low}, got {v!r}; {example}.")
+
+
+def _check_number(source, key: str, v, low: float, high: float | None, example: str, open_low: bool = False) -> None:
+    ok = isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+    ok = ok and (v > low if open_low else v >= low) and (high is None or v <= high)
+    if not ok:
+        bound = f"> {low:g}" if open_low else f">= {low:g}"
+        bound += f" and <= {high:g}" if high is not None else ""
+        _fail(source, f"{key} must be a finite number {bound}, got {v!r}; {example}.")
 
 
 def _identity(config: dict) -> dict:
@@ -257,27 +329,51 @@ class Store:
         self.config = config
         self.hash = config_hash(config)
 
-    def open(self) -> None:
-        """Create the folder, or check that the one there belongs to this config."""
+    def open(self, log=print) -> None:
+        """Create the folder, or check that the one there belongs to this config.
+
+        A folder whose sweep solved no cell (every cell failed, or none ran) holds no
+        results to protect: it is taken over by the new config rather than locked.
+        """
         manifest = self.root / "sweep.json"
         if manifest.exists():
-            old = json.loads(manifest.read_text())
-            if old["hash"] != self.hash:
+            old = _read_json(manifest, "delete it to start again (the cells keep their config hash)")
+            if not isinstance(old, dict) or "hash" not in old or "config" not in old:
+                raise SweepConfigError(f"{manifest}: not a sweep manifest (no 'hash' and 'config'); "
+                                       "delete it or use another --out.")  # fmt: skip
+            if old["hash"] == self.hash:
+                self.cells.mkdir(parents=True, exist_ok=True)
+                return
+            if self._solved_any():
                 changes = _diff(old["config"], _identity(self.config))
                 raise SweepConfigError(
                     f"{self.root} holds an interrupted sweep of a different config; refusing to mix results. "
                     f"Changed: {'; '.join(changes) or 'unknown'}. Restore the config, or use another --out."
                 )
-            return
+            log(f"{self.root}: its earlier sweep solved no cell; starting over with this config")
+            for p in self.cells.glob("*.json"):
+                p.unlink()
+            # Its generated datasets too: they are cached by name, not by their settings.
+            shutil.rmtree(self.root / "datasets", ignore_errors=True)
         self.cells.mkdir(parents=True, exist_ok=True)
         atomic_write(manifest, json.dumps({"hash": self.hash, "config": _identity(self.config)}, indent=1))
+
+    def _solved_any(self) -> bool:
+        for p in self.cells.glob("*.json"):
+            r = _read_cell(p)
+            if r is not None and "metrics" in r:
+                return True
+        return False
 
     def path(self, cell: Cell) -> Path:
         digest = hashlib.sha1(cell.key.encode()).hexdigest()[:20]
         return self.cells / f"{digest}.json"
 
     def done(self, cell: Cell) -> bool:
-        return self.path(cell).exists()
+        """Whether the cell's file holds this cell's complete record: a truncated or
+        otherwise damaged file (a full disk, a copy cut short) is run again."""
+        r = _read_cell(self.path(cell))
+        return r is not None and r.get("cell") == cell.key and r.get("config_hash") == self.hash
 
     def write(self, cell: Cell, record: dict) -> None:
         atomic_write(self.path(cell), json.dumps({"config_hash": self.hash, "cell": cell.key, **record}))
@@ -285,11 +381,40 @@ class Store:
     def records(self) -> list[dict]:
         out = []
         for p in sorted(self.cells.glob("*.json")):
-            r = json.loads(p.read_text())
+            r = _read_cell(p)
+            if r is None:
+                raise SweepConfigError(f"{p}: a damaged cell file (not a complete JSON record); run the sweep "
+                                       "again to redo that cell, or delete the file.")  # fmt: skip
             if r.get("config_hash") != self.hash:
                 raise SweepConfigError(f"{p} belongs to config {r.get('config_hash')}, not {self.hash}.")
             out.append(r)
         return out
+
+    def failed(self) -> int:
+        """How many cells recorded an error."""
+        return sum("error" in r for r in self.records())
+
+
+def _read_json(path: Path, fix: str):
+    try:
+        return json.loads(path.read_text())
+    except (ValueError, UnicodeDecodeError) as e:
+        raise SweepConfigError(f"{path}: damaged, not JSON ({e}); {fix}.") from None
+
+
+def _try_json(path: Path):
+    """The JSON in `path`, or None if it is missing or not JSON."""
+    try:
+        return json.loads(path.read_text())
+    except (OSError, ValueError, UnicodeDecodeError):
+        return None
+
+
+def _read_cell(path: Path) -> dict | None:
+    """A cell file's record, or None if it is missing or damaged."""
+    r = _try_json(path)
+    ok = isinstance(r, dict) and isinstance(r.get("cell"), str) and ("metrics" in r or "error" in r)
+    return r if ok else None
 
 
 def atomic_write(path: Path, text: str) -> None:
@@ -335,10 +460,11 @@ def run_sweep(config: dict, out=None, *, prepare_only: bool = False, summary: bo
     store = Store(root, config)
     rank, nproc = _process_info(distributed)
     if rank == 0:
-        store.open()
+        store.open(log)
     else:
-        _wait_for(root / "sweep.json", 600)
-        store.open()
+        # Process 0 alone writes (or takes over) the folder: wait for this config's manifest.
+        _wait_for(root / "sweep.json", 600, lambda p: isinstance(m := _try_json(p), dict) and m.get("hash") == store.hash)
+        store.open(log)
     var = variants(config)
     cache = root / "datasets"
     methods = {name: resolve_method(name) for name in config["methods"]}
@@ -351,8 +477,10 @@ def run_sweep(config: dict, out=None, *, prepare_only: bool = False, summary: bo
     prepared = []
     cache.mkdir(parents=True, exist_ok=True)
     if rank == 0 or prepare_only:
-        for _, m, d, spec, e, errors in groups:  # process 0 writes the cache first
+        for k, (_, m, d, spec, e, errors) in enumerate(groups):  # process 0 writes the cache first
             if hasattr(m, "prepare"):
+                # Generating a dataset takes minutes; say what is going on.
+                log(f"building dataset {d!r} with sensor errors {e!r} ({k + 1} of {len(groups)}) in {cache}")
                 m.prepare(spec, errors, cache)
                 prepared.append(cache / f".{d}__{e}.ready")
                 atomic_write(prepared[-1], "")
@@ -365,7 +493,8 @@ def run_sweep(config: dict, out=None, *, prepare_only: bool = False, summary: bo
                 _wait_for(cache / f".{d}__{e}.ready", 1800)
     grid, errors_by_cell = [], {}
     items_of = {}
-    for name, m, d, spec, e, errors in groups:
+    for k, (name, m, d, spec, e, errors) in enumerate(groups):
+        log(f"loading dataset {d!r} with sensor errors {e!r} for {name!r} ({k + 1} of {len(groups)})")
         try:
             items = m.sequences(spec, errors, cache)
         except Exception as err:  # noqa: BLE001 - the whole group fails, the sweep goes on
@@ -474,9 +603,9 @@ def _progress(total: int, enabled: bool):
     return tqdm(total=total, desc="cells", unit="cell", disable=not enabled, file=sys.stderr, smoothing=0.1)
 
 
-def _wait_for(path: Path, timeout: float) -> None:
+def _wait_for(path: Path, timeout: float, ready=None) -> None:
     start = time.monotonic()
-    while not path.exists():
+    while not path.exists() or (ready is not None and not ready(path)):
         if time.monotonic() - start > timeout:
             raise TimeoutError(f"waited {timeout:.0f} s for {path} (written by process 0).")
         time.sleep(0.2)
@@ -495,8 +624,17 @@ def main_args(args) -> int:
     """The CLI verb's body (`jaxmocap sweep`)."""
     join_distributed(args.distributed)
     config = load_config(args.config)
-    run_sweep(config, args.out, prepare_only=args.prepare_only, summary=not args.no_summary,
-              distributed=args.distributed, progress=not args.no_progress)  # fmt: skip
+    root = run_sweep(config, args.out, prepare_only=args.prepare_only, summary=not args.no_summary,
+                     distributed=args.distributed, progress=not args.no_progress)  # fmt: skip
+    if args.prepare_only:
+        return 0
+    store = Store(root, config)
+    failed, total = store.failed(), len(store.records())
+    if failed:
+        # Non-zero so that scripts and schedulers notice; the cells keep their errors.
+        print(f"jaxmocap sweep: {failed} of {total} cells failed (their errors are in {root / 'cells'}"
+              f"{' and summary.md' if not args.no_summary else ''}).", file=sys.stderr)  # fmt: skip
+        return 1
     return 0
 
 

@@ -228,9 +228,23 @@ def _plots(root, config, values, variants, metric, analysis, primary=True) -> No
     _weight_plot(plt, root / ("weights.png" if primary else f"weights_{metric}.png"), config, keys, values, variants, metric)
 
 
+#: Axis labels with units of the built-in methods' metrics (others are shown by name).
+METRIC_LABELS = {"mpjpe": "MPJPE (mm, Procrustes-aligned)", "mpjae": "MPJAE (degrees)", "cost": "final cost (objective units)"}
+
+
+def _metric_label(metric: str, prefix: str = "") -> str:
+    return prefix + METRIC_LABELS.get(metric, metric)
+
+
+def _variant_label(v: str) -> str:
+    """'sip[acc=1,ori=2][-limit]' -> 'acc=1 ori=2 -limit' (the method is in the title)."""
+    return v.split("[", 1)[-1].rstrip("]").replace("][", " ").replace(",", " ") if "[" in v else v
+
+
 def _boxplot(plt, root, keys, values, metric, analysis) -> None:
-    fig, axes = plt.subplots(len(keys), 1, figsize=(max(6.0, 0.16 * max(len(values[k]) for k in keys) + 2), 3.2 * len(keys)),
-                             squeeze=False)  # fmt: skip
+    # About 0.3 inch per variant: labels at a readable size do not overlap.
+    n = max(len(values[k]) for k in keys)
+    fig, axes = plt.subplots(len(keys), 1, figsize=(max(6.0, 0.3 * n + 2), 4.5 * len(keys)), squeeze=False)
     for ax, key in zip(axes[:, 0], keys):
         by_var = {v: x for v, x in values[key].items() if x}
         if not by_var:
@@ -238,14 +252,15 @@ def _boxplot(plt, root, keys, values, metric, analysis) -> None:
         order = sorted(by_var, key=lambda v: np.mean(list(by_var[v].values())))
         ax.boxplot([list(by_var[v].values()) for v in order], showfliers=False, widths=0.6)
         ax.set_xticks(range(1, len(order) + 1))
-        ax.set_xticklabels([v.split("[", 1)[-1].rstrip("]").replace("][", " ") for v in order], rotation=90, fontsize=5)
+        ax.set_xticklabels([_variant_label(v) for v in order], rotation=60, ha="right", rotation_mode="anchor", fontsize=8)
         base = analysis["|".join(key)]["baseline"]
         if base in order:
             ax.axvline(order.index(base) + 1, color="r", lw=0.8, ls="--", label="baseline")
-            ax.legend(fontsize=7)
-        ax.set(ylabel=metric, title=" / ".join(key) + " (sorted by mean)")
+            ax.legend(fontsize=8)
+        ax.set(ylabel=_metric_label(metric), xlabel="variant (weights; -term: switched off)",
+               title=" / ".join(key) + " (sorted by mean)")  # fmt: skip
     fig.tight_layout()
-    fig.savefig(root / "boxplot.png", dpi=80)
+    fig.savefig(root / "boxplot.png", dpi=110)
     plt.close(fig)
 
 
@@ -253,7 +268,7 @@ def _weight_plot(plt, path, config, keys, values, variants, metric) -> None:
     swept = list(config["grid"]["weights"])
     if not swept:
         return
-    fig, axes = plt.subplots(len(keys), len(swept), figsize=(4.2 * len(swept), 3.2 * len(keys)), squeeze=False)
+    fig, axes = plt.subplots(len(keys), len(swept), figsize=(6.0 * len(swept), 3.4 * len(keys)), squeeze=False)
     for row, key in enumerate(keys):
         means = {v: np.mean(list(x.values())) for v, x in values[key].items() if x}
         for col, w in enumerate(swept):
@@ -270,18 +285,27 @@ def _weight_plot(plt, path, config, keys, values, variants, metric) -> None:
             for k, (label, pts) in enumerate(sorted(lines.items(), key=lambda kv: str(kv[0]))):
                 pts.sort()
                 x, y = zip(*pts)
-                ax.plot(x, y, "o-", ms=2.5, lw=0.8, color=cmap(k / max(1, len(lines) - 1)),
-                        label=", ".join(f"{o}={_g(v)}" for o, v in zip(others, label[1])) + (" -" + ",".join(label[0]) if label[0] else ""))  # fmt: skip
-            xs = [x for pts in lines.values() for x, _ in pts]
+                # A weight whose term is off has no value ("-term" says so instead).
+                parts = [f"{o}={_g(v)}" for o, v in zip(others, label[1]) if v is not None] + [f"-{t}" for t in label[0]]
+                ax.plot(x, y, "o-", ms=2.5, lw=0.8, color=cmap(k / max(1, len(lines) - 1)), label=", ".join(parts) or "all on")
+            xs = sorted({x for pts in lines.values() for x, _ in pts})
             if xs and min(xs) > 0:
                 ax.set_xscale("log")
             elif xs and max(xs) > 0:
                 ax.set_xscale("symlog", linthresh=min(x for x in xs if x > 0))
-            ax.set(xlabel=f"w_{w}", ylabel=f"mean {metric}", title=" / ".join(key))
+            if xs:
+                # Ticks at the swept values only: a log axis over a decade or less labels
+                # its minor ticks too, and those labels ran into each other.
+                from matplotlib.ticker import NullLocator
+
+                ax.xaxis.set_minor_locator(NullLocator())
+                ax.set_xticks(xs, [_g(x) for x in xs], rotation=45 if len(xs) > 4 else 0, fontsize=8)
+            ax.set(xlabel=f"weight w_{w}", ylabel=_metric_label(metric, "mean "),
+                   title=" / ".join(key))  # fmt: skip
             if lines and len(lines) <= 10:
-                ax.legend(fontsize=5)
+                ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.02, 1.0), borderaxespad=0.0)  # off the curves
     fig.tight_layout()
-    fig.savefig(path, dpi=80)
+    fig.savefig(path, dpi=110)
     plt.close(fig)
 
 

@@ -92,6 +92,7 @@ def demo_inputs(frames: int = 60, wearers: int = 2, bystanders: int = 2, seed: i
     _count("frames", frames, 8)
     _count("wearers", wearers, 1, 4)
     _count("bystanders", bystanders, 0, 3)
+    _count("seed", seed, 0)  # here, not in make_scenario after the motions are built
     if wearers + bystanders > 4:
         raise ValueError(f"the demo scene holds at most 4 people; got {wearers} wearers + {bystanders} bystanders.")
     body = resolve_body(body)

@@ -273,8 +273,13 @@ def _body_from_dict(path: Path, d: dict, gender, num_betas, dtype) -> Body:
 
 
 def save_body(body: Body, path) -> Path:
-    """Write `body` as an SMPL-layout `.npz` that `load_body` reads back unchanged."""
-    path = Path(path)
+    """Write `body` as an SMPL-layout `.npz` that `load_body` reads back unchanged
+    (`.npz` appended to other names; an existing folder is refused)."""
+    from ..motion.io import output_npz
+
+    if not isinstance(body, Body):
+        raise ValueError(f"save_body: body must be a jaxmocap Body, got {type(body).__name__}.")
+    path = output_npz(path, "save_body", "body.npz")
     kintree = np.stack([np.array(body.parents), np.arange(body.num_joints)])
     np.savez_compressed(
         path,

@@ -16,6 +16,7 @@ import numpy as np
 from jax import Array
 from jax.custom_derivatives import SymbolicZero
 
+from .._checks import check_finite, concrete
 from ..rotation import axis_angle_to_matrix
 from .model import Body
 
@@ -377,10 +378,14 @@ def forward(body: Body, pose, betas=None, trans=None) -> BodyOutput:
         BodyOutput with vertices (..., V, 3), joints (..., J, 3) and global
         joint_rotations (..., J, 3, 3); batch axes broadcast across the inputs.
 
+    Raises ValueError for a NaN/inf, complex or empty input; checked on concrete inputs
+    only, so a call inside the user's `jit` costs nothing and is not checked.
+
     Memory grows with the batch (about 1.4 GiB per 1000 frames on the full default body):
     pose long sequences in chunks with `jaxmocap.body.posed_vertices(body, motion,
     chunk=256)`.
     """
+    _check_values("pose", pose, betas, trans)
     pose = jnp.asarray(pose)
     J = body.num_joints
     if pose.ndim < 2 or pose.shape[-2:] != (J, 3):
@@ -413,7 +418,29 @@ def forward_rotations(body: Body, local_rotations, betas=None, trans=None) -> Bo
         BodyOutput with vertices (..., V, 3), joints (..., J, 3) and global
         joint_rotations (..., J, 3, 3); batch axes broadcast across the inputs.
     """
+    _check_values("local_rotations", local_rotations, betas, trans)
     return _forward_rotations(body, local_rotations, betas, trans)
+
+
+def _check_values(pose_name: str, pose, betas, trans) -> None:
+    """The value checks of the public entry points, on concrete inputs only (a traced
+    call inside a user's jit is not slowed): a NaN anywhere would make every vertex NaN
+    without a word, an empty batch fails deep inside XLA, and a complex pose would be
+    cast to its real part."""
+    for name, x in ((pose_name, pose), ("betas", betas), ("trans", trans)):
+        if x is None:
+            continue
+        v = concrete(x)  # lists too; None when traced
+        dtype = x.dtype if v is None else v.dtype
+        if jnp.issubdtype(dtype, jnp.complexfloating):
+            raise ValueError(f"{name} is complex ({dtype}); give real numbers (x.real if the imaginary part "
+                             "is zero).")  # fmt: skip
+        if v is not None and v.dtype.kind not in "biuf":
+            raise ValueError(f"{name} must be a numeric array, got dtype {v.dtype}.")
+        check_finite(name, v)
+    v = concrete(pose)
+    if v is not None and v.size == 0:
+        raise ValueError(f"{pose_name} has shape {v.shape}: an empty batch (zero frames?); give at least one.")
 
 
 def _forward_rotations(

@@ -58,6 +58,11 @@ def posed_vertices(
     Returns:
         (vertices (T', V, 3), joints (T', J, 3)) as NumPy arrays in the body's dtype.
     """
+    if not hasattr(motion, "poses") or not hasattr(motion, "trans"):
+        raise ValueError(f"motion must be a jaxmocap.motion.Motion, got {type(motion).__name__}; wrap arrays as "
+                         "Motion(poses, trans, fps).")  # fmt: skip
+    if isinstance(chunk, bool) or not isinstance(chunk, (int, np.integer)) or chunk < 1:
+        raise ValueError(f"chunk must be an int >= 1 (frames per batched forward call), got {chunk!r}.")
     poses = np.asarray(motion.poses)
     trans = np.asarray(motion.trans)
     if frames is not None:
@@ -68,6 +73,8 @@ def posed_vertices(
     b = np.asarray(motion.betas if betas is None else betas, dtype).reshape(-1)[: body.num_betas]
     b = np.zeros(body.num_betas, dtype) if b.size == 0 else b
     T = poses.shape[0]
+    if T == 0:
+        raise ValueError(f"frames={frames!r} selects no frame of the motion's {len(motion.poses)}.")
     V, J = body.num_vertices, body.num_joints
     vertices = np.empty((T, V, 3), dtype)
     joints = np.empty((T, J, 3), dtype)

@@ -274,9 +274,12 @@ def save_calibration(path, cameras, format: str) -> None:
 
 
 def _rodrigues(rvec, where) -> np.ndarray:
-    rvec = np.asarray(rvec, np.float64).reshape(-1)
-    if rvec.shape != (3,):
-        raise CalibrationError(f"{where}: a Rodrigues rotation needs 3 numbers, got {rvec.size}.")
+    try:
+        rvec = np.asarray(rvec, np.float64).reshape(-1)
+    except (TypeError, ValueError):
+        raise CalibrationError(f"{where}: a Rodrigues rotation needs 3 numbers, got {str(rvec)[:40]!r}.") from None
+    if rvec.shape != (3,) or not np.isfinite(rvec).all():
+        raise CalibrationError(f"{where}: a Rodrigues rotation needs 3 finite numbers, got {rvec.tolist()}.")
     return Rotation.from_rotvec(rvec).as_matrix()
 
 
@@ -373,7 +376,7 @@ def _attr(element, key, where) -> float:
 def _read_qualisys(path: Path) -> list[CalibratedCamera]:
     try:
         root = ET.parse(path).getroot()
-    except ET.ParseError as e:
+    except (ET.ParseError, LookupError, ValueError) as e:  # LookupError: an unknown encoding= in the header
         raise CalibrationError(
             f"{path}: not valid XML ({e}); expected a QTM .qca.txt calibration."
         ) from None
@@ -573,7 +576,7 @@ def _parse_opencv_yaml(path: Path) -> dict:
                     fields[name.strip()] = _yaml_scalar(value)
             try:
                 rows, cols, data = int(fields["rows"]), int(fields["cols"]), fields["data"]
-            except (KeyError, ValueError):
+            except (KeyError, ValueError, TypeError, OverflowError):  # OverflowError: rows: inf
                 raise CalibrationError(
                     f"{path}: matrix {key!r} needs rows, cols and data; got {sorted(fields)}."
                 ) from None
@@ -617,6 +620,17 @@ def _easymocap_paths(path: Path) -> tuple[Path, Path]:
     return intri, extri
 
 
+def _numeric(value, path: Path, key: str, sizes: tuple[int, ...]) -> np.ndarray:
+    """`value` as a float array of one of `sizes` entries, or a CalibrationError naming the key."""
+    try:
+        a = np.asarray(value, np.float64)
+    except (TypeError, ValueError):
+        raise CalibrationError(f"{path}: {key} is not numeric, got {str(value)[:40]!r}.") from None
+    if a.size not in sizes:
+        raise CalibrationError(f"{path}: {key} has {a.size} numbers; expected {' or '.join(map(str, sizes))}.")
+    return a
+
+
 def _read_easymocap(path: Path) -> list[CalibratedCamera]:
     intri_path, extri_path = _easymocap_paths(path)
     intri, extri = _parse_opencv_yaml(intri_path), _parse_opencv_yaml(extri_path)
@@ -637,12 +651,12 @@ def _read_easymocap(path: Path) -> list[CalibratedCamera]:
         dist = intri.get(f"dist_{name}", intri.get(f"D_{name}", np.zeros(5)))
         width, height = intri.get(f"W_{name}", 0), intri.get(f"H_{name}", 0)
         if f"R_{name}" in extri:
-            r = np.asarray(extri[f"R_{name}"])
+            r = _numeric(extri[f"R_{name}"], extri_path, f"R_{name}", (3, 9))
             R = r.reshape(3, 3) if r.size == 9 else _rodrigues(r, f"{extri_path} R_{name}")
         else:
-            R = need(extri, f"Rot_{name}", extri_path, name)
+            R = _numeric(need(extri, f"Rot_{name}", extri_path, name), extri_path, f"Rot_{name}", (9,)).reshape(3, 3)
         both = f"R_{name}" in extri and f"Rot_{name}" in extri
-        if both and np.abs(np.asarray(extri[f"Rot_{name}"]).reshape(3, 3) - R).max() > 1e-3:
+        if both and np.abs(_numeric(extri[f"Rot_{name}"], extri_path, f"Rot_{name}", (9,)).reshape(3, 3) - R).max() > 1e-3:
             raise CalibrationError(
                 f"{extri_path}: camera {name!r}: R_{name} (Rodrigues) and Rot_{name} disagree."
             )

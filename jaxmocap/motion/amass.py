@@ -171,7 +171,9 @@ def save_amass(motion: Motion, path, body=None, layout: str = "auto") -> Path:
             zero, they cannot be stored), "smpl" (72 columns, all 24 joints) or "auto"
             (SMPL-H unless joints 22/23 are rotated).
     """
-    path = Path(path)
+    from .io import output_npz
+
+    path = output_npz(path, "save_amass")
     hands = np.abs(motion.poses[:, 22:]).max() if motion.num_frames else 0.0
     if layout == "auto":
         layout = "smpl" if hands > 0 else "smplh"
@@ -198,4 +200,4 @@ def save_amass(motion: Motion, path, body=None, layout: str = "auto") -> Path:
         gender=np.array(motion.gender),
         mocap_framerate=np.array(motion.fps),
     )
-    return path if path.suffix == ".npz" else path.with_name(path.name + ".npz")
+    return path

@@ -136,6 +136,8 @@ def read_bvh(path) -> tuple[BvhSkeleton, np.ndarray, float]:
                     f"{path}, line {line}: bad channel count {tokens[k + 1][0]!r}."
                 ) from None
             need(2 + n)
+            if not stack:
+                raise MotionFileError(f"{path}, line {line}: CHANNELS outside a joint.")
             chans = tuple(t.lower() for t, _ in tokens[k + 2 : k + 2 + n])
             bad = [c for c in chans if c not in _CHANNELS]
             if bad:

@@ -24,9 +24,31 @@ __all__ = ["FORMAT_VERSION", "find_cmu_dir", "load_motion", "save_motion"]
 FORMAT_VERSION = 1
 
 
-def save_motion(motion: Motion, path) -> Path:
-    """Write `motion` as jaxmocap's own npz (y up, no conversion)."""
+def output_npz(path, who: str = "save_motion", example: str = "motion.npz") -> Path:
+    """The `.npz` file that `np.savez(path)` writes (it appends `.npz` to other names),
+    refused with a ValueError when that is an existing folder or its folder is missing."""
     path = Path(path)
+    target = path if path.suffix == ".npz" else path.with_name(path.name + ".npz")
+    # np.savez would quietly write "<folder>.npz" beside a folder the user named.
+    if path.is_dir():
+        raise ValueError(f"{who}: path {str(path)!r} is a folder; give a file name, e.g. {str(path / example)!r}.")
+    if target.is_dir():
+        raise ValueError(f"{who}: path {str(path)!r} would be written as {str(target)!r}, which is a folder; "
+                         "give another file name.")  # fmt: skip
+    if not target.parent.is_dir():
+        raise ValueError(f"{who}: the folder {str(target.parent)!r} of path {str(path)!r} does not exist; create it first.")
+    return target
+
+
+def save_motion(motion: Motion, path) -> Path:
+    """Write `motion` as jaxmocap's own npz (y up, no conversion).
+
+    `path` gets `.npz` appended unless it ends so; an existing folder is refused
+    (ValueError): name the file. Returns the path written.
+    """
+    if not isinstance(motion, Motion):
+        raise ValueError(f"save_motion: motion must be a jaxmocap.motion.Motion, got {type(motion).__name__}.")
+    path = output_npz(path)
     np.savez(
         path,
         jaxmocap_motion=np.array(FORMAT_VERSION),
@@ -37,7 +59,7 @@ def save_motion(motion: Motion, path) -> Path:
         gender=np.array(motion.gender),
         name=np.array(motion.name),
     )
-    return path if path.suffix == ".npz" else path.with_name(path.name + ".npz")
+    return path
 
 
 def _load_own(path: Path, d: dict) -> Motion:
@@ -106,10 +128,15 @@ def find_cmu_dir() -> Path | None:
 
 
 def find_data_dir(variable: str, name: str) -> Path | None:
-    """$`variable` if set (None if it is not a folder), else `shared/data/<name>` beside or in the repository."""
+    """$`variable` if set, else `shared/data/<name>` beside or in the repository (None if
+    there is none). A $`variable` that names no folder is a ValueError: a typo there
+    must not fall back silently to other data (the demo's procedural walk)."""
     env = os.environ.get(variable)
     if env:
-        return Path(env) if Path(env).is_dir() else None
+        if not Path(env).is_dir():
+            raise ValueError(f"${variable}={env!r} is not a folder; point it at the folder holding the clips, "
+                             f"or unset it to use shared/data/{name} beside the repository.")  # fmt: skip
+        return Path(env)
     repo = Path(__file__).resolve().parents[2]
     for candidate in (repo.parent / "shared" / "data" / name, repo / "shared" / "data" / name):
         if candidate.is_dir():

@@ -35,6 +35,9 @@ class Motion:
     name: str = ""
 
     def __post_init__(self):
+        for name in ("poses", "trans", "betas"):
+            if np.iscomplexobj(getattr(self, name)):  # float64 would drop the imaginary part silently
+                raise ValueError(f"Motion.{name} is complex; give real numbers.")
         poses = np.asarray(self.poses, np.float64)
         trans = np.asarray(self.trans, np.float64)
         if poses.ndim != 3 or poses.shape[1:] != (24, 3):
@@ -53,9 +56,12 @@ class Motion:
             fps_ok = False
         if not fps_ok:
             raise ValueError(f"Motion.fps must be a finite number > 0, got {self.fps!r}.")
+        betas = np.asarray(self.betas, np.float64).reshape(-1)
+        if not np.isfinite(betas).all():
+            raise ValueError("Motion.betas contain NaN or inf.")
         object.__setattr__(self, "poses", poses)
         object.__setattr__(self, "trans", trans)
-        object.__setattr__(self, "betas", np.asarray(self.betas, np.float64).reshape(-1))
+        object.__setattr__(self, "betas", betas)
         object.__setattr__(self, "fps", float(self.fps))
 
     def __repr__(self) -> str:

@@ -34,6 +34,8 @@ class MotionFileError(ValueError):
 def check_file(path) -> Path:
     """`path` as a Path; FileNotFoundError naming it if it is not an existing file."""
     path = Path(path)
+    if path.is_dir():  # "not found" would mislead: it is there, but a folder
+        raise FileNotFoundError(f"{path} is a folder; give a motion file inside it.")
     if not path.is_file():
         raise FileNotFoundError(f"Motion file not found: {path}")
     return path

@@ -190,7 +190,7 @@ def plot_report(report: PlausibilityReport, path) -> Path:
 
     T = len(report.lowest_mesh)
     t = np.arange(T) / report.fps
-    fig = Figure(figsize=(10, 6), dpi=110)
+    fig = Figure(figsize=(11.5, 6), dpi=110)
     ax0, ax1 = fig.subplots(2, 1, sharex=True, gridspec_kw={"height_ratios": [3, 1]})
     ax0.plot(t, 1e3 * report.lowest_mesh, lw=1.2, label="lowest vertex (mesh)")
     ax0.plot(t, 1e3 * report.lowest_capsules, lw=1.0, ls="--", label="lowest capsule (MJX)")
@@ -200,8 +200,11 @@ def plot_report(report: PlausibilityReport, path) -> Path:
         ax0.axhline(-thr, color="tab:red", lw=0.5, ls=":")
     ax0.axhline(0, color="k", lw=0.8)
     ax0.set_ylabel("height above floor (mm)")
-    ax0.set_title(f"plausibility: {report.name or 'motion'}")
-    ax0.legend(loc="upper right", fontsize=8)
+    # A loaded motion is named by its path: the file name says which, the folders only crowd.
+    name = Path(report.name).name if report.name and ("/" in report.name or "\\" in report.name) else report.name
+    ax0.set_title(f"plausibility: {name or 'motion'}")
+    # Beside the axes: inside, the legend covered the curve wherever the motion dipped.
+    ax0.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0, fontsize=8)
     for i in range(len(SMPL_FEET)):
         on = report.foot_contact[:, i]
         ax1.fill_between(t, i, i + 0.8 * on, step="mid", alpha=0.6)

@@ -35,9 +35,8 @@ minimum wherever it is attained by one component).
 
 from __future__ import annotations
 
+import errno
 from pathlib import Path
-
-import zipfile
 
 import equinox as eqx
 import jax
@@ -300,13 +299,15 @@ def _limit_residual(prior, x: Array) -> Array:
 
 def _read_prior_file(path) -> dict[str, np.ndarray]:
     """The arrays of a prior .npz, with a ValueError naming the file if it is not one."""
+    from ..motion.skeleton import read_npz
+
+    if not Path(path).is_file():
+        raise FileNotFoundError(errno.ENOENT, "no such pose prior file", str(path))
     try:
-        with np.load(path, allow_pickle=False) as f:
-            d = {k: f[k] for k in f.files}
-    except FileNotFoundError:
-        raise
-    except (ValueError, OSError, EOFError, zipfile.BadZipFile, AttributeError) as e:
-        raise ValueError(f"{path}: not a readable .npz pose prior file ({type(e).__name__}: {e}).") from None
+        # read_npz closes its file when a damaged zip makes numpy raise (np.load leaks it).
+        d = read_npz(Path(path))
+    except ValueError as e:
+        raise ValueError(f"{path}: not a readable .npz pose prior file ({e}).") from None
     missing = {"mean", "covariance"} - set(d)
     if missing:
         raise ValueError(f"{path}: a pose prior file needs {sorted(missing)}; it has {sorted(d)}.")

@@ -52,6 +52,10 @@ class Camera(eqx.Module):
 
 def intrinsics(width: int, height: int, fov_y_degrees: float = 60.0) -> np.ndarray:
     """K of a square-pixel camera with the principal point at the image centre."""
+    if not (width > 0 and height > 0):
+        raise ValueError(f"intrinsics: width and height must be > 0 pixels, got {width!r} x {height!r}.")
+    if not 0 < fov_y_degrees < 180:
+        raise ValueError(f"intrinsics: fov_y_degrees must lie in (0, 180), got {fov_y_degrees!r}.")
     f = 0.5 * height / np.tan(0.5 * np.radians(fov_y_degrees))
     return np.array([[f, 0.0, 0.5 * width], [0.0, f, 0.5 * height], [0.0, 0.0, 1.0]])
 
@@ -59,7 +63,11 @@ def intrinsics(width: int, height: int, fov_y_degrees: float = 60.0) -> np.ndarr
 def look_at(eye, target, up=(0.0, 1.0, 0.0)) -> tuple[np.ndarray, np.ndarray]:
     """World-to-camera (R, t) of a camera at `eye` (..., 3) looking at `target` (..., 3)."""
     eye, target = np.asarray(eye, np.float64), np.asarray(target, np.float64)
+    if not (np.isfinite(eye).all() and np.isfinite(target).all()):
+        raise ValueError("look_at: eye and target must be finite (x, y, z) points.")
     forward = target - eye
+    if np.any(np.linalg.norm(forward, axis=-1) < 1e-12):
+        raise ValueError("look_at: eye and target are the same point; the camera has no viewing direction.")
     forward = forward / np.linalg.norm(forward, axis=-1, keepdims=True)
     right = np.cross(forward, np.broadcast_to(np.asarray(up, np.float64), forward.shape))
     norm = np.linalg.norm(right, axis=-1, keepdims=True)

@@ -48,7 +48,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
-from .._checks import check_frames, check_rate
+from .._checks import check_finite, check_frames, check_rate
 from ..body.kinematics import BodyOutput, forward
 from ..body.model import SMPL_JOINT_NAMES, Body
 from ..rotation import axis_angle_to_matrix, matrix_to_axis_angle
@@ -215,6 +215,8 @@ def imu_placement(body: Body, set_name: str = "sip6") -> IMUPlacement:
     SMPL-topology bodies (6890 vertices) get the published ids for "sip6"; every other
     case uses the landmark rule (module docstring).
     """
+    if not hasattr(body, "num_vertices") or not hasattr(body, "v_template"):
+        raise ValueError(f"imu_placement: body must be a jaxmocap Body (e.g. default_body()), got {type(body).__name__}.")
     if set_name not in SENSOR_SETS:
         raise ValueError(f"Unknown sensor set {set_name!r}; choose from {sorted(SENSOR_SETS)}.")
     landmarks = SENSOR_SETS[set_name]
@@ -308,7 +310,6 @@ def imu_from_trajectory(rotations: Array, positions: Array, fps: float) -> IMURe
     )
 
 
-@eqx.filter_jit
 def synthesize_imu(
     body: Body,
     placement: IMUPlacement,
@@ -339,6 +340,15 @@ def synthesize_imu(
     if len(shape) < 3 or shape[-2:] != (body.num_joints, 3):
         raise ValueError(f"poses has shape {shape}; expected (T, {body.num_joints}, 3) axis-angle.")
     check_frames("poses", shape[-3])
+    # Here, not in the compiled function: its inputs are traced there (nothing to check).
+    for name, x in (("poses", poses), ("betas", betas), ("trans", trans)):
+        if x is not None:
+            check_finite(name, x)
+    return _synthesize_imu(body, placement, poses, betas, trans, fps, sensor_to_bone, offset_bone)
+
+
+@eqx.filter_jit
+def _synthesize_imu(body, placement, poses, betas, trans, fps, sensor_to_bone, offset_bone) -> IMUReadings:
     return imu_from_body_output(
         forward(body, poses, betas, trans), placement, fps, sensor_to_bone, offset_bone
     )

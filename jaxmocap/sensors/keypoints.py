@@ -157,6 +157,8 @@ def _surface_vertex(body: Body, name: str, joints: np.ndarray) -> int:
 
 def keypoint_regressor(body: Body, layout: str = "coco18") -> np.ndarray:
     """(K, V) keypoint regressor for `layout` ("coco18", "body25" or "body25b") on `body`."""
+    if not hasattr(body, "J_regressor") or not hasattr(body, "num_vertices"):
+        raise ValueError(f"keypoint_regressor: body must be a jaxmocap Body (e.g. default_body()), got {type(body).__name__}.")
     if layout not in KEYPOINT_FORMATS:
         raise ValueError(f"Unknown keypoint layout {layout!r}; choose from {sorted(KEYPOINT_FORMATS)}.")
     names = KEYPOINT_FORMATS[layout]
@@ -202,6 +204,18 @@ class DetectorErrorModel:
     person_miss_rate: float = 0.0
     distractor_rate: float = 0.0
     max_distractors: int = 2
+
+    def __post_init__(self):
+        # A negative std or a rate above 1 made the simulator fail deep inside NumPy, or not at all.
+        for f in dataclasses.fields(self):
+            v = getattr(self, f.name)
+            if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) or not (np.isfinite(v) and v >= 0):
+                raise ValueError(f"DetectorErrorModel.{f.name} must be a finite number >= 0, got {v!r}.")
+        for name in ("confidence_mean", "miss_rate", "outlier_rate", "swap_rate", "person_miss_rate"):
+            if getattr(self, name) > 1:
+                raise ValueError(f"DetectorErrorModel.{name} is a probability in [0, 1], got {getattr(self, name)!r}.")
+        if not isinstance(self.max_distractors, (int, np.integer)):
+            raise ValueError(f"DetectorErrorModel.max_distractors must be an int >= 0, got {self.max_distractors!r}.")
 
     @classmethod
     def off(cls) -> DetectorErrorModel:

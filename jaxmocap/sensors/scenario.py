@@ -188,15 +188,19 @@ class Scenario:
 
     def sequence(self, i: int) -> dict:
         """Sequence i unpadded: arrays with a frame axis cut to its length."""
-        n, T = int(self.arrays["length"][i]), self.arrays["mask"].shape[1]
+        if isinstance(i, bool) or not isinstance(i, (int, np.integer)) or not -self.num_sequences <= i < self.num_sequences:
+            raise IndexError(f"sequence {i!r}: this scenario has {self.num_sequences} sequences (0 .. {self.num_sequences - 1}).")
+        n = int(self.arrays["length"][i])
         out = {}
         for k, v in self.arrays.items():
-            if v.ndim and v.shape[0] == self.num_sequences and k not in ("length",):
-                v = v[i]
-                axes = [a for a in range(v.ndim) if v.shape[a] == T and _time_axis(k) == a]
-                out[k] = v[(slice(None),) * axes[0] + (slice(0, n),)] if axes else v
-            else:
+            # By key, never by shape: with as many sequences as sensors (or object
+            # vertices) a shape test took the shared (S,) arrays for per-sequence ones.
+            if k in _SHARED:
                 out[k] = v
+                continue
+            v = v[i]
+            ax = _time_axis(k)
+            out[k] = v[(slice(None),) * ax + (slice(0, n),)] if ax >= 0 else v
         return out
 
 
@@ -209,6 +213,10 @@ _TIME_AXIS = {
     "labels": 1, "depth_points": 1, "depth_labels": 1, "depth_valid": 1, "visible": 1,
     "obj_R": 0, "obj_t": 0, "contact": 0,
 }  # fmt: skip
+
+
+# Arrays shared by every sequence (no leading sequence axis); all others have one.
+_SHARED = frozenset({"length", "imu_vertices", "imu_bones", "obj_vertices", "obj_faces", "contact_vertices"})
 
 
 def _time_axis(key):
@@ -307,6 +315,11 @@ def make_scenario(
         raise ValueError(f"num_betas={config.num_betas} but the body has {body.num_betas}.")
     if len(motions) == 0:
         raise ValueError("make_scenario needs at least one motion.")
+    if num_sequences is not None and (isinstance(num_sequences, bool) or not isinstance(num_sequences, (int, np.integer))
+                                      or num_sequences < 1):  # fmt: skip
+        raise ValueError(f"num_sequences must be an int >= 1 (or None: one per motion), got {num_sequences!r}.")
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise ValueError(f"seed must be an int >= 0, got {seed!r}.")
     N = len(motions) if num_sequences is None else num_sequences
     cache = _MOTION_CACHE
     placement = imu_placement(body, config.imu_set) if config.imu_set else None
@@ -637,10 +650,16 @@ def _pad_and_stack(seqs: list[dict]) -> dict:
 
 
 def save_scenario(scenario: Scenario, path) -> Path:
-    """Write jaxmocap's own npz (compressed; atomic: temp file + rename)."""
+    """Write jaxmocap's own npz (compressed; atomic: temp file + rename). `.npz` is
+    appended to other names; missing folders are created; an existing folder is refused."""
     path = Path(path)
+    if path.is_dir():
+        raise ValueError(f"save_scenario: path {str(path)!r} is a folder; give a file name, e.g. "
+                         f"{str(path / 'scenario.npz')!r}.")  # fmt: skip
     if path.suffix != ".npz":
         path = path.with_name(path.name + ".npz")
+    if path.is_dir():
+        raise ValueError(f"save_scenario: {str(path)!r} is a folder; give another file name.")
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.name + ".tmp.npz")
     np.savez_compressed(tmp, meta_json=np.array(json.dumps(scenario.meta)), **scenario.arrays)

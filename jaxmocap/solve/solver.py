@@ -457,6 +457,15 @@ def _check(problem, params0, data, frame_mask, dtype):
     if not isinstance(problem, Problem):
         raise ValueError(f"problem must be a jaxmocap.solve.Problem, got {type(problem).__name__}.")
     layout = problem.layout(params0)
+    for t in problem.terms:
+        # Layout.columns skips keys that are not unknowns, so a misspelt key would leave
+        # the term undifferentiated and the solve "successful" with nothing moved.
+        unknown = sorted((t.read_keys() or set()) - set(layout.keys))
+        if unknown:
+            raise ValueError(
+                f"Term {t.name!r} reads {unknown}, which {'is' if len(unknown) == 1 else 'are'} not "
+                f"among the unknowns {sorted(layout.keys)}: fix the reads (a typo?) or add the key to params0."
+            )
     leaves = [jnp.asarray(params0[k]) for k in layout.keys]
     if dtype is None:
         dtype = jnp.result_type(*[x.dtype for x in leaves if jnp.issubdtype(x.dtype, jnp.floating)] or [jnp.float32])

@@ -89,6 +89,10 @@ def _trimesh(vertices, faces, colors=None, cmap="inferno", vmin=None, vmax=None)
         raise MeshExportError(f"faces has shape {faces.shape}; expected (F, 3).")
     if faces.size and (faces.min() < 0 or faces.max() >= len(vertices)):
         raise MeshExportError(f"faces index outside the {len(vertices)} vertices.")
+    if not np.isfinite(vertices).all():
+        # A viewer shows nothing, or a spike to infinity: refuse rather than write it.
+        bad = int(np.argmax(~np.isfinite(vertices).all(1)))
+        raise MeshExportError(f"vertices contain NaN or inf (vertex {bad} first); a failed fit or a dropped frame?")
     rgba = _vertex_colors(colors, len(vertices), cmap, vmin, vmax)
     # process=False: keep vertex order and count exactly (no merging, no reordering).
     return trimesh.Trimesh(vertices=vertices, faces=faces, vertex_colors=rgba, process=False)
@@ -174,6 +178,8 @@ def export_sequence(
     if vertices.ndim != 3 or vertices.shape[2] != 3:
         raise MeshExportError(f"vertices has shape {vertices.shape}; expected (T, V, 3).")
     T, V = vertices.shape[:2]
+    if T == 0:
+        raise MeshExportError(f"vertices has shape {vertices.shape}: no frames to write.")
     frames = range(0, T, int(every))
     colors = None if colors is None else np.asarray(colors)
     per_frame = colors is not None and colors.ndim >= 2 and colors.shape[:2] == (T, V)

@@ -473,6 +473,9 @@ def plot_error_curves(curves: dict, path, fps: float = 30.0, ylabel: str = "MPJA
 
     curves: {method name: (T,) or (T, N_J) errors}; NaN frames are gaps, left out of the mean.
     """
+    from .._checks import check_rate
+
+    check_rate("fps", fps)
     fig = Figure(figsize=(8, 3.2))
     ax = fig.subplots()
     for name, e in curves.items():
