@@ -399,7 +399,7 @@ def _run_interaction(args) -> int:
                              progress=sys.stderr.isatty())  # fmt: skip
     num = lambda x, spec: "-" if x is None else format(x, spec)  # noqa: E731 (None: nothing to measure)
     print(f"object   ADD-S {num(r['add_s_mm'], '.1f')} mm (separate fit {num(r['separate']['add_s_mm'], '.1f')} mm), "
-          f"rotation {num(r['rotation_deg'], '.1f')} deg")
+          f"rotation {num(r['rotation_deg'], '.1f')} deg modulo its symmetry (raw {num(r.get('rotation_raw_deg'), '.1f')})")
     print(f"body     MPJPE {num(r['mpjpe_mm'], '.1f')} mm (separate fit {num(r['separate']['mpjpe_mm'], '.1f')} mm)")
     print(f"contact  F1 {r['contact_f1']:.2f} ({r['contact_part']}), penetration mean "
           f"{num(r['penetration_mean_mm'], '.1f')} mm, <= 5 mm in {100 * r['penetration_le_5mm']:.0f} % of the "

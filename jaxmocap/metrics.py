@@ -254,13 +254,16 @@ def literature_metrics(body, pred_poses, true_poses, fps: float, betas=None, pre
 # --- a person and an object (InterCap, Huang §5.4) ---------------------------------------------
 
 
-def object_pose_errors(pred_R, pred_t, true_R, true_t, vertices, mask=None) -> dict:
+def object_pose_errors(pred_R, pred_t, true_R, true_t, vertices, mask=None, symmetry=None) -> dict:
     """Rigid object pose errors per sequence (mm, °): `add_s_mm`, the mean distance of each
     predicted vertex to the closest true one (ADD-S: a symmetric object's equivalent poses
-    count as right), `centre_mm` (the vertex centroid) and `rotation_deg` (geodesic; large
-    for a symmetric object posed in an equivalent way). Frames where `mask` is False are
-    left out."""
+    count as right), `centre_mm` (the vertex centroid), `rotation_deg` (geodesic, the least
+    over the object's `symmetry`, a `objects.Symmetry` such as `RigidObject.symmetry`: a
+    box flipped onto itself scores 0) and `rotation_raw_deg` (geodesic, no symmetry).
+    Frames where `mask` is False are left out."""
     from scipy.spatial import cKDTree
+
+    from .objects import rotation_error_deg
 
     v = np.asarray(vertices, np.float64)
     pred = np.einsum("tab,nb->tna", np.asarray(pred_R, np.float64), v) + np.asarray(pred_t, np.float64)[:, None]
@@ -268,10 +271,10 @@ def object_pose_errors(pred_R, pred_t, true_R, true_t, vertices, mask=None) -> d
     keep = np.ones(len(pred), bool) if mask is None else np.asarray(mask, bool)
     add_s = np.array([cKDTree(true[t]).query(pred[t])[0].mean() for t in np.flatnonzero(keep)])
     centre = np.linalg.norm(pred.mean(1) - true.mean(1), axis=-1)[keep]
-    rel = np.einsum("tba,tbc->tac", np.asarray(pred_R, np.float64), np.asarray(true_R, np.float64))[keep]
-    angle = np.degrees(np.arccos(np.clip((np.trace(rel, axis1=-2, axis2=-1) - 1) / 2, -1.0, 1.0)))
+    raw = rotation_error_deg(pred_R, true_R)[keep]
+    modulo = rotation_error_deg(pred_R, true_R, symmetry)[keep]
     return {"add_s_mm": 1e3 * float(add_s.mean()), "centre_mm": 1e3 * float(centre.mean()),
-            "rotation_deg": float(angle.mean())}  # fmt: skip
+            "rotation_deg": float(modulo.mean()), "rotation_raw_deg": float(raw.mean())}  # fmt: skip
 
 
 def interaction_metrics(body_vertices, joints, true_joints, object_R, object_t, sdf, contact, body_points=None,

@@ -217,7 +217,7 @@ def score_fit(body, obs, truth: dict, true_part: str, fit: dict) -> tuple[dict, 
     m = interaction_metrics(verts, joints, truth["joints"][0], R, t, object_sdf(obs.obj), truth["contact"],
                             obs.body_points, obs.body_valid, obs.object_points, obs.object_valid,
                             contact_region(body, true_part), obs.obj.vertices)  # fmt: skip
-    m.update(object_pose_errors(R, t, truth["obj_R"], truth["obj_t"], obs.obj.vertices))
+    m.update(object_pose_errors(R, t, truth["obj_R"], truth["obj_t"], obs.obj.vertices, symmetry=obs.obj.symmetry))
     return m, verts
 
 

@@ -85,6 +85,11 @@ class InterCapWeights:
     Units: keypoints in px (Geman-McClure σ px), masks in px, distances in m, so the
     metric terms carry large weights. body_points/object_points: points per view and frame
     kept for E_D and E_O; mask_points: mask samples per view and frame.
+    accel_delta: Huber δ (m per frame²) of E_A and E_B (eq. 5.6), None for quadratic. 1 cm
+    per frame² is about the jitter of the per-frame fits (white noise of σ ≈ 5 mm gives
+    √6 σ); quadratic, the 1e5 weights pulled a bottle carried at 0.2 m per frame² 0.2 m
+    off its observations on average (tables' scene 04, 30 frames: ADD-S 6.0 -> 199 mm)
+    because E_O's depth part saturates (Geman-McClure σ = 2 cm) while the prior grows.
     """
 
     keypoints: float = 1.0
@@ -102,6 +107,7 @@ class InterCapWeights:
     ground: float = 1e5
     object_ground: float = 1e5
     contact: float = 1e5
+    accel_delta: float | None = 0.01
     body_points: int = 256
     object_points: int = 128
     mask_points: int = 96
@@ -248,13 +254,15 @@ _JOINT_TERMS = _HUMAN_TERMS + _OBJECT_TERMS + ("smooth", "object_smooth", "penet
 
 
 @functools.lru_cache(maxsize=None)
-def _problem(names: tuple[str, ...], sigma: float, depth_sigma: float = 0.02) -> Problem:
+def _problem(names: tuple[str, ...], sigma: float, depth_sigma: float = 0.02, accel_delta: float | None = None) -> Problem:
     makers = {
         "keypoints": lambda: keypoint_term(sigma), "pose_prior": pose_prior_term, "shape": shape_term,
         "body_depth": body_depth_term, "bend": bend_term, "self_penetration": self_penetration_term,
-        "object_mask": object_mask_term, "object_depth": lambda: object_depth_term(sigma=depth_sigma), "smooth": smoothness_term,
-        "object_smooth": object_smoothness_term, "penetration": penetration_term, "ground": ground_term,
-        "object_ground": object_ground_term, "contact": contact_term,
+        "object_mask": object_mask_term, "object_depth": lambda: object_depth_term(sigma=depth_sigma),
+        "smooth": lambda: smoothness_term(delta=accel_delta),
+        "object_smooth": lambda: object_smoothness_term(delta=accel_delta),  # eq. 5.6: see accel_delta
+        "penetration": penetration_term, "ground": ground_term, "object_ground": object_ground_term,
+        "contact": contact_term,
     }  # fmt: skip
     unknowns = {}
     if set(names) & set(_HUMAN_TERMS):
@@ -267,7 +275,7 @@ def _problem(names: tuple[str, ...], sigma: float, depth_sigma: float = 0.02) ->
 
 
 def _weighted(names, weights: InterCapWeights, dtype, off=(), depth_sigma: float = 0.02) -> Problem:
-    problem = _problem(tuple(names), weights.sigma, depth_sigma)
+    problem = _problem(tuple(names), weights.sigma, depth_sigma, weights.accel_delta)
     return with_weights(problem, {n: jnp.asarray(0.0 if n in off else getattr(weights, n), dtype) for n in names})
 
 
