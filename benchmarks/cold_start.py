@@ -172,9 +172,26 @@ def main(argv=None) -> int:
         return _child(args)
 
     before = None if args.before == "none" else v1_path(args.before, ROOT / "build" / f"engine_{args.before}")
-    result = {"benchmark": "cold_start", "machine": machine(), "frames": args.frames, "batch": args.batch, "entries": {}}
+    commit = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--short", "HEAD"], capture_output=True, text=True)
+    result = {"benchmark": "cold_start", "machine": machine(), "commit": commit.stdout.strip() or None,
+              "frames": args.frames, "batch": args.batch, "entries": {}}  # fmt: skip
     if before:
         result["before"] = {"commit": args.before, "entries": {}}
+    name = f"cold_start{'_' + args.suffix if args.suffix else ''}.json"
+    earlier = json.loads((RESULTS / name).read_text()) if args.merge and (RESULTS / name).exists() else {}
+
+    def save():
+        """Write what is measured so far (after every entry: a stopped run keeps its rows)."""
+        out = json.loads(json.dumps(result))
+        if earlier:  # entries measured by an earlier call (the GPU's time limit)
+            out["entries"] = {**earlier.get("entries", {}), **out["entries"]}
+            if "before" in earlier:  # an earlier call's baseline rows stay, under their own commit
+                if before and earlier["before"]["commit"] == args.before:
+                    out["before"]["entries"] = {**earlier["before"]["entries"], **out["before"]["entries"]}
+                elif not before:
+                    out["before"] = earlier["before"]
+        return write_json(name, out)
+
     root = Path(tempfile.mkdtemp(prefix="jaxmocap-cold-"))
     try:
         for entry in args.entries:
@@ -191,6 +208,7 @@ def main(argv=None) -> int:
                 row["warm_compile_ratio_vs_before"] = row["warm_compile_s"] / old["compile_s"]
                 line += f"  (before: compile {old['compile_s']:6.1f} s every run, run {old['run_s']:6.3f} s)"
             print(line, flush=True)
+            save()
         if not args.no_demo:
             cache = root / "demo"
             cold, warm = _demo(cache), _demo(cache)
@@ -205,17 +223,7 @@ def main(argv=None) -> int:
             print(f"make test    {result['make_test_s']:.0f} s")
     finally:
         shutil.rmtree(root, ignore_errors=True)
-    name = f"cold_start{'_' + args.suffix if args.suffix else ''}.json"
-    if args.merge and (RESULTS / name).exists():  # entries measured by an earlier call (the GPU's time limit)
-        old = json.loads((RESULTS / name).read_text())
-        result["entries"] = {**old.get("entries", {}), **result["entries"]}
-        if "before" in old:  # an earlier call's baseline rows stay, under their own commit
-            if before and old["before"]["commit"] == args.before:
-                result["before"]["entries"] = {**old["before"]["entries"], **result["before"]["entries"]}
-            elif not before:
-                result["before"] = old["before"]
-    path = write_json(name, result)
-    print(f"wrote {path}")
+    print(f"wrote {save()}")
     return 0
 
 
