@@ -12,7 +12,7 @@ import math
 import jax
 import numpy as np
 
-__all__ = ["concrete", "check_rate", "check_weight", "check_frames", "check_rotations", "check_finite", "output_folder"]
+__all__ = ["concrete", "check_rate", "check_weight", "check_frames", "check_rotations", "check_finite", "output_folder", "output_npz"]
 
 
 def concrete(x) -> np.ndarray | None:
@@ -120,3 +120,21 @@ def output_folder(path, name: str = "out_dir (--out)", create: bool = True):
     if not os.access(path, os.W_OK | os.X_OK):
         raise ValueError(f"{name} {str(path)!r} is not writable; give a folder you can write to.")
     return path
+
+
+def output_npz(path, who: str = "save_motion", example: str = "motion.npz"):
+    """The `.npz` file that `np.savez(path)` writes (it appends `.npz` to other names),
+    refused with a ValueError when that is an existing folder or its folder is missing."""
+    from pathlib import Path
+
+    path = Path(path)
+    target = path if path.suffix == ".npz" else path.with_name(path.name + ".npz")
+    # np.savez would quietly write "<folder>.npz" beside a folder the user named.
+    if path.is_dir():
+        raise ValueError(f"{who}: path {str(path)!r} is a folder; give a file name, e.g. {str(path / example)!r}.")
+    if target.is_dir():
+        raise ValueError(f"{who}: path {str(path)!r} would be written as {str(target)!r}, which is a folder; "
+                         "give another file name.")  # fmt: skip
+    if not target.parent.is_dir():
+        raise ValueError(f"{who}: the folder {str(target.parent)!r} of path {str(path)!r} does not exist; create it first.")
+    return target

@@ -275,7 +275,7 @@ def _body_from_dict(path: Path, d: dict, gender, num_betas, dtype) -> Body:
 def save_body(body: Body, path) -> Path:
     """Write `body` as an SMPL-layout `.npz` that `load_body` reads back unchanged
     (`.npz` appended to other names; an existing folder is refused)."""
-    from ..motion.io import output_npz
+    from .._checks import output_npz
 
     if not isinstance(body, Body):
         raise ValueError(f"save_body: body must be a jaxmocap Body, got {type(body).__name__}.")

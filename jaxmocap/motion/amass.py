@@ -171,7 +171,7 @@ def save_amass(motion: Motion, path, body=None, layout: str = "auto") -> Path:
             zero, they cannot be stored), "smpl" (72 columns, all 24 joints) or "auto"
             (SMPL-H unless joints 22/23 are rotated).
     """
-    from .io import output_npz
+    from .._checks import output_npz
 
     path = output_npz(path, "save_amass")
     hands = np.abs(motion.poses[:, 22:]).max() if motion.num_frames else 0.0

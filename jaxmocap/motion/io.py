@@ -17,27 +17,12 @@ import numpy as np
 
 from .._checks import check_rate
 from .sequence import Motion
+from .._checks import output_npz
 from .skeleton import MotionFileError, check_file, read_npz
 
 __all__ = ["FORMAT_VERSION", "find_cmu_dir", "load_motion", "save_motion"]
 
 FORMAT_VERSION = 1
-
-
-def output_npz(path, who: str = "save_motion", example: str = "motion.npz") -> Path:
-    """The `.npz` file that `np.savez(path)` writes (it appends `.npz` to other names),
-    refused with a ValueError when that is an existing folder or its folder is missing."""
-    path = Path(path)
-    target = path if path.suffix == ".npz" else path.with_name(path.name + ".npz")
-    # np.savez would quietly write "<folder>.npz" beside a folder the user named.
-    if path.is_dir():
-        raise ValueError(f"{who}: path {str(path)!r} is a folder; give a file name, e.g. {str(path / example)!r}.")
-    if target.is_dir():
-        raise ValueError(f"{who}: path {str(path)!r} would be written as {str(target)!r}, which is a folder; "
-                         "give another file name.")  # fmt: skip
-    if not target.parent.is_dir():
-        raise ValueError(f"{who}: the folder {str(target.parent)!r} of path {str(path)!r} does not exist; create it first.")
-    return target
 
 
 def save_motion(motion: Motion, path) -> Path:
