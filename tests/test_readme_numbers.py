@@ -51,6 +51,21 @@ QUOTES = [
         ["entries.sop.cold_compile_s", "entries.sop.warm_compile_s", "entries.sop.run_s"],
         [1, 2, 1],
     ),
+    (
+        r"CPU, 60 frames: SIP ([\d.]+) s cold, ([\d.]+) s warm \(([\d.]+) s every run before\), a sweep cell ([\d.]+) s "
+        r"cold, ([\d.]+) s warm; `jaxmocap demo` ([\d.]+) s cold, ([\d.]+) s warm",
+        "benchmarks/results/cold_start.json",
+        ["entries.sip.cold_compile_s", "entries.sip.warm_compile_s", "before.entries.sip.cold_compile_s",
+         "entries.sweep_cell.cold_compile_s", "entries.sweep_cell.warm_compile_s", "entries.make_demo.cold_wall_s",
+         "entries.make_demo.warm_wall_s"],
+        [1, 2, 1, 1, 2, 1, 1],
+    ),
+    (
+        r"`make demo`: ([\d.]+) s the first time,\s+([\d.]+) s after",
+        "benchmarks/results/cold_start.json",
+        ["entries.make_demo.cold_wall_s", "entries.make_demo.warm_wall_s"],
+        [1, 1],
+    ),
 ]
 
 
