@@ -222,6 +222,8 @@ CASES = [
     ("motion-trans-shape", lambda c: Motion(np.zeros((5, 24, 3)), np.zeros((4, 3)), 30.0), ValueError, r"Motion\.trans"),
     ("motion-zero-frames", lambda c: Motion(np.zeros((0, 24, 3)), np.zeros((0, 3)), 30.0), ValueError, r"Motion\.poses has 0 frames"),
     ("motion-fps-zero", lambda c: Motion(np.zeros((2, 24, 3)), np.zeros((2, 3)), 0.0), ValueError, r"Motion\.fps"),
+    ("motion-fps-text", lambda c: Motion(np.zeros((2, 24, 3)), np.zeros((2, 3)), "30"), ValueError, r"Motion\.fps.*'30'"),
+    ("motion-fps-bool", lambda c: Motion(np.zeros((2, 24, 3)), np.zeros((2, 3)), True), ValueError, r"Motion\.fps.*True"),
     ("motion-fps-nan", lambda c: Motion(np.zeros((2, 24, 3)), np.zeros((2, 3)), float("nan")), ValueError, r"Motion\.fps"),
     ("motion-nan-pose", lambda c: Motion(np.full((2, 24, 3), np.nan), np.zeros((2, 3)), 30.0), ValueError, r"poses/trans"),
     ("cmu-dir-nowhere", lambda c: _with_env("JAXMOCAP_CMU", str(c.dir / "nowhere"), jaxmocap.motion.io.find_cmu_dir), ValueError, r"\$JAXMOCAP_CMU='.*nowhere' is not a folder.*unset it"),

@@ -148,7 +148,10 @@ def test_object_is_picked_up_from_and_put_down_on_the_floor(body, name):
         np.testing.assert_allclose(
             t[frames], np.broadcast_to(t[frames][0], t[frames].shape), atol=1e-6
         )
-    assert low[start:end].max() > low[start] + (0.1 if name != "chair" else 0.0)  # carried, lifted
+    if name == "chair":  # dragged, tilted on a corner: it travels, its lowest point stays on the floor
+        assert np.linalg.norm(t[end - 1, [0, 2]] - t[start, [0, 2]]) > 0.3 and low[start:end].min() > -0.005, (t, low)
+    else:  # carried, lifted
+        assert low[start:end].max() > low[start] + 0.1, low
     V, J, G = _pose(body, s["poses"][0], s["betas"][0][: body.num_betas], s["trans"][0])
     np.testing.assert_allclose(J, s["joints"][0], atol=1e-4)  # derived arrays follow the edit
     for f in (start, end - 1):  # pick-up and put-down

@@ -51,7 +51,9 @@ class Motion:
         if not (np.isfinite(poses).all() and np.isfinite(trans).all()):
             raise ValueError("Motion poses/trans contain NaN or inf.")
         try:
-            fps_ok = np.ndim(self.fps) == 0 and np.isfinite(float(self.fps)) and float(self.fps) > 0
+            # Text and booleans convert to floats ("30", True), which would hide a mistake.
+            fps_ok = (not isinstance(self.fps, (str, bytes, bool, np.bool_)) and np.ndim(self.fps) == 0
+                      and np.isfinite(float(self.fps)) and float(self.fps) > 0)  # fmt: skip
         except (TypeError, ValueError):
             fps_ok = False
         if not fps_ok:
