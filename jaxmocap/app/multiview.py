@@ -229,12 +229,6 @@ def _complete_frames(recording):
                                present=tuple(spread(p) for p in present))  # fmt: skip
 
 
-def check_out_dir(out_dir) -> Path:
-    """`out_dir` as a Path, after checking it is a folder or can be made (before any fit;
-    nothing is created: `_checks.output_folder` without creating)."""
-    return output_folder(out_dir, "out_dir (--out)", create=False)
-
-
 def _ranges(numbers) -> str:
     """[1, 2, 3, 7, 9, 10] -> "1..3, 7, 9..10"."""
     parts, start = [], None
@@ -523,7 +517,7 @@ def fit_recording(
             log(line)
 
     # every input is checked before any fitting: output folder, settings, files
-    out_dir = check_out_dir(out_dir)  # created only once the inputs are good
+    out_dir = output_folder(out_dir, create=False)  # created only once the inputs are good
     config = read_config(keypoints_dir) if Path(keypoints_dir).is_dir() else None
     named, named_by = layout, "--layout"
     if named is None and config is not None and config.pose_model is not None:

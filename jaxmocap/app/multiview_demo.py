@@ -81,9 +81,10 @@ def run_demo(out, frames: int = 16, body="default-low", temporal: bool = True, l
     the fit's report with "demo": {"mpjpe_mm", "seconds"} added. progress: a bar over the
     fit's stages on stderr."""
     from ..formats import read_project
-    from .multiview import check_out_dir, fit_recording
+    from .._checks import output_folder
+    from .multiview import fit_recording
 
-    out = check_out_dir(out)
+    out = output_folder(out, create=False)
     start = time.perf_counter()
     log(f"demo     writing a synthetic 4-camera recording ({frames} frames, Pose2Sim layout) to {out / 'recording'}")
     truth = write_demo_recording(out / "recording", frames=frames, body=body)
