@@ -118,6 +118,10 @@ def position_errors(pred_joints, true_joints, joints="totalcapture_mpjpe", align
     align: "procrustes" (per-frame rigid alignment on the evaluated joints, §2.5.2),
     "procrustes_scaled" (rigid plus one scale: body size drops out), "root" (pelvis
     positions subtracted) or "none".
+
+    Non-finite input is not an error here (predictions of a failed fit are NaN by design):
+    a NaN or inf joint gives NaN errors on its frame only (alignment is per frame), and
+    `mpjpe(..., mask=)` drops such frames exactly.
     """
     idx = joint_indices(joints)
     pred, true = jnp.asarray(pred_joints), jnp.asarray(true_joints)
@@ -133,7 +137,11 @@ def position_errors(pred_joints, true_joints, joints="totalcapture_mpjpe", align
 
 
 def angle_errors(pred_rotations, true_rotations, joints="totalcapture_mpjae") -> Array:
-    """‖log(R̃_j R_jᵀ)^∨‖ per frame and joint (eq. 2.74), degrees: (..., T, J, 3, 3) -> (..., T, N_J)."""
+    """‖log(R̃_j R_jᵀ)^∨‖ per frame and joint (eq. 2.74), degrees: (..., T, J, 3, 3) -> (..., T, N_J).
+
+    A non-finite rotation gives NaN on its frame and joint only; `mpjae(..., mask=)`
+    drops such frames exactly.
+    """
     idx = joint_indices(joints)
     pred, true = jnp.asarray(pred_rotations), jnp.asarray(true_rotations)
     _same_shape("pred_rotations", pred, "true_rotations", true, "(..., T, J, 3, 3)", 3, idx)
@@ -142,7 +150,10 @@ def angle_errors(pred_rotations, true_rotations, joints="totalcapture_mpjae") ->
 
 
 def mpjpe(pred_joints, true_joints, joints="totalcapture_mpjpe", align="procrustes", mask=None) -> Array:
-    """MPJPE (eq. 2.72) in millimetres over frames (mask (T,) selects frames) and joints."""
+    """MPJPE (eq. 2.72) in millimetres over frames (mask (T,) selects frames) and joints.
+
+    NaN when an unmasked frame holds a non-finite joint (see `position_errors`).
+    """
     e = position_errors(pred_joints, true_joints, joints, align) * 1000.0
     return _mean(e, mask)
 
@@ -157,8 +168,10 @@ def _mean(e, mask):
         return e.mean(axis=(-2, -1))
     if jnp.shape(mask) != e.shape[:-1]:
         raise ValueError(f"mask has shape {jnp.shape(mask)}; expected the frames' shape {e.shape[:-1]}.")
-    m = jnp.asarray(mask, e.dtype)[..., None]
-    return (e * m).sum(axis=(-2, -1)) / (m.sum(axis=(-2, -1)) * e.shape[-1])
+    m = jnp.asarray(mask, bool)[..., None]
+    # where, not e * m: a masked-out NaN frame must drop out (NaN * 0 is NaN).
+    total = jnp.where(m, e, 0.0).sum(axis=(-2, -1))
+    return total / (m.sum(axis=(-2, -1)) * e.shape[-1])
 
 
 def _posed_pair(body, pred_poses, true_poses, betas, pred_trans, true_trans):

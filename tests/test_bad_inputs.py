@@ -576,6 +576,12 @@ def test_no_observations_is_not_success(ctx):
     assert int(sol.result) == NO_OBSERVATIONS and not bool(sol.converged)
     sol = solve(masked, {"x": jnp.zeros((3, 2))}, jnp.ones((3, 2)).at[1:].set(jnp.nan), max_steps=50)
     assert int(sol.result) == 0  # one observed row is enough
+    # A per-sensor mask with as many sensors as frames is per sensor, not per frame: only
+    # sensor 2 is seen and the padded frame is 2, so frames 0-1 still observe it.
+    sensors = Problem([Term("obs", lambda p, d: p["x"][:, None, :] - d, mask=lambda d: jnp.asarray([False, False, True]))])
+    sol = solve_batch(sensors, {"x": jnp.zeros((1, 3, 2))}, jnp.ones((1, 3, 3, 2)), jnp.asarray([[True, True, False]]),
+                      max_steps=50)  # fmt: skip
+    assert int(sol.result[0]) == 0
 
 
 def test_first_complete_frame():

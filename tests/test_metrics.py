@@ -59,6 +59,24 @@ def test_masked_mean_uses_selected_frames_only():
     assert float(metrics.mpjpe(q, p, "all", align="none", mask=np.array([True, True, False]))) < 1e-9
 
 
+def test_non_finite_frames_are_nan_on_that_frame_and_masked_exactly():
+    """The documented behaviour: NaN stays on its frame (per-frame Procrustes) and a mask drops it."""
+    p = _random_joints(T=3)
+    q = p + 0.01
+    q[1, 4] = np.nan
+    e = np.asarray(metrics.position_errors(q, p, "all"))
+    assert np.isnan(e[1]).all() and np.isfinite(e[[0, 2]]).all()
+    assert np.isnan(float(metrics.mpjpe(q, p, "all")))
+    keep = np.array([True, False, True])
+    np.testing.assert_allclose(metrics.mpjpe(q, p, "all", mask=keep), metrics.mpjpe(q[keep], p[keep], "all"), rtol=1e-6)
+    R = np.broadcast_to(np.eye(3), (3, 24, 3, 3)).copy()
+    Rn = R.copy()
+    Rn[2, 1] = np.nan
+    a = np.asarray(metrics.angle_errors(Rn, R, "all"))
+    assert np.isnan(a[2, 1]) and np.isfinite(np.delete(a.reshape(-1), 2 * 24 + 1)).all()
+    assert float(metrics.mpjae(Rn, R, "all", mask=np.array([True, True, False]))) < 1e-3
+
+
 def test_pose_errors_and_plots(tmp_path, random_body):
     rng = np.random.default_rng(4)
     poses = rng.normal(scale=0.2, size=(6, 24, 3))

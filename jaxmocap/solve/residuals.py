@@ -253,6 +253,26 @@ class Term(eqx.Module):
         """Keys named in `reads` (None: undeclared, every per-frame unknown)."""
         return None if self.reads is None else {k for k, _ in self.reads}
 
+    def kept(self, shape, raw_data, frame_mask: Array | None, T: int) -> Array | None:
+        """Which entries of a raw residual of `shape` count (None: all), before the last axis.
+
+        The mask broadcasts against `shape[:-1]` by NumPy's rules (trailing axes first),
+        so a (S,) mask is per sensor even when S == T; the frame mask and the window
+        validity act on the leading (frame) axis.
+        """
+        keep = _window_valid(T, self.bandwidth, frame_mask)  # (T,) or None
+        if self.mask is None:
+            return keep
+        m = jnp.asarray(self.mask(raw_data), dtype=bool)
+        try:
+            m = jnp.broadcast_to(m, tuple(shape[:-1]))
+        except ValueError:
+            raise ValueError(
+                f"Term {self.name!r}: mask shape {m.shape} does not broadcast to the "
+                f"residual shape without its last axis, {tuple(shape[:-1])}."
+            ) from None
+        return m if keep is None else m & keep.reshape((T,) + (1,) * (len(shape) - 2))
+
     def finish(self, e: Array, raw_data, frame_mask: Array | None, T: int) -> Array:
         """e -> √w · mask · robust(e), flattened to (T, m); row t depends on e_t only."""
         if e.ndim < 2 or e.shape[0] != T:
@@ -261,17 +281,7 @@ class Term(eqx.Module):
                 "one row per frame, the last axis one observation. Add a trailing axis "
                 "(e[..., None]) for scalar residuals."
             )
-        keep = _window_valid(T, self.bandwidth, frame_mask)  # (T,) or None
-        if self.mask is not None:
-            m = jnp.asarray(self.mask(raw_data), dtype=bool)
-            try:
-                m = jnp.broadcast_to(m, e.shape[:-1])
-            except ValueError:
-                raise ValueError(
-                    f"Term {self.name!r}: mask shape {m.shape} does not broadcast to the "
-                    f"residual shape without its last axis, {e.shape[:-1]}."
-                ) from None
-            keep = m if keep is None else m & keep.reshape((T,) + (1,) * (e.ndim - 2))
+        keep = self.kept(e.shape, raw_data, frame_mask, T)
         if self.loss is not None:
             e = self.loss(e)
         if keep is not None:

@@ -107,17 +107,23 @@ def result_message(result) -> str:
     return optx_message(result) or "successful"
 
 
-def _observed(args: Args) -> Array | None:
-    """Whether any masked term keeps a row (None if no term has a mask)."""
+def _observed(args: Args, value) -> Array | None:
+    """Whether any masked term keeps a row at `value` (None if no term has a mask).
+
+    The same rows as the residuals keep (`Term.kept`): the mask broadcast against the
+    term's output shape, so a per-sensor mask is not read as per-frame when S == T.
+    """
+    masked = [t for t in args.problem.terms if t.mask is not None]
+    if not masked:
+        return None
+    x = to_manifold(value, args.layout)
+    clean = _sanitise(args.data)
+    views = args.problem.views(x)
     seen = []
-    for t in args.problem.terms:
-        if t.mask is None:
-            continue
-        m = jnp.asarray(t.mask(args.data), bool)
-        if args.frame_mask is not None and m.ndim >= 1 and m.shape[0] == args.layout.T:
-            m = m & args.frame_mask.reshape((-1,) + (1,) * (m.ndim - 1))
-        seen.append(jnp.any(m))
-    return None if not seen else jnp.any(jnp.stack(seen))
+    for t in masked:
+        shape = jax.eval_shape(lambda t=t: t.raw(views[t.name], clean, args.data)).shape
+        seen.append(jnp.any(t.kept(shape, args.data, args.frame_mask, args.layout.T)))
+    return jnp.any(jnp.stack(seen))
 
 
 class Args(eqx.Module):
@@ -666,7 +672,7 @@ def _solve_core(args: Args, params0, rtol, atol, max_steps, *, method, solver, f
     cost = sum(jtu.tree_leaves(costs))
     # A non-finite end point is a divergence whatever the backend said.
     result = jnp.where(jnp.isfinite(cost), result, DIVERGENCE)
-    observed = _observed(args)
+    observed = _observed(args, value)
     if observed is not None:
         result = jnp.where(observed, result, NO_OBSERVATIONS)
     return Solution(value, jnp.asarray(result, jnp.int32), jnp.asarray(steps, jnp.int32), cost, costs)
