@@ -123,7 +123,7 @@ def load_clips(frames: int, seed: int, names=CLIPS):
             continue
         t1 = time.perf_counter()
         setup = I.from_scenario(sc, i, body, dtype=F64)
-        sop, _ = I.sparse_orientation_poser(setup)  # thesis weights, 20 LM steps per frame (as the tables)
+        sop, _ = I.sparse_orientation_poser(setup, "thesis")  # thesis weights, 20 LM steps per frame (as the tables)
         T = setup.num_frames
         truth = jnp.asarray(sc.sequence(i)["poses"][0], F64)
         tr = jnp.broadcast_to(setup.trans0, (T, 3)).astype(F64)  # as sparse_inertial_poser

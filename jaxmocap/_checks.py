@@ -25,6 +25,16 @@ def concrete(x) -> np.ndarray | None:
         return None
 
 
+def check_max_steps(max_steps) -> None:
+    """An LM step cap: an int >= 1 (or an integer array; traced values pass unchecked).
+
+    0 or a negative cap would still take one step (optimistix checks after stepping).
+    """
+    steps = concrete(max_steps)
+    if steps is not None and (steps.ndim != 0 or not np.issubdtype(steps.dtype, np.integer) or steps < 1):
+        raise ValueError(f"max_steps must be an int >= 1, got {max_steps!r}.")
+
+
 def check_rate(name: str, value, what: str = "frames per second") -> None:
     """A rate such as fps: a finite number > 0 (a sign flip or zero would be silently wrong)."""
     v = concrete(value)

@@ -281,7 +281,7 @@ class InertialMethod:
         pad = lambda x: np.concatenate([x, np.repeat(x[-1:], T - len(x), 0)]) if len(x) < T else x  # noqa: E731
         if self.name == "sip":
             term_w["acc"] = w["acc"] / S
-            problem = I.inertial_problem(stacked, acceleration=True)
+            problem = I.inertial_problem(stacked, "thesis", acceleration=True)  # weights replaced below
             init = jnp.asarray(np.stack([pad(it.init) for it in items]), dtype)
             trans = jnp.broadcast_to(stacked.trans0[:, None], (len(items), T, 3))
             sol = solve_batch(problem, {"pose": init, "trans": trans}, stacked.data, mask, weights=term_w,
@@ -316,7 +316,7 @@ def _sop_batch(stacked, term_weights=None, steps=20):
     from ..solve import with_weights
 
     def one(setup, w):
-        problem = I.inertial_problem(setup, acceleration=False)
+        problem = I.inertial_problem(setup, "thesis", acceleration=False)
         if w is not None:
             problem = with_weights(problem, w)
         return I._sequential(problem, setup.data, setup.pose0, max_steps=steps, rtol=1e-6, atol=1e-10)

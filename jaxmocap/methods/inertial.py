@@ -29,7 +29,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
-from .._checks import check_frames, check_rate, check_rotations, check_weight
+from .._checks import check_frames, check_max_steps, check_rate, check_rotations, check_weight
 from ..body.kinematics import forward, shaped_joints
 from ..body.model import Body
 from ..energies.imu import (
@@ -47,6 +47,9 @@ from ..solve.solver import PROGRESS_FRAMES
 
 __all__ = [
     "SIPWeights",
+    "InertialPreset",
+    "PRESETS",
+    "preset",
     "InertialSetup",
     "calibrate",
     "from_scenario",
@@ -88,6 +91,62 @@ class SIPWeights:
 
     def replace(self, **changes) -> SIPWeights:
         return dataclasses.replace(self, **changes)
+
+
+@dataclasses.dataclass(frozen=True)
+class InertialPreset:
+    """A named setting of the inertial posers: weights, SIP's stopping rule and SOP's.
+
+    weights: `SIPWeights` of SOP, IT and SIP.
+    max_steps, rtol, atol: SIP's LM budget and tolerances (`jaxmocap.solve.solve`): the
+        fit stops when an accepted step changes the cost by less than rtol·cost + atol
+        and every unknown by less than rtol·|x| + atol, or at max_steps.
+    sop_steps, sop_rtol, sop_atol: the same per frame of SOP / IT.
+    source: where the values come from.
+    """
+
+    weights: SIPWeights
+    max_steps: int
+    rtol: float
+    atol: float
+    sop_steps: int = 20
+    sop_rtol: float = 1e-6
+    sop_atol: float = 1e-10
+    source: str = ""
+
+
+#: The named settings. "thesis": von Marcard §3.4.1's weights and 20 LM steps, exact.
+#: "validated" (the default): what won on subjects no part of the project tuned on, chosen
+#: on the development subjects only (`experiments/defaults.py`, `jaxmocap.motion.splits`;
+#: the numbers in experiments/results/defaults.json; float32 reaches the same error as
+#: float64 there, so inputs keep their dtype).
+PRESETS = {
+    "thesis": InertialPreset(SIPWeights(), max_steps=20, rtol=1e-6, atol=1e-10,
+                             source="von Marcard §3.4.1: thesis weights, 20 LM steps"),
+    "validated": InertialPreset(SIPWeights(mahal=1e-4), max_steps=50, rtol=1e-4, atol=1e-4,
+                                source="experiments/defaults.py on development subjects 02, 131 "
+                                       "(experiments/results/defaults.json)"),
+}  # fmt: skip
+
+
+def preset(weights: SIPWeights | str = "validated") -> InertialPreset:
+    """The `InertialPreset` a `weights` argument means: a preset name, or `SIPWeights` with
+    the validated stopping rule."""
+    if isinstance(weights, str):
+        if weights not in PRESETS:
+            raise ValueError(f"weights={weights!r}: pass a preset name {sorted(PRESETS)} or SIPWeights(...).")
+        return PRESETS[weights]
+    if not isinstance(weights, SIPWeights):
+        raise ValueError(f"weights must be SIPWeights or a preset name {sorted(PRESETS)}, got {type(weights).__name__}.")
+    return dataclasses.replace(PRESETS["validated"], weights=weights, source="user weights, validated stopping rule")
+
+
+def _limits(p: InertialPreset, max_steps, rtol, atol, sop: bool = False) -> dict:
+    """The solve limits: the preset's, unless given."""
+    ms, rt, at = (p.sop_steps, p.sop_rtol, p.sop_atol) if sop else (p.max_steps, p.rtol, p.atol)
+    ms = ms if max_steps is None else max_steps
+    check_max_steps(ms)
+    return dict(max_steps=ms, rtol=rt if rtol is None else rtol, atol=at if atol is None else atol)
 
 
 class InertialSetup(eqx.Module):
@@ -254,7 +313,7 @@ def from_dip(path_or_dict, body: Body, bones, vertices, pose0=None, fps: float =
     return calibrate(body, bones, vertices, ori, acc, pose0, fps, acceleration_frame="global", **kw)
 
 
-def inertial_problem(setup: InertialSetup, weights: SIPWeights = SIPWeights(), acceleration: bool = True) -> Problem:
+def inertial_problem(setup: InertialSetup, weights: SIPWeights | str = "validated", acceleration: bool = True) -> Problem:
     """E_motion (eq. 3.5) for `setup` as a `Problem`.
 
     Which terms exist is structure (E_acc only with `acceleration`); how much each counts
@@ -262,7 +321,7 @@ def inertial_problem(setup: InertialSetup, weights: SIPWeights = SIPWeights(), a
     off exactly) or a batch of weight settings reuses one compilation.
     """
     S = len(setup.bones)
-    w = weights
+    w = preset(weights).weights
     f = lambda x: jnp.asarray(x, jnp.float32)  # noqa: E731
     terms = [
         orientation_term(setup.bones, S, f(w.ori)),
@@ -282,25 +341,26 @@ def _frame_data(data: InertialData, t) -> InertialData:
 
 def orientation_poser(
     setup: InertialSetup,
-    weights: SIPWeights = SIPWeights(),
+    weights: SIPWeights | str = "validated",
     init=None,
     sequential: bool = True,
-    max_steps: int = 20,
-    rtol: float = 1e-6,
-    atol: float = 1e-10,
+    max_steps: int | None = None,
+    rtol: float | None = None,
+    atol: float | None = None,
     progress: bool | None = None,
 ) -> tuple[Array, Array]:
     """E_ori + E_anthro per frame: the pose of every frame (SOP with 6 IMUs, IT with all).
 
     Args:
         setup: the calibrated sequence.
-        weights: `SIPWeights` (w_acc is ignored).
+        weights: a preset name ("validated", the default, or "thesis") or `SIPWeights`
+            (w_acc is ignored); see `PRESETS`.
         init: (24, 3) start of the first frame (default: x₀).
         sequential: True (the thesis): frame t starts from frame t-1's result, one
             frame after the other (`lax.scan`). False: every frame starts from `init`
             and all frames are solved at once (`solve_batch`), much faster, and equally
             good when the sensors pin the pose down (IT on 13 or 17 IMUs).
-        max_steps: LM iterations per frame.
+        max_steps, rtol, atol: LM limits per frame (default: the preset's).
         progress: report frames done and the ETA on stderr while the sequential scan runs
             (default: for `PROGRESS_FRAMES` frames or more).
     Returns:
@@ -308,15 +368,13 @@ def orientation_poser(
     """
     if not isinstance(setup, InertialSetup):
         raise ValueError(f"setup must be an InertialSetup (from calibrate), got {type(setup).__name__}.")
-    if not isinstance(max_steps, (int, np.integer)) or max_steps < 1:
-        raise ValueError(f"max_steps must be an int >= 1, got {max_steps!r}.")
+    kw = _limits(preset(weights), max_steps, rtol, atol, sop=True)
     if init is not None and jnp.shape(init) != setup.pose0.shape:
         raise ValueError(f"init has shape {jnp.shape(init)}; expected {setup.pose0.shape}, one pose.")
     problem = inertial_problem(setup, weights, acceleration=False)
     data = setup.data
     x0 = setup.pose0 if init is None else jnp.asarray(init, setup.pose0.dtype)
     T = setup.num_frames
-    kw = dict(max_steps=max_steps, rtol=rtol, atol=atol)
     if not sequential:
         batch = jax.vmap(lambda t: _frame_data(data, t))(jnp.arange(T))
         params = {"pose": jnp.broadcast_to(x0, (T, 1) + x0.shape)}
@@ -346,12 +404,12 @@ def _sequential(problem, data, x0, progress=False, **kw):
     return poses, results
 
 
-def sparse_orientation_poser(setup: InertialSetup, weights: SIPWeights = SIPWeights(), **kw) -> tuple[Array, Array]:
+def sparse_orientation_poser(setup: InertialSetup, weights: SIPWeights | str = "validated", **kw) -> tuple[Array, Array]:
     """SOP (§3.4.2): `orientation_poser`, sequential, on the sensors of `setup` (6 IMUs)."""
     return orientation_poser(setup, weights, **kw)
 
 
-def inertial_tracker(setup: InertialSetup, weights: SIPWeights = SIPWeights(), **kw) -> tuple[Array, Array]:
+def inertial_tracker(setup: InertialSetup, weights: SIPWeights | str = "validated", **kw) -> tuple[Array, Array]:
     """IT (§3.4.3): `orientation_poser` with every available IMU (13 or 17)."""
     return orientation_poser(setup, weights, **kw)
 
@@ -372,25 +430,30 @@ class SIPResult(eqx.Module):
 
 def sparse_inertial_poser(
     setup: InertialSetup,
-    weights: SIPWeights = SIPWeights(),
+    weights: SIPWeights | str = "validated",
     init: Array | str | None = None,
     init_trans: Array | None = None,
-    max_steps: int = 20,
-    rtol: float = 1e-6,
-    atol: float = 1e-10,
-    sop_steps: int = 20,
+    max_steps: int | None = None,
+    rtol: float | None = None,
+    atol: float | None = None,
+    sop_steps: int | None = None,
 ) -> SIPResult:
     """SIP (eq. 3.4-3.5): every frame at once, all three terms, started from SOP.
 
     Args:
         setup: the calibrated sequence.
-        weights: `SIPWeights`; `acc=0` gives a whole-sequence SOP.
+        weights: a preset name or `SIPWeights` (`acc=0` gives a whole-sequence SOP):
+            "validated" (the default: w_mahal and the stopping rule that won on subjects
+            nothing was tuned on, `PRESETS`) or "thesis" (§3.4.1's weights, 20 steps).
         init: (T, 24, 3) initial poses, or how to make them: "sop" (the default, the
             thesis's `sparse_orientation_poser(setup, weights)`) or "birnn" (the poses of
             the shipped Deep Inertial Poser network, `jaxmocap.learned.dip.birnn_poses`;
             6 "sip6" sensors).
         init_trans: (T, 3) initial translation (default: x₀'s translation on every frame).
-        max_steps: LM iterations (the thesis reports 20 cost evaluations).
+        max_steps, rtol, atol: LM budget and tolerances (default: the preset's). The
+            solution's `result` is 0 when the tolerance was met, and `decrease` says how
+            fast the cost was still falling when the budget ran out.
+        sop_steps: LM iterations per frame of the SOP start (default: the preset's).
     Returns:
         `SIPResult`.
     """
@@ -410,13 +473,14 @@ def sparse_inertial_poser(
         raise ValueError(f"init has shape {jnp.shape(init)}; expected (T, 24, 3) = ({T}, 24, 3).")
     if init_trans is not None and jnp.shape(init_trans) != (T, 3):
         raise ValueError(f"init_trans has shape {jnp.shape(init_trans)}; expected (T, 3) = ({T}, 3).")
+    limits = _limits(preset(weights), max_steps, rtol, atol)
     if init is None:
         init, _ = sparse_orientation_poser(setup, weights, max_steps=sop_steps)
     trans = jnp.broadcast_to(setup.trans0, (T, 3)) if init_trans is None else jnp.asarray(init_trans)
     problem = inertial_problem(setup, weights, acceleration=True)
     # Only E_acc sees the translation; with w_acc = 0 it stays where it started.
     params = {"pose": jnp.asarray(init, setup.pose0.dtype), "trans": trans.astype(setup.pose0.dtype)}
-    sol = solve(problem, params, setup.data, max_steps=max_steps, rtol=rtol, atol=atol)
+    sol = solve(problem, params, setup.data, **limits)
     sol = eqx.tree_at(lambda s: s.result, sol, _unless_observed(setup.data, sol.result))
     return SIPResult(sol.value["pose"], sol.value["trans"], jnp.asarray(init), sol)
 
@@ -487,17 +551,18 @@ def sparse_inertial_poser_batch(
     setups: InertialSetup,
     init: Array,
     init_trans: Array | None = None,
-    weights: SIPWeights = SIPWeights(),
+    weights: SIPWeights | str = "validated",
     frame_mask: Array | None = None,
-    max_steps: int = 20,
-    rtol: float = 1e-6,
-    atol: float = 1e-10,
+    max_steps: int | None = None,
+    rtol: float | None = None,
+    atol: float | None = None,
     tridiagonal: str | None = None,
 ) -> Solution:
     """SIP on a batch (`stack_setups`) in one vmapped solve; init (B, T, 24, 3).
 
     Returns the engine's batched `Solution` (value["pose"], value["trans"], per-sequence
     result codes and costs); `frame_mask` (B, T) marks real frames of padded sequences.
+    `weights`, `max_steps`, `rtol`, `atol` as `sparse_inertial_poser`'s (preset by default).
     `tridiagonal`: how the frame band is factorised (`jaxmocap.solve.solve`'s; speed only).
     """
     if not isinstance(setups, InertialSetup) or setups.pose0.ndim != 3:
@@ -513,7 +578,7 @@ def sparse_inertial_poser_batch(
     problem = inertial_problem(setups, weights, acceleration=True)
     dtype = setups.pose0.dtype
     params = {"pose": jnp.asarray(init, dtype), "trans": trans.astype(dtype)}
-    sol = solve_batch(problem, params, setups.data, frame_mask, max_steps=max_steps, rtol=rtol, atol=atol,
+    sol = solve_batch(problem, params, setups.data, frame_mask, **_limits(preset(weights), max_steps, rtol, atol),
                       tridiagonal=tridiagonal)  # fmt: skip
     return eqx.tree_at(lambda s: s.result, sol, _unless_observed(setups.data, sol.result, frame_mask))
 

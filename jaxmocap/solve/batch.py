@@ -39,7 +39,8 @@ from jax import Array
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from .._checks import check_weight
-from .solver import METHODS, Args, Solution, _check, _check_max_steps, _solve_core, check_tridiagonal
+from .._checks import check_max_steps
+from .solver import METHODS, Args, Solution, _check, _solve_core, check_tridiagonal
 from .tridiagonal import TWISTED_ONE_DEVICE
 
 __all__ = [
@@ -289,7 +290,7 @@ def solve_batch(
     """
     if method not in METHODS:
         raise ValueError(f"method must be one of {METHODS}, got {method!r}.")
-    _check_max_steps(max_steps)
+    check_max_steps(max_steps)
     for k, v in (weights or {}).items():
         check_weight(f"weights[{k!r}]", v)
     leaves = jax.tree_util.tree_leaves(params0)

@@ -43,7 +43,7 @@ import numpy as np
 import optimistix as optx
 from jax import Array
 
-from .._checks import concrete
+from .._checks import check_max_steps, concrete
 from .._progress import report
 from .._compat import DIVERGENCE, MAX_STEPS, SUCCESSFUL, result_code
 from .._compat import result_message as optx_message
@@ -87,6 +87,10 @@ class Solution(eqx.Module):
         num_steps: iterations taken (for "lm": trial steps, accepted or not).
         cost: final total cost ½‖r‖².
         costs: final per-term costs ½ w Σ ρ(‖e‖²), keyed by term name.
+        decrease: how far from converged: the relative cost decrease of the last accepted
+            step, (cost before - cost after) / cost before ("lm" only; NaN for other
+            methods, inf before any accepted step). A fit stopped at its step cap with a
+            decrease well above its rtol was still improving: give it more steps.
     """
 
     value: Any
@@ -94,10 +98,28 @@ class Solution(eqx.Module):
     num_steps: Array
     cost: Array
     costs: dict[str, Array]
+    decrease: Array
 
     @property
     def converged(self) -> Array:
         return self.result == 0
+
+    def status(self) -> str:
+        """One line on how an (unbatched) solve ended, e.g. for a log.
+
+        "converged in 23 steps", or for a capped fit how fast it was still improving:
+        "stopped at the step cap (50 steps), the cost still falling 0.31 % per step".
+        """
+        if np.ndim(self.result) != 0:
+            raise ValueError("status() describes one solve: index a batched Solution first (e.g. sol.result[i]).")
+        steps, code = int(self.num_steps), int(self.result)
+        if code == 0:
+            return f"converged in {steps} steps"
+        if code == int(MAX_STEPS):
+            d = float(self.decrease)
+            rate = "" if not np.isfinite(d) else f", the cost still falling {100 * d:.2g} % per step"
+            return f"stopped at the step cap ({steps} steps){rate}"
+        return f"{result_message(code)} (after {steps} steps)"
 
 
 def result_message(result) -> str:
@@ -334,6 +356,7 @@ class _LMState(eqx.Module):
     done: Array
     result: Array
     stale: Array  # y moved since (or before) the last linearisation
+    decrease: Array  # relative cost decrease of the last accepted step
 
 
 def _report_step(step, max_steps, cost, accepted, done) -> None:
@@ -383,7 +406,7 @@ class VonMarcardLM(optx.AbstractLeastSquaresSolver):
         ok = jnp.isfinite(cost)
         return _LMState(
             normal, grad, cost, jnp.asarray(10.0, fdtype), jnp.asarray(0), ~ok,
-            jnp.where(ok, SUCCESSFUL, DIVERGENCE), jnp.asarray(True),
+            jnp.where(ok, SUCCESSFUL, DIVERGENCE), jnp.asarray(True), jnp.asarray(jnp.inf, fdtype),
         )  # fmt: skip
 
     def step(self, fn, y, args, options, state: _LMState, tags):
@@ -422,7 +445,8 @@ class VonMarcardLM(optx.AbstractLeastSquaresSolver):
         lam = jnp.where(accept, state.lam * 0.1, state.lam * 10.0)
         if self.progress:
             jax.debug.callback(_report_step, step, self.max_steps, cost, accept, done)
-        new = _LMState(normal, grad, cost, lam, step, done, jnp.where(done, result, state.result), accept)
+        decrease = jnp.where(accept, (state.cost - cost_new) / jnp.maximum(state.cost, jnp.finfo(fdtype).tiny), state.decrease)
+        new = _LMState(normal, grad, cost, lam, step, done, jnp.where(done, result, state.result), accept, decrease)
         return y_next, new, None
 
     def terminate(self, fn, y, args, options, state: _LMState, tags):
@@ -450,13 +474,6 @@ def check_tridiagonal(tridiagonal: str | None) -> str:
     if tridiagonal not in TRIDIAGONAL_METHODS:
         raise ValueError(f"tridiagonal must be one of {TRIDIAGONAL_METHODS} or None, got {tridiagonal!r}.")
     return tridiagonal
-
-
-def _check_max_steps(max_steps) -> None:
-    # 0 or a negative cap would still take one step (optimistix checks after stepping).
-    steps = concrete(max_steps)
-    if steps is not None and (steps.ndim != 0 or not np.issubdtype(steps.dtype, np.integer) or steps < 1):
-        raise ValueError(f"max_steps must be an int >= 1, got {max_steps!r}.")
 
 
 def _check(problem, params0, data, frame_mask, dtype):
@@ -545,7 +562,7 @@ def solve(
             "cyclic" (cyclic reduction, ⌈log₂ T⌉ parallel levels); default: "rows" on
             the CPU, "cyclic" on accelerators. Speed only: all are exact.
     Returns:
-        `Solution(value, result, num_steps, cost, costs)`; `result` is `NO_OBSERVATIONS`
+        `Solution(value, result, num_steps, cost, costs, decrease)`; `result` is `NO_OBSERVATIONS`
         when every masked term masked out all of its rows.
     """
     if method not in METHODS:
@@ -553,7 +570,7 @@ def solve(
     if damping not in ("levenberg", "marquardt"):
         raise ValueError(f"damping must be 'levenberg' or 'marquardt', got {damping!r}.")
     layout, params0, frame_mask, dtype = _check(problem, params0, data, frame_mask, dtype)
-    _check_max_steps(max_steps)
+    check_max_steps(max_steps)
     if check_bandwidth:
         check_bandwidths(problem, params0, data, frame_mask)
     if factor_dtype is None:
@@ -644,6 +661,7 @@ def _solve_core(args: Args, params0, rtol, atol, max_steps, *, method, solver, f
                 tridiagonal="scan"):
     """The unbatched, unjitted solve (vmapped by `solve_batch`)."""
     dtype = jtu.tree_leaves(params0)[0].dtype
+    decrease = jnp.asarray(jnp.nan, dtype)
     if method == "jaxopt" and solver is None:
         value, result, steps = _jaxopt(args, params0, atol, max_steps)
     else:
@@ -666,6 +684,8 @@ def _solve_core(args: Args, params0, rtol, atol, max_steps, *, method, solver, f
         steps_cap = None if isinstance(solver, VonMarcardLM) else int(max_steps)
         sol = optx.least_squares(residuals, solver, y0, args, max_steps=steps_cap, adjoint=adjoint, throw=False)
         value, result, steps = sol.value, result_code(sol.result), sol.stats["num_steps"]
+        if isinstance(sol.state, _LMState):
+            decrease = sol.state.decrease.astype(dtype)
     value = {k: v.astype(dtype) for k, v in value.items()}
     res = residuals(value, args)
     costs = {k: 0.5 * jnp.sum(r * r) for k, r in res.items()}
@@ -675,7 +695,7 @@ def _solve_core(args: Args, params0, rtol, atol, max_steps, *, method, solver, f
     observed = _observed(args, value)
     if observed is not None:
         result = jnp.where(observed, result, NO_OBSERVATIONS)
-    return Solution(value, jnp.asarray(result, jnp.int32), jnp.asarray(steps, jnp.int32), cost, costs)
+    return Solution(value, jnp.asarray(result, jnp.int32), jnp.asarray(steps, jnp.int32), cost, costs, decrease)
 
 
 _solve_jit = eqx.filter_jit(_solve_core)
