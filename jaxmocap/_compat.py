@@ -44,3 +44,11 @@ def damped_operator(operator, lam):
 def mjx_contacts(data):
     """The contact set `mjx.collision` wrote into an MJX `Data`."""
     return data._impl.contact
+
+
+def distributed_client():
+    """The `jax.distributed` coordination client of this process, or None before
+    `jax.distributed.initialize` (JAX keeps it in a private module)."""
+    from jax._src import distributed
+
+    return distributed.global_state.client

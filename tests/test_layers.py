@@ -15,7 +15,7 @@ PACKAGE = Path(__file__).resolve().parents[1] / "jaxmocap"
 
 # Bottom to top, as the README's architecture paragraph lists them.
 LAYERS = [
-    ("maths", {"rotation", "timeseries", "_checks", "_progress", "_compat", "_threads", "_cache", "_cli_env"}),
+    ("maths", {"rotation", "timeseries", "_checks", "_progress", "_compat", "_threads", "_cache", "_cli_env", "_files"}),
     ("models", {"body", "solve"}),
     ("data", {"motion", "formats", "metrics", "objects"}),
     ("drawing", {"viz"}),
@@ -88,3 +88,58 @@ def test_import_jaxmocap_stays_light(heavy):
     code = f"import jaxmocap, sys; print({heavy!r} in sys.modules)"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip() == "False", f"`import jaxmocap` imports {heavy}"
+
+
+def _module_graph() -> dict[str, set[str]]:
+    """module -> the package modules it imports (lazy imports included), packages' own
+    __init__ re-exports left out (they import their submodules by design)."""
+    files = {p: "jaxmocap." + ".".join(p.relative_to(PACKAGE).with_suffix("").parts) for p in PACKAGE.rglob("*.py")}
+    modules = {m for p, m in files.items() if p.name != "__init__.py"}
+    graph: dict[str, set[str]] = {m: set() for m in modules}
+    for path, name in files.items():
+        if path.name == "__init__.py":
+            continue
+        for module, target, _ in _imports(path):
+            while target and target not in modules and "." in target:
+                target = target.rsplit(".", 1)[0]  # `from .sweep import atomic_write` -> the module
+            if target in modules and target != module:
+                graph[module].add(target)
+    return graph
+
+
+def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """Strongly connected components of more than one module (Tarjan)."""
+    index, low, stack, on, out, counter = {}, {}, [], set(), [], [0]
+
+    def visit(v):
+        index[v] = low[v] = counter[0]
+        counter[0] += 1
+        stack.append(v)
+        on.add(v)
+        for w in graph[v]:
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            comp = []
+            while True:
+                w = stack.pop()
+                on.discard(w)
+                comp.append(w)
+                if w == v:
+                    break
+            if len(comp) > 1:
+                out.append(sorted(comp))
+
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return out
+
+
+def test_no_import_circles():
+    assert _cycles({"a": {"b"}, "b": {"a"}, "c": {"a"}}) == [["a", "b"]]  # the checker sees one
+    cycles = _cycles(_module_graph())
+    assert not cycles, "modules that import each other (directly or round a circle):\n" + "\n".join(" <-> ".join(c) for c in cycles)

@@ -40,6 +40,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .._files import atomic_write
 from .sweep_methods import Cell, resolve_method
 
 __all__ = [
@@ -417,23 +418,13 @@ def _read_cell(path: Path) -> dict | None:
     return r if ok else None
 
 
-def atomic_write(path: Path, text: str) -> None:
-    """Write `text` to a temporary file of this process, then rename it onto `path`:
-    readers (and a resumed run) never see half a file, even with writers in parallel."""
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    with open(tmp, "w") as f:
-        f.write(text)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
-
-
 def join_distributed(distributed) -> None:
     """`jax.distributed.initialize(**kwargs)` once; True: no arguments (SLURM, Open MPI, ... env)."""
     import jax
-    from jax._src import distributed as _d
 
-    if distributed and _d.global_state.client is None:
+    from .._compat import distributed_client
+
+    if distributed and distributed_client() is None:
         jax.distributed.initialize(**(distributed if isinstance(distributed, dict) else {}))
 
 
@@ -613,9 +604,9 @@ def _wait_for(path: Path, timeout: float, ready=None) -> None:
 
 def _barrier(name: str) -> None:
     """All processes of `jax.distributed` meet here (the coordination service's barrier)."""
-    from jax._src import distributed as _d
+    from .._compat import distributed_client
 
-    client = _d.global_state.client
+    client = distributed_client()
     if client is not None:
         client.wait_at_barrier(name, 3_600_000)
 

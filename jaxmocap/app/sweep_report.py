@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .sweep import atomic_write
+from .._files import atomic_write
 
 __all__ = ["write_summary", "paired_stats", "FLAT_TOLERANCE"]
 
