@@ -100,3 +100,15 @@ def test_sop_start_quotes():
     assert m.group(1) == f"{gpu:.3f}" and int(m.group(2)) == len(res["clips"])
     assert m.group(3) == f"{res['sip_batched_vs_sequential_mpjpe_percent']:.1f}"
     assert m.group(4) == f"{res['sip_x0_vs_sequential_mpjpe_percent']:.1f}"
+
+
+def test_defaults_quotes():
+    res = json.loads((ROOT / "experiments/results/defaults.json").read_text())
+    v = res["evaluation"]["mean"]["sip_validated"]
+    row = re.search(r"\| \*\*validated \(default\)\*\* \| ([\d.]+) \| ([\d.]+) \| (\d+) % \|", README)
+    assert row, "the README's defaults table changed; update this test"
+    assert row.groups() == (f"{v['mpjpe_mm']:.1f}", f"{v['mpjae_deg']:.2f}", f"{100 * v['converged']:.0f}")
+    m = re.search(r"With the defaults SIP is ([\d.]+) % better than SOP in MPJPE.*?and ([\d.]+) % better than the\s+converged",
+                  README, re.S)  # fmt: skip
+    assert m and res["sip_vs_sop_percent"] < 0 and res["sip_default_vs_best_percent"] < 0
+    assert m.groups() == (f"{-res['sip_vs_sop_percent']:.1f}", f"{-res['sip_default_vs_best_percent']:.1f}")

@@ -123,7 +123,7 @@ class InertialPreset:
 PRESETS = {
     "thesis": InertialPreset(SIPWeights(), max_steps=20, rtol=1e-6, atol=1e-10,
                              source="von Marcard §3.4.1: thesis weights, 20 LM steps"),
-    "validated": InertialPreset(SIPWeights(mahal=1e-4), max_steps=50, rtol=1e-4, atol=1e-4,
+    "validated": InertialPreset(SIPWeights(mahal=1e-4), max_steps=30, rtol=1e-3, atol=1e-3,
                                 source="experiments/defaults.py on development subjects 02, 131 "
                                        "(experiments/results/defaults.json)"),
 }  # fmt: skip
