@@ -1,6 +1,6 @@
 """SIP big batch by factorisation and chunk size: 1000 sequences x 1000 frames x 20 LM steps.
 
-    python benchmarks/sip_chunks.py default:auto cyclic:250 rows:250 twisted:250 --suffix h100
+    python benchmarks/sip_chunks.py default:auto cyclic:250 rows:250 --suffix h100
 
 Each METHOD:CHUNK runs in a fresh process (one compile each, and the card's memory
 as a new process finds it: an out-of-memory run in a process that had run a smaller
@@ -9,7 +9,7 @@ chunk_size=CHUNK)` with rtol = atol = 0; "default" is the backend's choice and "
 `plan_batch`'s chunk. Writes results/sip_chunks_<suffix>.json: per run `median_s`
 (one timed call after the compiling one), `compile_and_first_call_s`, `peak_bytes`
 (the device's peak in that process), or `error` (out of memory). The question it answers
-(issue 20, goal 5): the frame-order factorisations ("rows", "twisted") are latency-bound
+(issue 20, goal 5): the frame-order factorisations ("rows"; "twisted", since removed) are latency-bound
 on a GPU, so larger chunks should help them where cyclic reduction is throughput-bound.
 
 `--step` times one LM step's factorisation and solve alone, per chunk (`structured.factor`
@@ -106,7 +106,7 @@ def _one_step(spec: str, frames: int) -> dict:
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("specs", nargs="+", help="METHOD:CHUNK, e.g. default:auto twisted:250")
+    p.add_argument("specs", nargs="+", help="METHOD:CHUNK, e.g. default:auto cyclic:250")
     p.add_argument("--sequences", type=int, default=1000)
     p.add_argument("--frames", type=int, default=1000)
     p.add_argument("--iters", type=int, default=20)

@@ -14,7 +14,7 @@ start given, with `linear_scaling`: time / ((T / frames) x the single-sequence t
 chunks to fit memory). A GPU run also writes its two keys into results/sip_speed.json and
 a CPU run copies them from results/sip_speed_gpu.json, so that one file holds them all.
 The frame band's factorisation ("rows": in the acceleration rows' space, jaxmocap/solve/rows.py;
-"twisted": "rows" from both ends, one device here, see sip_two_devices.py for two; "scan":
+"scan":
 block Cholesky of the band; "cyclic": cyclic reduction, jaxmocap/solve/tridiagonal.py)
 is timed every way on the single sequence (`tridiagonal`, with `default_vs_scan_ratio`:
 the default against the band scan, the CPU's default before "rows"); `--big-batch-tridiagonal`

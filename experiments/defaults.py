@@ -236,7 +236,7 @@ def write(out: dict, folder: Path) -> None:
     names = out["evaluation"]["clips"]
     for subject in SPLIT.evaluation:
         idx = [i for i, n in enumerate(names) if subject_of(n) == subject]
-        mean = lambda k: np.mean([rows[k][i]["mpjpe_mm"] for i in idx])  # noqa: E731
+        mean = lambda k, idx=idx: np.mean([rows[k][i]["mpjpe_mm"] for i in idx])  # noqa: E731
         lines.append(f"| {subject} | {len(idx)} | {mean('sip_thesis'):.1f} | {mean('sip_validated'):.1f} | "
                      f"{mean('sip_best'):.1f} | {mean('sop_validated'):.1f} |")  # fmt: skip
     n_worse = sum(rows["sip_validated"][i]["mpjpe_mm"] > rows["sip_thesis"][i]["mpjpe_mm"] for i in range(len(names)))

@@ -32,7 +32,6 @@ from jaxmocap.solve import (
 )
 from jaxmocap.solve import frame, linear_solver, sequence, window
 from jaxmocap.solve.solver import residuals
-from jaxmocap.solve.tridiagonal import TWISTED_ONE_DEVICE
 from jaxmocap.solve.unknowns import to_manifold
 from solve_chain import (
     e_ori,
@@ -81,16 +80,14 @@ def test_manifold_parametrisations_converge_alike():
 @pytest.mark.parametrize(
     "variant, tridiagonal",
     [(v, m) for v in ("band", "border", "windows", "all") for m in ("scan", "cyclic")]
-    + [(v, m) for v in ("narrow", "narrow_border") for m in ("rows", "cyclic")] + [("windows", "rows")]
-    + [("narrow_border", "twisted"), ("narrow", TWISTED_ONE_DEVICE)],
+    + [(v, m) for v in ("narrow", "narrow_border") for m in ("rows", "cyclic")] + [("windows", "rows")],
 )
 def test_structured_step_equals_dense_step(variant, tridiagonal):
     """The LM step (eq. 2.52) from the structured factorisation equals a dense float64 solve
     of the same normal equations, for frame bands (b = 0, 1, 2 together), a sequence-wide
     border, overlapping windows and all at once; T = 9 is not a multiple of any block.
     Every factorisation of the frame band: sequential scan and cyclic reduction of the
-    band, and both (and the scan from both ends, as `solve` and `solve_batch` run it) in
-    the coupling rows' space (used where the rows are fewer than the coupled unknowns:
+    band, and both in the coupling rows' space (used where the rows are fewer than the coupled unknowns:
     the narrow variants; the band's elsewhere)."""
     from jaxmocap.solve.solver import linearise
     from jaxmocap.solve.structured import factor, solve_factored
@@ -108,7 +105,7 @@ def test_structured_step_equals_dense_step(variant, tridiagonal):
         return normal.C is not None, layout.ravel(layout.unravel(st.from_solver_order(xF), xW, xG)), cost
 
     has_rows, step, cost = step_of(params, data)
-    assert bool(has_rows) == (tridiagonal in ("rows", "twisted", TWISTED_ONE_DEVICE, "cyclic") and variant.startswith("narrow"))
+    assert bool(has_rows) == (tridiagonal in ("rows", "cyclic") and variant.startswith("narrow"))
     flat = np.concatenate([np.asarray(p).reshape(-1) for p in step if p is not None])
     dense, half_rr = _dense_step(variant)
     assert abs(float(cost) - half_rr) <= 1e-12 * half_rr
@@ -183,12 +180,11 @@ def test_block_tridiagonal_solves_match_dense(K, N):
 
 @pytest.mark.parametrize("T, n, R, B", [(1, 3, 2, 1), (3, 6, 4, 2), (9, 5, 3, 1), (11, 4, 2, 2), (7, 5, 7, 1), (40, 4, 2, 2)])
 def test_rows_factorisation_matches_dense(T, n, R, B):
-    """`rows.py` (frame order, both ends at once, cyclic reduction) against numpy on
+    """`rows.py` (frame order, cyclic reduction) against numpy on
     H = blockdiag(A) + CᵀC with coupling rows reading frames t-B .. t+B: bandwidths 1 and 2,
     one frame, fewer frames than the band, R > n, T not a multiple of the super-blocks,
-    five levels; the twisted halves equal (T = 40, B = 2) and not."""
-    from jaxmocap.solve.rows import rows_cyclic_factor, rows_cyclic_solve, rows_factor, rows_solve, rows_twisted_factor
-    from jaxmocap.solve.rows import rows_twisted_solve
+    five levels (T = 40)."""
+    from jaxmocap.solve.rows import rows_cyclic_factor, rows_cyclic_solve, rows_factor, rows_solve
 
     rng = np.random.default_rng(T * 100 + n)
     C = rng.normal(size=(T, 2 * B + 1, R, n))
@@ -209,56 +205,9 @@ def test_rows_factorisation_matches_dense(T, n, R, B):
     b = rng.normal(size=(T, n, 2))
     ref = np.linalg.solve(H, b.reshape(T * n, 2)).reshape(T, n, 2)
     methods = [(rows_factor, rows_solve), (rows_cyclic_factor, rows_cyclic_solve)]
-    methods += [(rows_twisted_factor, rows_twisted_solve)] if T >= 4 * B + 2 else []
     for fac, sol in methods:
         x = sol(fac(jnp.asarray(P0), jnp.asarray(C)), jnp.asarray(b))
         np.testing.assert_allclose(np.asarray(x), ref, atol=1e-10 * np.abs(ref).max(), err_msg=fac.__name__)
-
-
-TWISTED_ON_TWO_DEVICES = """
-import jax, numpy as np, jax.numpy as jnp
-jax.config.update("jax_enable_x64", True)
-from jaxmocap.solve.rows import _band_from_rows, rows_factor, rows_solve, rows_twisted_factor, rows_twisted_solve
-assert jax.local_device_count() == 2
-rng = np.random.default_rng(0)
-T, n, R = 13, 4, 2
-C = rng.normal(size=(T, 3, R, n)); C[0, 0] = 0.0; C[-1, 2] = 0.0
-A = rng.normal(size=(T, n, n))
-P0 = jnp.asarray(A @ np.swapaxes(A, 1, 2) + 0.1 * np.eye(n)) + _band_from_rows(jnp.asarray(C), 0)
-b = jnp.asarray(rng.normal(size=(T, n, 2)))
-f = jax.jit(lambda P0, C: rows_twisted_factor(P0, C, on_devices=True))(P0, jnp.asarray(C))
-x = jax.jit(rows_twisted_solve)(f, b)
-ref = rows_solve(rows_factor(P0, jnp.asarray(C)), b)
-from jaxmocap.solve import shard_frames
-tree = shard_frames({"per_frame": jnp.zeros((T + 1, 3)), "constant": jnp.zeros(3)}, T + 1)
-assert tree["per_frame"].sharding.spec == jax.sharding.PartitionSpec("frames"), tree["per_frame"].sharding
-assert tree["constant"].sharding.is_fully_replicated
-print(len(f.halves.L.sharding.device_set), float(jnp.abs(x - ref).max() / jnp.abs(ref).max()))
-"""
-
-
-def test_twisted_halves_on_two_devices():
-    """"twisted" with a half on each of two CPU devices (a subprocess: the device count is
-    fixed at start-up) solves as the one-device frame-order scan does."""
-    import os
-    import subprocess
-    import sys
-    from pathlib import Path
-
-    root = Path(__file__).resolve().parent.parent
-    env = {**os.environ, "PYTHONPATH": str(root), "JAX_PLATFORMS": "cpu"}
-    env["XLA_FLAGS"] = env.get("XLA_FLAGS", "") + " --xla_force_host_platform_device_count=2"
-    out = subprocess.run([sys.executable, "-c", TWISTED_ON_TWO_DEVICES], env=env, capture_output=True, text=True, timeout=300)
-    assert out.returncode == 0, out.stderr[-3000:]
-    devices, error = out.stdout.split()
-    assert devices == "2" and float(error) < 1e-12, out.stdout
-
-
-def test_shard_frames_needs_two_devices():
-    from jaxmocap.solve import shard_frames
-
-    with pytest.raises(ValueError, match="xla_force_host_platform_device_count=2"):
-        shard_frames({"x": jnp.zeros((4, 3))}, 4)
 
 
 @pytest.mark.parametrize("W", ["shared", "per_frame", "identity"])

@@ -102,30 +102,6 @@ def test_gradient_through_solve_with_a_gauge_freedom():
     assert np.isfinite(g) and abs(g - fd) <= 1e-4 * abs(fd), (g, fd)
 
 
-def test_gradient_through_a_twisted_solve():
-    """The adjoint of a solve factorised from both ends ("twisted", its halves batched on
-    one device) is the frame-order one's: the same gradient, equal to central differences.
-    One coupling row per frame against two coupled unknowns, so the band is kept as rows."""
-    T = 14
-    rng = np.random.default_rng(3)
-    data = {"acc": jnp.asarray(rng.normal(size=(T, 1))), "obs": jnp.asarray(rng.normal(size=(T, 2)))}
-
-    def f(log_w, tridiagonal):
-        problem = Problem([
-            Term("acc", lambda p, d: second_difference(p["x"][:, :1] + 0.5 * p["x"][:, 1:]) - d["acc"], jnp.exp(log_w), 1),
-            Term("obs", lambda p, d: jnp.sin(p["x"]) - 0.5 * d["obs"], 1.0, 0),
-        ])  # fmt: skip
-        x = solve(problem, {"x": jnp.zeros((T, 2))}, data, tridiagonal=tridiagonal, **_KW).value["x"]
-        return jnp.sum(jnp.cos(x) * jnp.arange(2.0 * T).reshape(T, 2))
-
-    rows, twisted = (float(jax.grad(f)(0.3, m)) for m in ("rows", "twisted"))
-    # The solves stop ~1e-7 short in this scalar, so the step is large (five-point: its
-    # truncation ~eps⁴); at eps = 1e-3 the stop left 1e-5, at 1e-2 7e-7 of the gradient.
-    fd = _five_point(lambda w: f(w, "twisted"), (0.3,), 0, eps=1e-2)
-    assert abs(twisted - rows) <= 1e-10 * abs(rows), (twisted, rows)
-    assert abs(twisted - fd) <= 1e-5 * abs(fd), (twisted, fd)
-
-
 def test_gradient_through_a_padded_batch():
     """Padded frames change neither the solution nor its gradient w.r.t. per-member weights,
     and a batch of two weights gives each member its own solve's gradient (vmap)."""

@@ -36,7 +36,6 @@ from .solver import VonMarcardLM as VonMarcardLM
 from .solver import linear_solver as linear_solver
 from .solver import linearise as linearise
 from .solver import result_message as result_message
-from .solver import shard_frames as shard_frames
 from .solver import solve as solve
 from .structured import StructuredCholesky as StructuredCholesky
 

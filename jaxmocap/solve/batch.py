@@ -41,7 +41,6 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from .._checks import check_weight
 from .._checks import check_max_steps
 from .solver import METHODS, Args, Solution, _check, _solve_core, check_tridiagonal
-from .tridiagonal import TWISTED_ONE_DEVICE
 
 __all__ = [
     "pad_sequences",
@@ -254,10 +253,6 @@ def plan_batch(problem, params0: dict, data: Any = None, frame_mask=None, *, chu
 # --- the batched solve -----------------------------------------------------------------
 
 
-def _on_one_device(tridiagonal: str) -> str:
-    return TWISTED_ONE_DEVICE if tridiagonal == "twisted" else tridiagonal
-
-
 def solve_batch(
     problem,
     params0: dict,
@@ -284,8 +279,7 @@ def solve_batch(
     weights, one per member: an ablation grid is a batch axis, one compilation.
     chunk_size, devices, memory_fraction: see `plan_batch` (default: chunks that fit
     60 % of the free memory of every local device, the batch split over all of them).
-    Every leaf of `data` is batched (leading axis B). The devices share the sequences, so
-    `tridiagonal="twisted"` runs both halves of each on its device (batched with the rest).
+    Every leaf of `data` is batched (leading axis B); the devices share the sequences.
     Returns a `Solution` whose every field has the batch axis first.
     """
     if method not in METHODS:
@@ -313,7 +307,7 @@ def solve_batch(
         raise ValueError(f"every leaf of data needs the batch axis B={B} first; got leaves of shapes {bad[:3]}.")
     max_steps = jnp.asarray(max_steps) if method == "lm" else int(max_steps)
     static = dict(method=method, factor_dtype=jnp.dtype(factor_dtype), damping=damping,
-                  tridiagonal=_on_one_device(check_tridiagonal(tridiagonal)))  # fmt: skip
+                  tridiagonal=check_tridiagonal(tridiagonal))  # fmt: skip
     devices = tuple(jax.local_devices() if devices is None else devices)
     plan = plan_batch(problem, params0, data, frame_mask, chunk_size=chunk_size, devices=devices,
                       memory_fraction=memory_fraction, dtype=dtype, factor_dtype=factor_dtype)  # fmt: skip

@@ -23,25 +23,11 @@ off-diagonal blocks of H are never formed. Substitution carries the rows' part o
 right-hand side forward (ν) and the last 2B frames of x backward.
 
 On the CPU the scan runs at about 20 GFLOP/s on one core (SIP, T = 1000: 43 ms, 19 of
-them the pivots' inverse factors), and XLA:CPU runs independent loops of one device one
-after the other (two 500-frame scans in one jit, or one vmapped over both, took as long
-as the 1000-frame one; no base of `inverse_cholesky` between 8 and 51 was faster). So
-eliminating from both ends at once ("twisted", `rows_twisted_factor`) pays only with
-each half on its own device: on this 2-core CPU as two host devices the scan took 39 →
-21 ms, and SIP 1000 × 20 0.95× the one-device "rows" time with params and data split
-over the devices along frames (`shard_frames`; 0.90× in a probe), 1.14× without (the
-rest of the step then runs replicated on both; `benchmarks/sip_two_devices.py`). The
-linearisation, half the step, gains little from two devices even with no communication
-(two 503-frame windows, one per device: 55.6 ms against 62.3 ms for 1000 frames on one):
-one device already keeps both cores busy there. On a GPU the frame-order scans are
-latency-bound, so "twisted" (both halves batched) helps a big batch where "rows" is
-used: 1000 × 1000 × 20 SIP in chunks of 250 on one H100 in 18.9 s against "rows"' 24.2 s,
-but cyclic reduction took 16.1 s (chunk 500 did not fit; `benchmarks/sip_chunks.py`).
-Nor would bigger chunks close that gap: timed alone, a step's factorisation and solve
-took "twisted" 0.96 ms per sequence in chunks of 125 and 0.69 ms in chunks of 250 (no
-longer latency-bound), cyclic reduction 0.57 ms in chunks of 125 (`--step`). Recording
-the scans' loops as CUDA graphs (`XLA_FLAGS=--xla_gpu_enable_command_buffer=+WHILE`)
-changed nothing ("twisted" at 125: 129 ms per step with and without, one H100).
+them the pivots' inverse factors). On a GPU the frame-order scan is latency-bound and
+cyclic reduction on the same rows (`rows_cyclic_factor`) is the default. (Eliminating
+from both ends at once, each half on its own device, was tried and removed: it won
+nowhere, 0.95x on this CPU only with inputs pre-split across two host devices, and
+18.9 s against cyclic reduction's 16.1 s for 1000 x 1000 x 20 SIP on one H100.)
 """
 
 from __future__ import annotations
@@ -49,15 +35,13 @@ from __future__ import annotations
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-import numpy as np
 from jax import Array
 
 from ..timeseries import shift_frames
 from .tridiagonal import CYCLIC_BASE, CYCLIC_RECURSIVE_BLOCKS, SCAN_BASE, _interleave, _pad, _shift_down, _t, inverse_cholesky
 
 __all__ = [
-    "RowsFactor", "RowsTwistedFactor", "RowsCyclicFactor", "rows_factor", "rows_solve", "rows_twisted_factor",
-    "rows_twisted_solve", "frame_halves", "twisted_halves_on_devices", "rows_cyclic_factor", "rows_cyclic_solve", "scale_rows",
+    "RowsFactor", "RowsCyclicFactor", "rows_factor", "rows_solve", "rows_cyclic_factor", "rows_cyclic_solve", "scale_rows",
 ]  # fmt: skip
 
 
@@ -149,132 +133,6 @@ def rows_solve(f: RowsFactor, b: Array) -> Array:
     B = f.F.shape[2] // 2
     _, w = _forward(f, b)
     return _backward(f, w, jnp.zeros((2 * B, n, k), b.dtype))
-
-
-# --- twisted: both ends at once, meeting on 2B frames in the middle ---------------------
-
-
-class RowsTwistedFactor(eqx.Module):
-    """`halves`: `RowsFactor`s (leading axis 2) of frames [0, m) in order and of frames
-    [m+2B, T) in reverse order, the shorter one padded in front with decoupled identity
-    frames; Y (2, 2BR, 2Bn): each half's rows that straddle into the middle frames
-    I = [m, m+2B), in the half's own frame order; L: the inverse factor of the Schur
-    complement on I; `on_devices`: the halves' work runs on two devices."""
-
-    halves: RowsFactor
-    Y: Array
-    L: Array
-    m: int = eqx.field(static=True)
-    on_devices: bool = eqx.field(static=True)
-
-
-def _reverse(C: Array) -> Array:
-    """The coupling rows in reverse frame order: group t -> T-1-t, offset j -> 2B-j."""
-    return C[::-1, ::-1]
-
-
-def _straddling(C: Array, s: int) -> Array:
-    """Y_s (2BR, 2Bn): the rows of groups s-B .. s+B-1 on frames s .. s+2B-1 (the rows the
-    elimination of frames < s leaves its fill in, in the order of the scan's M)."""
-    B, R, n = (C.shape[1] - 1) // 2, C.shape[2], C.shape[3]
-    zero = jnp.zeros((R, n), C.dtype)
-    return jnp.concatenate([
-        jnp.concatenate([C[s - B + i, k - i + 2 * B] if k <= i else zero for k in range(2 * B)], 1) for i in range(2 * B)
-    ], 0)  # fmt: skip
-
-
-def _middle(P0: Array, C: Array, m: int) -> Array:
-    """H on frames m .. m+2B-1, dense (2Bn, 2Bn)."""
-    B, n = (C.shape[1] - 1) // 2, P0.shape[1]
-    G = 2 * B
-    blocks = [[None] * G for _ in range(G)]
-    for a in range(G):
-        blocks[a][a] = P0[m + a]
-        for b in range(a + 1, G):  # groups g reading both frames m+a and m+b
-            gs = range(max(m + b - B, 0), min(m + a + B, C.shape[0] - 1) + 1)
-            Hab = sum((C[g, m + a - g + B].T @ C[g, m + b - g + B] for g in gs), jnp.zeros((n, n), P0.dtype))
-            blocks[a][b], blocks[b][a] = Hab, Hab.T
-    return jnp.block(blocks)
-
-
-def _flip(x: Array, G: int) -> Array:
-    """Reverse the order of the G frame blocks along x's leading axis."""
-    return x.reshape((G, x.shape[0] // G) + x.shape[1:])[::-1].reshape(x.shape)
-
-
-def _front_pad(x: Array, count: int, fill: Array | None = None) -> Array:
-    if count == 0:
-        return x
-    pad = jnp.zeros((count,) + x.shape[1:], x.dtype) if fill is None else jnp.broadcast_to(fill, (count,) + x.shape[1:])
-    return jnp.concatenate([pad, x], 0)
-
-
-def twisted_middle(T: int, B: int) -> int:
-    """m, the first of the 2B middle frames: the halves [0, m) and [m+2B, T) differ by at most one frame."""
-    return (T - 2 * B) // 2
-
-
-def twisted_halves_on_devices() -> bool:
-    """Whether "twisted" puts its halves on two devices: the default backend has two."""
-    return jax.local_device_count() >= 2
-
-
-def frame_halves(on_devices: bool):
-    """`f` -> f mapped over a leading axis of 2: on the first two local devices (one half
-    each, `shard_map`) or, with `on_devices` False, on one (`vmap`)."""
-    if not on_devices:
-        return jax.vmap
-    mesh = jax.sharding.Mesh(np.array(jax.local_devices()[:2]), ("halves",))
-    spec = jax.sharding.PartitionSpec("halves")
-
-    def halves(f):
-        def one(*args):  # each device's share of the leading axis is one half
-            out = f(*jax.tree.map(lambda x: x[0], args))
-            return jax.tree.map(lambda x: x[None], out)
-
-        return jax.shard_map(one, mesh=mesh, in_specs=spec, out_specs=spec, check_vma=False)
-
-    return halves
-
-
-def rows_twisted_factor(P0: Array, C: Array, on_devices: bool = False) -> RowsTwistedFactor:
-    """`rows_factor`'s elimination run from both ends at once: frames [0, m) in order and
-    [m+2B, T) in reverse, as two independent halves (on two devices with `on_devices`, see
-    `frame_halves`), then the 2B middle frames I.
-
-    A half's elimination leaves its fill on I as Y_hᵀ M_h Y_h (`_rows_scan`'s M after its
-    last frame), and no row reads both halves, so the Schur complement on I is
-    H_II - Σ_h Y_hᵀ M_h Y_h, factorised densely (2Bn). Every pivot of the halves is a pivot
-    of a block Cholesky of H in a frame order (the halves' own), so the numerics are the
-    scan's. Needs T ≥ 4B + 2 (two frames per half at least)."""
-    T, n = P0.shape[:2]
-    B = (C.shape[1] - 1) // 2
-    G = 2 * B
-    m = twisted_middle(T, B)
-    h = T - G - m  # the second half's length, m or m + 1
-    Cr = _reverse(C)
-    P2 = jnp.stack([_front_pad(P0[:m], h - m, jnp.eye(n, dtype=P0.dtype)), P0[::-1][:h]])
-    C2 = jnp.stack([_front_pad(C[: m + B], h - m), Cr[: h + B]])
-    M2, halves = frame_halves(on_devices)(_factor_with_fill)(P2, C2)
-    Y = jnp.stack([_straddling(C, m), _straddling(Cr, h)])
-    fill = jnp.einsum("hai,hab,hbj->hij", Y, M2, Y)
-    S = _middle(P0, C, m) - fill[0] - _flip(_flip(fill[1], G).T, G).T  # both axes in frame order
-    return RowsTwistedFactor(halves, Y, inverse_cholesky(S, SCAN_BASE), m, on_devices)
-
-
-def rows_twisted_solve(f: RowsTwistedFactor, b: Array) -> Array:
-    """H⁻¹ b for b (T, n, k) with a `RowsTwistedFactor`."""
-    T, n, k = b.shape
-    G = f.Y.shape[-1] // n
-    m, h = f.m, T - G - f.m
-    halves = frame_halves(f.on_devices)
-    b2 = jnp.stack([_front_pad(b[:m], h - m), b[::-1][:h]])
-    nu2, w2 = halves(_forward)(f.halves, b2)
-    rhs = jnp.einsum("hai,hak->hik", f.Y, nu2)
-    xI = b[m : m + G].reshape(G * n, k) - rhs[0] - _flip(rhs[1], G)
-    xI = (_t(f.L) @ (f.L @ xI)).reshape(G, n, k)
-    x2 = halves(_backward)(f.halves, w2, jnp.stack([xI, xI[::-1]]))
-    return jnp.concatenate([x2[0, h - m :], xI, x2[1, ::-1]], 0)
 
 
 # --- cyclic reduction on the rows: the same representation, O(log T) depth ----------------

@@ -43,7 +43,7 @@ import numpy as np
 import optimistix as optx
 from jax import Array
 
-from .._checks import check_max_steps, concrete
+from .._checks import check_max_steps
 from .._progress import report
 from .._compat import DIVERGENCE, MAX_STEPS, SUCCESSFUL, result_code
 from .._compat import result_message as optx_message
@@ -555,10 +555,8 @@ def solve(
             take seconds to minutes; off inside `solve_batch`.
         tridiagonal: how the frame band is factorised: "rows" (sequential, the fill kept
             in the coupling terms' rows, fewest flops where they have fewer rows per frame
-            than coupled unknowns and there are no windows; "scan" otherwise), "twisted"
-            ("rows" from both ends at once, a half on each of two devices when there are
-            two: pays only with the frame axis of params0 and data sharded over them,
-            see `shard_frames`), "scan" (sequential block Cholesky of the band) or
+            than coupled unknowns and there are no windows; "scan" otherwise), "scan"
+            (sequential block Cholesky of the band) or
             "cyclic" (cyclic reduction, ⌈log₂ T⌉ parallel levels); default: "rows" on
             the CPU, "cyclic" on accelerators. Speed only: all are exact.
     Returns:
@@ -586,29 +584,6 @@ def solve(
         progress=bool(progress) and method == "lm" and solver is None,
         tridiagonal=check_tridiagonal(tridiagonal),
     )  # fmt: skip
-
-
-def shard_frames(tree: Any, num_frames: int) -> Any:
-    """`tree` with the frame axis of its (num_frames, ...) leaves split over the first two
-    local devices and every other leaf copied to both: the inputs with which
-    `solve(..., tridiagonal="twisted")` runs each half of a sequence on its own device."""
-    devices = jax.local_devices()[:2]
-    if len(devices) < 2:
-        raise ValueError(f"shard_frames needs two devices or more, got {len(devices)}; on a CPU start "
-                         'with XLA_FLAGS=--xla_force_host_platform_device_count=2 (or '
-                         'jax.config.update("jax_num_cpu_devices", 2) before any computation).')  # fmt: skip
-    if num_frames % len(devices):
-        raise ValueError(f"{num_frames} frames do not split evenly over {len(devices)} devices; pad the "
-                         "sequence (with a frame_mask) to a multiple of the device count.")  # fmt: skip
-    mesh = jax.sharding.Mesh(np.array(devices), ("frames",))
-    P = jax.sharding.PartitionSpec
-
-    def put(x):
-        x = jnp.asarray(x)
-        split = x.ndim >= 1 and x.shape[0] == num_frames
-        return jax.device_put(x, jax.sharding.NamedSharding(mesh, P("frames") if split else P()))
-
-    return jtu.tree_map(put, tree)
 
 
 def measure_bandwidths(problem: Problem, params0: dict, data: Any = None, frame_mask=None, frame=None) -> dict[str, int]:

@@ -57,11 +57,9 @@ from jax import Array
 
 from ..timeseries import shift_frames
 
-from .rows import RowsCyclicFactor, RowsFactor, RowsTwistedFactor, rows_cyclic_factor, rows_cyclic_solve, rows_factor, rows_solve
-from .rows import rows_twisted_factor, rows_twisted_solve, scale_rows, twisted_halves_on_devices
+from .rows import RowsCyclicFactor, RowsFactor, rows_cyclic_factor, rows_cyclic_solve, rows_factor, rows_solve, scale_rows
 from .tridiagonal import (
     CyclicFactor,
-    TWISTED_METHODS,
     ScanFactor,
     default_tridiagonal_method,
     inverse_cholesky,
@@ -372,11 +370,11 @@ def _pin(normal: Normal, st: Structure, frame_mask: Array | None) -> Normal:
 
 def uses_rows(st: Structure, rows: int, tridiagonal: str | None) -> bool:
     """Whether the frame band is factorised in its coupling rows' space (`rows.py`):
-    "rows" (the CPU's default), "twisted" or "cyclic" (accelerators') asked for, a band to
+    "rows" (the CPU's default) or "cyclic" (accelerators') asked for, a band to
     factorise, no windows (their super-blocks need the band's), and fewer coupling rows
     per frame than coupled unknowns (otherwise the band is the smaller representation)."""
     method = tridiagonal or default_tridiagonal_method()
-    return method in ("rows", "cyclic") + TWISTED_METHODS and st.B2 > 0 and st.nc > 0 and not st.W and 0 < rows < st.nc
+    return method in ("rows", "cyclic") and st.B2 > 0 and st.nc > 0 and not st.W and 0 < rows < st.nc
 
 
 def _coupling_rows(JF: list[Array], bw, st: Structure) -> Array:
@@ -613,7 +611,7 @@ class Factor(eqx.Module):
     sG: Array | None
     L_local_inv: Array | None  # (T, n_l, n_l) inverse Cholesky factors of H_ll
     X: Array | None  # (T, n_l, nc + K m + g): L_ll⁻¹ [H_lc | H_lW | H_lG]
-    tri: ScanFactor | CyclicFactor | RowsFactor | RowsTwistedFactor | RowsCyclicFactor | None  # the coupled frames (+ windows)
+    tri: ScanFactor | CyclicFactor | RowsFactor | RowsCyclicFactor | None  # the coupled frames (+ windows)
     Y: Array | None  # (Kb, N, g) or, with rows, (T, nc, g): A⁻¹ C
     S_inv: Array | None  # (g, g) inverse Cholesky factor of the border's Schur complement
     st: Structure = eqx.field(static=True)
@@ -651,7 +649,7 @@ def _pad_to(x: Array, length: int, fill_eye: bool = False) -> Array:
 
 
 #: The factorisations in the coupling rows' space: frames as they are, no super-blocks.
-_ROWS_FACTORS = (RowsFactor, RowsTwistedFactor, RowsCyclicFactor)
+_ROWS_FACTORS = (RowsFactor, RowsCyclicFactor)
 
 
 def _to_blocks(xF: Array | None, xW: Array | None, st: Structure, tri=None) -> Array:
@@ -746,10 +744,10 @@ def factor(
 ) -> Factor:
     """Factorise H + λI (or H + λ diag(H), eq. 2.54) in its structure (module docstring).
 
-    tridiagonal: "scan", "cyclic", "rows", "twisted" or None (the backend's default), see
-    `tridiagonal.py`; a `normal` with coupling rows (`normal_equations` with "rows",
-    "twisted" or "cyclic") is factorised by `rows.py`, in frame order, from both ends
-    ("twisted") or by cyclic reduction ("cyclic"); "rows" and "twisted" without them by "scan".
+    tridiagonal: "scan", "cyclic", "rows" or None (the backend's default), see
+    `tridiagonal.py`; a `normal` with coupling rows (`normal_equations` with "rows" or
+    "cyclic") is factorised by `rows.py`, in frame order ("rows") or by cyclic reduction
+    ("cyclic"); "rows" without them by "scan".
     """
     T, n, nc, K, m, g = st.T, st.n, st.nc, st.K, st.m, st.g
     FF = list(normal.FF)
@@ -808,8 +806,6 @@ def factor(
         method, C = tridiagonal or default_tridiagonal_method(), scale_rows(normal.C, sF[:, :nc])
         if method == "cyclic":
             tri = rows_cyclic_factor(FF[0], C)
-        elif method in TWISTED_METHODS and T >= 2 * C.shape[1]:  # two frames per half at least
-            tri = rows_twisted_factor(FF[0], C, method == "twisted" and twisted_halves_on_devices())
         else:
             tri = rows_factor(FF[0], C)
     elif Kb:
@@ -830,8 +826,6 @@ def _coupled_solve(tri, b: Array) -> Array:
         return rows_solve(tri, b)
     if isinstance(tri, RowsCyclicFactor):
         return rows_cyclic_solve(tri, b)
-    if isinstance(tri, RowsTwistedFactor):
-        return rows_twisted_solve(tri, b)
     return tridiagonal_solve(tri, b)
 
 

@@ -11,9 +11,6 @@ unused). Two factorisations with one interface (`tridiagonal_factor`, `tridiagon
   coupling terms' row space (`rows.py`), used by `structured.py` where the coupling terms
   have fewer rows per frame than coupled unknowns and there are no windows; a band given
   to `tridiagonal_factor` with "rows" is factorised by "scan".
-- **"twisted"**: "rows" from both ends at once, the two halves on two devices when the
-  process has them (`rows.py`; `XLA_FLAGS=--xla_force_host_platform_device_count=2` or
-  `jax.config.update("jax_num_cpu_devices", 2)` gives a CPU two); otherwise "rows".
 - **"cyclic"**: block cyclic reduction (with coupling rows as for "rows", `rows.py`'s
   version, which keeps the off-diagonal blocks in the rows' space). The odd blocks are
   eliminated at once, leaving a block-tridiagonal Schur complement on the even blocks
@@ -43,10 +40,7 @@ from jax import Array
 
 __all__ = ["TRIDIAGONAL_METHODS", "tridiagonal_factor", "tridiagonal_solve", "default_tridiagonal_method", "inverse_cholesky"]
 
-TRIDIAGONAL_METHODS = ("rows", "twisted", "scan", "cyclic")
-#: "twisted" with both halves on one device (batched): what `solve_batch` runs for it.
-TWISTED_ONE_DEVICE = "twisted_one_device"
-TWISTED_METHODS = ("twisted", TWISTED_ONE_DEVICE)
+TRIDIAGONAL_METHODS = ("rows", "scan", "cyclic")
 
 #: `inverse_cholesky`'s base size in the scan, where each step factorises one block and
 #: every extra operation costs its dispatch: the whole scan factorisation of SIP's 500
@@ -200,12 +194,12 @@ def _interleave(even: Array, odd: Array) -> Array:
 def tridiagonal_factor(D: Array, U: Array, method: str | None = None) -> ScanFactor | CyclicFactor:
     """Factorise the SPD block-tridiagonal A (D (K, N, N), U (K, N, N), U[-1] ignored).
 
-    method: "scan", "cyclic", "rows" or "twisted" (here "scan") or None (`default_tridiagonal_method`).
+    method: "scan", "cyclic", "rows" (here "scan") or None (`default_tridiagonal_method`).
     """
     method = method or default_tridiagonal_method()
-    if method not in TRIDIAGONAL_METHODS + TWISTED_METHODS:
+    if method not in TRIDIAGONAL_METHODS:
         raise ValueError(f"tridiagonal method {method!r}: use one of {TRIDIAGONAL_METHODS}.")
-    if method in ("scan", "rows") + TWISTED_METHODS:
+    if method in ("scan", "rows"):
         return _scan_factor(D, U)
     return _cyclic_factor(D, U.at[-1].set(0.0))
 
