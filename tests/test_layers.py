@@ -96,7 +96,7 @@ def _module_graph() -> dict[str, set[str]]:
     files = {p: "jaxmocap." + ".".join(p.relative_to(PACKAGE).with_suffix("").parts) for p in PACKAGE.rglob("*.py")}
     modules = {m for p, m in files.items() if p.name != "__init__.py"}
     graph: dict[str, set[str]] = {m: set() for m in modules}
-    for path, name in files.items():
+    for path in files:
         if path.name == "__init__.py":
             continue
         for module, target, _ in _imports(path):
