@@ -16,7 +16,8 @@ import pytest
 
 from jaxmocap.motion.corpus import Clip
 from jaxmocap.motion.splits import (
-    DEVELOPMENT, EVALUATION, LEAVE_SUBJECT_OUT, LOCKED, SUBJECTS, Split, check_record, fold_training, subject_clips,
+    DEVELOPMENT, EVALUATION, LEAVE_SUBJECT_OUT, LOCKED, SUBJECTS, Split, check_record, fold_training, fold_tuning,
+    subject_clips,
 )  # fmt: skip
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -178,3 +179,15 @@ def test_provenance_entries():
         if path.suffix == ".json" and entry["split"] is not None:
             recorded = json.loads(path.read_text()).get("split")
             assert recorded == entry["split"], f"{rel}: its split differs from its provenance entry's"
+
+
+def test_tuning_inside_the_folds_never_reads_the_locked_subject():
+    s = Split("dip", tuning=LEAVE_SUBJECT_OUT, training=LEAVE_SUBJECT_OUT)
+    assert s.record()["tuning"] == LEAVE_SUBJECT_OUT
+    for subject in SUBJECTS:
+        assert subject not in s.tuning_for(subject) and not set(LOCKED) & set(s.tuning_for(subject))
+    assert fold_tuning("05") == ("02", "06", "131")
+    with pytest.raises(ValueError, match="per fold"):
+        s.clips("tuning", _clips())
+    with pytest.raises(ValueError, match="tuning must be"):
+        check_record({"name": "a", "tuning": "everyone", "training": [], "evaluation": ["05"]})
