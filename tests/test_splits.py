@@ -191,3 +191,44 @@ def test_tuning_inside_the_folds_never_reads_the_locked_subject():
         s.clips("tuning", _clips())
     with pytest.raises(ValueError, match="tuning must be"):
         check_record({"name": "a", "tuning": "everyone", "training": [], "evaluation": ["05"]})
+
+
+# --- the helpers that write results -----------------------------------------------------
+
+
+def _provenance_module():
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("_provenance", ROOT / "experiments" / "_provenance.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_results_are_written_with_their_split_and_provenance(tmp_path):
+    prov = _provenance_module()
+    folder = tmp_path / "results" / "sub"
+    split = Split("unit", tuning=DEVELOPMENT, training=LEAVE_SUBJECT_OUT)
+    path = prov.write_json(folder / "table.json", {"x": 1.0}, split=split, data={"clips": ["005_01.bvh"]}, argv=["--n", "2"])
+    prov.write_text(tmp_path / "results" / "table.md", "# t\n", split=split, data={"clips": []})
+    assert json.loads(path.read_text()) == {"x": 1.0, "split": split.record()}
+    files = json.loads((tmp_path / "results" / "provenance.json").read_text())["files"]
+    entry = files[str(path.resolve())]
+    assert entry["split"] == split.record() and entry["data"] == {"clips": ["005_01.bvh"]}
+    assert entry["command"].endswith("--n 2") and entry["command"].startswith("python ")
+    assert len(entry["commit"].split("+")[0]) in (40, len("unknown")) and entry["date"].endswith("+00:00")
+    assert str((tmp_path / "results" / "table.md").resolve()) in files
+    with pytest.raises(ValueError, match="both tuned and evaluated"):
+        prov.write_json(folder / "leaky.json", {}, split={"name": "l", "tuning": ["05"], "training": [], "evaluation": ["05"]},
+                        data={})  # fmt: skip
+    assert not (folder / "leaky.json").exists()
+
+
+def test_a_sweeps_best_is_scored_on_sequences_that_did_not_choose_it():
+    from jaxmocap.app.sweep_report import held_out_best
+
+    # "a" wins on the even sequences by luck, "b" on the odd ones: neither is scored where it won.
+    by_var = {"a": {0: 1.0, 1: 3.0, 2: 1.0, 3: 3.0}, "b": {0: 2.0, 1: 2.0, 2: 2.0, 3: 2.0}}
+    h = held_out_best(by_var)
+    assert h["chosen"] == ["a", "b"] and h["n"] == 4 and h["mean"] == pytest.approx(2.5)
+    assert held_out_best({"a": {0: 1.0}}) is None
