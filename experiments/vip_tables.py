@@ -214,7 +214,8 @@ def markdown(res: dict) -> str:
                   "with the same arguments resumes from the per-clip files.", ""]
     for m, r in res["rows"].items():
         L.append(f"| {m} | {r['mpjpe_mm']:.1f} | {r['mpjae_deg']:.1f} | {r['thesis_mpjpe_mm']:.1f} |")
-    L += ["", f"VIP vs IT, MPJPE: {res['vip_vs_it_relative_change_percent']['mpjpe']:+.1f} % (thesis −53 %). "
+    L += ["", f"VIP vs IT, MPJPE: {res['vip_vs_it_relative_change_percent']['mpjpe']:+.1f} % "
+          f"(thesis {100 * (THESIS_MPJPE['VIP'] / THESIS_MPJPE['IT'] - 1):+.0f} %). "
           f"Mean heading error after VIP: {res['heading_error_deg']:.2f}°. Orderings: {res['orderings_hold']}.",
           f"Association (the wearer among 0-3 bystanders): precision {100 * res['association']['precision']:.1f} %, "
           f"recall {100 * res['association']['recall']:.1f} % (association model {c.get('association_model', '?')}).",
