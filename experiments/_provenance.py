@@ -156,7 +156,9 @@ def record(path, *, split, data, argv=None, extra: dict | None = None, provenanc
              "machine": machine(), **(extra or {})}  # fmt: skip
     prov = Path(provenance) if provenance is not None else _provenance_file(path)
     prov.parent.mkdir(parents=True, exist_ok=True)
-    with open(prov.with_suffix(".lock"), "w") as lock:
+    # The lock lives outside the repository (nothing to commit or ignore), one per provenance file.
+    lock_path = Path(tempfile.gettempdir()) / f"jaxmocap-provenance-{abs(hash(str(prov.resolve()))):x}.lock"
+    with open(lock_path, "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)  # several experiments may finish at once
         try:
             table = json.loads(prov.read_text()) if prov.exists() else {}

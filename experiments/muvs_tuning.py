@@ -38,7 +38,8 @@ TUNING = ("02_04.amc", "02_07.amc", "131_01.bvh")  # jump, swordplay, walk
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--frames", type=int, default=40)
-    ap.add_argument("--priors", type=float, nargs="+", default=[20.0, 5.0, 1.0])
+    ap.add_argument("--priors", type=float, nargs="+", default=[20.0, 5.0, 1.0, 0.3],
+                    help="pose-prior weights λ_θ tried (1.0 won on the development clips: 0.3 checks below it)")
     ap.add_argument("--out", type=Path, default=Path("out/muvs_tuning"))
     args = ap.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
