@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import datetime
 import fcntl
+import hashlib
 import json
 import os
 import platform
@@ -157,7 +158,8 @@ def record(path, *, split, data, argv=None, extra: dict | None = None, provenanc
     prov = Path(provenance) if provenance is not None else _provenance_file(path)
     prov.parent.mkdir(parents=True, exist_ok=True)
     # The lock lives outside the repository (nothing to commit or ignore), one per provenance file.
-    lock_path = Path(tempfile.gettempdir()) / f"jaxmocap-provenance-{abs(hash(str(prov.resolve()))):x}.lock"
+    digest = hashlib.sha1(str(prov.resolve()).encode()).hexdigest()[:16]  # hash() differs between processes
+    lock_path = Path(tempfile.gettempdir()) / f"jaxmocap-provenance-{digest}.lock"
     with open(lock_path, "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)  # several experiments may finish at once
         try:
