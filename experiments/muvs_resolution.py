@@ -8,7 +8,8 @@ weights were chosen on the development subjects 02 and 131, `jaxmocap.motion.spl
 filmed by the same 4 ring cameras with the same field of view,
 at 256 x 192 px and at `--scale` times that, the detector noise scaled alike (muvs_tables'
 detector, 3 px at 256 x 192): only the pixel units differ. Joints only (stage 1 with the
-annealed prior, then stage 2), `MuVSWeights()` with its reference focal length (weights
+annealed prior, then stage 2), the development-tuned weights (`muvs_tables.tuned_weights`;
+`MuVSWeights()` until 2026-11-28) with its reference focal length (weights
 converted to each recording's pixels) and with `reference_focal=None` (raw pixels).
 MPJPE over SMPL's 24 joints in mm, no alignment.
 """
@@ -24,7 +25,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from _provenance import subjects_of, write_json  # noqa: E402
-from muvs_tables import DETECTOR, SPLIT, build, joints_of, pick_clips  # noqa: E402
+from muvs_tables import DETECTOR, SPLIT, build, joints_of, pick_clips, tuned_weights  # noqa: E402
 
 from jaxmocap.body import default_body  # noqa: E402
 from jaxmocap.methods import multiview as mv  # noqa: E402
@@ -61,12 +62,13 @@ def main(argv=None) -> int:
         raise SystemExit("fewer than 3 evaluation clips in ../shared/data/cmu_cc (set JAXMOCAP_CMU_CC).")
     body = default_body("low")
     rows = {}
-    for key, scale, w in (("low_resolution", 1, mv.MuVSWeights()), ("high_resolution", args.scale, mv.MuVSWeights()),
-                          ("high_resolution_raw_pixels", args.scale, mv.MuVSWeights(reference_focal=None))):  # fmt: skip
+    tuned, tuned_from = tuned_weights()
+    for key, scale, w in (("low_resolution", 1, tuned), ("high_resolution", args.scale, tuned),
+                          ("high_resolution_raw_pixels", args.scale, tuned.replace(reference_focal=None))):  # fmt: skip
         rows[key] = fit(body, clips, args.frames, scale, w)
         print(f"{key:28s} MPJPE stage 1 {rows[key]['stage1']:.1f}  stage 2 {rows[key]['stage2']:.1f} mm", flush=True)
     result = {"clips": [c.name for c in clips], "frames": args.frames, "scale": args.scale, "image_low": [256, 192],
-              "reference_focal": mv.REFERENCE_FOCAL, "mpjpe_mm": rows}  # fmt: skip
+              "reference_focal": mv.REFERENCE_FOCAL, "weights_tuned": tuned_from, "mpjpe_mm": rows}  # fmt: skip
     write_json(args.out / "muvs_resolution.json", result, split=SPLIT, argv=argv,
                data={"clips": result["clips"], "subjects": subjects_of(result["clips"]), "frames": args.frames})
     return 0

@@ -75,6 +75,23 @@ CAMERAS = CameraConfig(num_views=4, width=256, height=192)
 SPLIT = Split("muvs_tables", tuning=DEVELOPMENT, training="leave-subject-out")
 
 
+TUNING_FILE = Path(__file__).resolve().parent / "results" / "muvs_tuning.json"
+SILHOUETTE_VARIANTS = {"default": {}, "slack_4px": {"silhouette_slack": 4.0},
+                       "weight_0.03": {"silhouette_model": 0.03, "silhouette_mask": 0.03}}  # as muvs_tuning.py
+
+
+def tuned_weights(path: Path = TUNING_FILE) -> tuple[mv.MuVSWeights, dict]:
+    """`MuVSWeights` with the pose prior and silhouette variant `muvs_tuning.py` chose on the
+    development subjects (its result file), and what was taken from where. The library's
+    default λ_θ (20) was chosen on the subjects these tables evaluate; the development
+    subjects' choice differs (experiments/results/muvs_tuning.json)."""
+    tuned = json.loads(Path(path).read_text())
+    if tuned.get("split", {}).get("tuning") != list(DEVELOPMENT):
+        raise SystemExit(f"{path} was not tuned on the development subjects {DEVELOPMENT}: run experiments/muvs_tuning.py.")
+    change = {"pose_prior": float(tuned["best_pose_prior"]), **SILHOUETTE_VARIANTS[tuned.get("best_silhouettes", "default")]}
+    return mv.MuVSWeights(**change), {"from": str(Path(path).name), "changed": change, "clips": tuned["clips"]}
+
+
 def pick_clips(n: int, frames: int) -> list[Path]:
     """The first `n` cmu_cc clips of the split's evaluated subjects with at least `frames`
     frames at 30 fps, subjects interleaved."""
@@ -188,7 +205,8 @@ def main(argv=None):
     leg_kp = [i for i, n in enumerate(names) if any(p in n for p in ("hip", "knee", "ankle", "toe", "heel"))]
     true_joints = np.stack([joints_of(body, t["poses"], t["betas"][:10], t["trans"]) for t in truth])
     visible = [visible_in_image(t["kp_true"], names, 2 * DETECTOR.pixel_noise) for t in truth]  # (T, V) per clip
-    w = mv.MuVSWeights().replace(**dict(_override(x) for x in args.weights))
+    tuned, tuned_from = tuned_weights()
+    w = tuned.replace(**dict(_override(x) for x in args.weights))
     tables, shapes, swaps, sim = {}, {}, {}, {}
 
     def publish():
@@ -201,7 +219,7 @@ def main(argv=None):
         result = {
             "clips": [t["name"] for t in truth], "frames": args.frames, "seed": args.seed,
             "detector": DETECTOR.__dict__, "cameras": dataclasses.asdict(CAMERAS), "resolve_swaps": not args.keep_swaps,
-            "weights": {k: v for k, v in w.__dict__.items()},
+            "weights": {k: v for k, v in w.__dict__.items()}, "weights_tuned": tuned_from,
             "mpjpe_mm": tables, "mpjpe_sim_mm": sim, "shape_error_mm": shapes,
             "swap_repair_rate": rate(swaps), "swap_repair_rate_multiview": rate(multi),
             "swap_repair_rate_by_views": {k: rate([k]) for k in swaps},

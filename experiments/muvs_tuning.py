@@ -12,8 +12,9 @@ correct side, and the shape error (mm, zero-pose vertices).
     python experiments/muvs_tuning.py --out experiments/results   # publish (~15 min on 2 CPU cores)
 
 Until 2026-11-28 the tuning clips were 005_03, 006_04 and 007_02: subjects the MuVS table
-evaluates (issue 52). `MuVSWeights`' defaults are this script's choice: `best_pose_prior`
-and the best silhouette variant (`best_silhouettes`).
+evaluates (issue 52). `muvs_tables.py` and `muvs_resolution.py` fit with this script's
+choice (`muvs_tables.tuned_weights`: `best_pose_prior` and the best silhouette variant
+`best_silhouettes`); `defaults_agree` says whether `MuVSWeights()` holds it.
 """
 
 from __future__ import annotations
@@ -86,7 +87,7 @@ def main(argv=None):
     result["defaults_agree"] = {
         "pose_prior": default.pose_prior == best,
         "silhouettes": result["best_silhouettes"] == "default",
-        "note": "MuVSWeights() holds the choice of the tuning run; false: the defaults differ from this run's choice",
+        "note": "whether MuVSWeights() holds this run's choice; the tables take the choice from this file either way",
     }
     print("best pose prior", best, "best silhouettes", result["best_silhouettes"], result["defaults_agree"], flush=True)
     write_json(args.out / "muvs_tuning.json", result, split=SPLIT, argv=argv, indent=2,
