@@ -341,8 +341,8 @@ def markdown(r: dict) -> str:
     held = "development" if c.get("development_scenes") else "held-out"
     subjects = ", ".join(subjects_of(cl for s in r["per_scene"] for cl in s["clips"]))
     L = ["# VIP association on crowded synthetic scenes (von Marcard §4.3.2)", "",
-         f"`{c['command']}`: {c['scenes']} scenes × ≤ {c['frames']} frames ({n['frames']} frames), 4 people each "
-         f"(persons 0, 1 wear IMUs; 2 bystanders), {held} CMU subjects {subjects}; {n['detections']} detections "
+         f"`{c['command']}`: {c['scenes']} scenes × ≤ {c['frames']} frames ({n['frames']} frames), {1 + c['bystanders']} people each "
+         f"(persons {', '.join(map(str, c['wearers']))} wear IMUs; {1 + c['bystanders'] - len(c['wearers'])} bystanders), {held} CMU subjects {subjects}; {n['detections']} detections "
          f"({n['false_detections']} false), {n['wearer_detections']} of them the wearers'. Hypotheses: "
          f"{c['hypotheses']}; weights trained on CMU subjects 2, 131 and the procedural library.", "",
          "| | precision | recall |", "| --- | --- | --- |",
