@@ -32,10 +32,8 @@ PREDATE_SPLITS = {
     "har.json": "experiments/har.py, edited by another change this wave",
     "intercap_scene06/metrics.json": "one scene's metrics of intercap_tables.py (GPU)",
     "learn_weights_gradcheck.json": "gradient check on one training clip; learn_weights.py --gradcheck-only",
-    "multiview_layout_margins.json": "a simulated walk of the procedural library (no CMU subject); not yet re-run",
     "muvs_tables.json": "MuVS weights tuned on subjects 05-07 before 2026-11-28; muvs_tables.py on the GPU",
     "muvs_tables_as_written.json": "as muvs_tables.json; muvs_tables.py --keep-swaps on the GPU",
-    "physics_cleanup.json": "procedural motions; not yet re-run",
     "sip_ablation/summary.json": "the sweep's summary (jaxmocap sweep experiments/sweeps/sip_ablation.toml, GPU)",
     "sip_body_scale.json": "experiments/sip_body_scale.py, edited by another change this wave",
     "sip_tables.json": "nested tuning let the locked subject 07 tune; sip_tables.py on the GPU",
@@ -46,9 +44,8 @@ PREDATE_SPLITS = {
     "dip_init.json": "dip_init.py on the GPU",
     "prior_forms.json": "prior_forms.py (GPU, or > 15 min on 2 CPU cores)",
     "intercap_tables.json": "intercap_tables.py on the GPU",
-    "sop_start.json": "sop_start.py on the GPU",
-    "muvs_resolution.json": "muvs_resolution.py (CPU, ~10 min)",
-    "learn_weights.json": "trained and tested on subject 02 before 2026-11-28; learn_weights.py (CPU, ~10 min)",
+    "sop_start.json": "sop_start.py --clips 9 (CPU, ~10 min unloaded; not re-run: this machine was overloaded)",
+    "learn_weights.json": "trained and tested on subject 02 before 2026-11-28; learn_weights.py (CPU, > 40 min when loaded)",
 }
 
 
