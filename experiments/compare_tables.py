@@ -8,6 +8,12 @@ its relative change and the largest one (key `max_rel_change`).
 
 from __future__ import annotations
 
+import sys as _sys
+from pathlib import Path as _Path
+
+_sys.path.insert(0, str(_Path(__file__).resolve().parent))
+import _provenance  # noqa: E402,F401  (its commit is taken now, at the start of the run)
+
 import argparse
 import json
 from pathlib import Path

@@ -34,6 +34,12 @@ interrupted resumes where it stopped.
 
 from __future__ import annotations
 
+import sys as _sys
+from pathlib import Path as _Path
+
+_sys.path.insert(0, str(_Path(__file__).resolve().parent))
+import _provenance  # noqa: E402,F401  (its commit is taken now, at the start of the run)
+
 import argparse
 import os
 import pickle

@@ -16,6 +16,12 @@ itself (low and slow heels/toes). Reported: penetration, skating, MPJPE before/a
 
 from __future__ import annotations
 
+import sys as _sys
+from pathlib import Path as _Path
+
+_sys.path.insert(0, str(_Path(__file__).resolve().parent))
+import _provenance  # noqa: E402,F401  (its commit is taken now, at the start of the run)
+
 import argparse
 from pathlib import Path
 
