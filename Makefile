@@ -4,7 +4,7 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed-stamp
 
-.PHONY: setup demo test bench bench-gpu lint clean
+.PHONY: setup demo test bench bench-gpu lint tables tables-list clean
 
 # A virtual environment with pinned, tested versions (constraints.txt) from PyPI only.
 $(STAMP): pyproject.toml constraints.txt
@@ -38,6 +38,15 @@ GPU_BENCHES := body_forward skinning_variants sip_speed solver_border physics_ch
 bench-gpu: setup
 	@$(PY) -c "import jax, sys; b = jax.default_backend(); sys.exit(0 if b == 'gpu' else f'make bench-gpu: JAX sees no GPU (backend {b!r}); install a CUDA jaxlib, e.g. pip install \"jax[cuda12]\"')"
 	for b in $(GPU_BENCHES); do $(PY) benchmarks/$$b.py --suffix gpu || exit 1; done
+
+# Every committed table under experiments/results/ from the current code: the CPU ones run
+# here (each records its commit, command, split and data in experiments/results/
+# provenance.json); the GPU ones are listed with their commands (`make tables-list`).
+tables: setup
+	$(PY) experiments/make_tables.py
+
+tables-list: setup
+	$(PY) experiments/make_tables.py --list
 
 clean:
 	rm -rf $(VENV) out .pytest_cache

@@ -8,10 +8,14 @@ its relative change and the largest one (key `max_rel_change`).
 
 from __future__ import annotations
 
+import sys as _sys
+from pathlib import Path as _Path
+
+_sys.path.insert(0, str(_Path(__file__).resolve().parent))
+import _provenance  # noqa: E402,F401  (its commit is taken now, at the start of the run)
+
 import argparse
 import json
-import os
-import tempfile
 from pathlib import Path
 
 
@@ -31,6 +35,12 @@ def compare(old: dict, new: dict) -> dict:
     return {"compared": len(rows), "max_rel_change": abs(rows[worst]["rel_change"]), "worst": worst, "rows": rows}
 
 
+def _split_of(result: dict):
+    """The result's split record, or None where it predates the splits."""
+    split = result.get("split")
+    return split if isinstance(split, dict) and "evaluation" in split else None
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("old")
@@ -42,10 +52,14 @@ def main(argv=None) -> int:
         print(f"{k:55s} {r['old']:9.3f} {r['new']:9.3f} {100 * r['rel_change']:+7.3f} %")
     print(f"{out['compared']} numbers; largest relative change {100 * out['max_rel_change']:.3f} % ({out['worst']})")
     if args.out:
-        fd, tmp = tempfile.mkstemp(dir=Path(args.out).parent, suffix=".tmp")
-        with os.fdopen(fd, "w") as f:
-            json.dump(out, f, indent=2)
-        os.replace(tmp, args.out)
+        import sys
+
+        sys.path.insert(0, str(Path(__file__).resolve().parent))
+        from _provenance import write_json
+
+        # The comparison inherits the newer run's split (none for a run that predates the splits).
+        write_json(args.out, out, split=_split_of(json.loads(Path(args.new).read_text())), argv=argv, indent=2,
+                   data={"compared": [args.old, args.new]})
     return 0
 
 

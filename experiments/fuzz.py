@@ -19,6 +19,12 @@ failed, if any).
 
 from __future__ import annotations
 
+import sys as _sys
+from pathlib import Path as _Path
+
+_sys.path.insert(0, str(_Path(__file__).resolve().parent))
+import _provenance  # noqa: E402,F401  (its commit is taken now, at the start of the run)
+
 import argparse
 import json
 import re
@@ -32,6 +38,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))  # the seeds live with the property tests
+sys.path.insert(0, str(ROOT / "experiments"))
 
 import test_fuzz_readers as F  # noqa: E402
 
@@ -271,8 +278,13 @@ def main() -> None:
                 "unexpected_exceptions": sum(v["unexpected_exceptions"] for v in done.values()),
                 "hangs": sum(v["hangs"] for v in done.values()),
             })  # fmt: skip
-            args.out.parent.mkdir(parents=True, exist_ok=True)
-            args.out.write_text(json.dumps(report, indent=1) + "\n")
+            from _provenance import write_json
+
+            from jaxmocap.motion.splits import Split
+
+            # Reads no motion: spoiled seed files only.
+            write_json(args.out, {k: v for k, v in report.items() if k != "split"}, data={"readers": names},
+                       split=Split("fuzz", tuning=(), training=(), evaluation=()))
 
 
 if __name__ == "__main__":

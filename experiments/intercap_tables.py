@@ -1,6 +1,8 @@
 """InterCap tables (Huang §5.4) on synthetic multi-view RGB-D interaction scenes.
 
-Scenes: CMU clips (`jaxmocap.motion.corpus()`, subjects interleaved) on the default body
+Scenes: clips of the evaluated subjects 05, 06, 07 (`jaxmocap.motion.splits`; the human
+fit's MuVS weights were chosen on the development subjects 02, 131; before 2026-11-28 the
+scenes interleaved all five subjects), subjects interleaved, on the default body
 with random shape; the person carries an object (box, bottle, chair in turn) by the
 fingers of the right hand over the middle half of the frames (`sensors.objects.
 contact_trajectory`: it rests before and after); 4 static RGB-D views (256 x 192 px,
@@ -32,8 +34,13 @@ interrupted resumes where it stopped.
 
 from __future__ import annotations
 
+import sys as _sys
+from pathlib import Path as _Path
+
+_sys.path.insert(0, str(_Path(__file__).resolve().parent))
+import _provenance  # noqa: E402,F401  (its commit is taken now, at the start of the run)
+
 import argparse
-import json
 import os
 import pickle
 import platform
@@ -57,6 +64,7 @@ from jaxmocap.methods.interaction import (
 )
 from jaxmocap.metrics import interaction_metrics, object_pose_errors
 from jaxmocap.motion.corpus import corpus, interleave
+from jaxmocap.motion.splits import DEVELOPMENT, LEAVE_SUBJECT_OUT, Split
 from jaxmocap.priors.build import evaluation_prior
 from jaxmocap.sensors.scenario import interaction_config, make_scenario
 
@@ -76,9 +84,13 @@ KEYS = ("penetration_le_5mm", "penetration_le_7mm", "penetration_le_20mm", "pene
         "rotation_raw_deg", "body_ground_mm", "object_ground_mm")  # fmt: skip
 
 
+#: Weights set on the procedural library and (MuVS) the development subjects; priors leave-subject-out.
+SPLIT = Split("intercap_tables", tuning=DEVELOPMENT, training=LEAVE_SUBJECT_OUT)
+
+
 def pick_clips(n: int) -> list:
-    """`n` corpus clips, subjects interleaved."""
-    return interleave(corpus(), n)
+    """`n` clips of the evaluated subjects, subjects interleaved."""
+    return interleave(SPLIT.clips("evaluation", corpus()), n)
 
 
 def _save(path: Path, obj) -> None:
@@ -259,12 +271,15 @@ def main(argv=None):
               "reduced": {"subset": subset, "of": args.scenes, "variants": args.variants} if reduced else None,
               **summarise(scenes), "thesis": THESIS, "per_scene": scenes,
               "machine": {"platform": platform.platform(), "device": str(jax.devices()[0]), "jax": jax.__version__}}  # fmt: skip
-    args.out.mkdir(parents=True, exist_ok=True)
-    for name, text in (("intercap_tables.json", json.dumps(result, indent=2, default=float)),
-                       ("intercap_tables.md", markdown(result))):  # fmt: skip
-        tmp = args.out / (name + ".tmp")
-        tmp.write_text(text)
-        os.replace(tmp, args.out / name)
+    import sys
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from _provenance import subjects_of, write_json, write_text
+
+    names = [clips[i].name for i in subset]
+    data = {"clips": names, "subjects": subjects_of(names), "frames": args.frames, "views": args.views, "seed": args.seed}
+    write_json(args.out / "intercap_tables.json", result, split=SPLIT, data=data, argv=argv, indent=2, default=float)
+    write_text(args.out / "intercap_tables.md", markdown(result), split=SPLIT, data=data, argv=argv)
     print(markdown(result))
 
 

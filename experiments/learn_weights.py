@@ -3,14 +3,17 @@
     python experiments/learn_weights.py [--frames 72] [--iters 15] [--lr 0.2] [--out experiments/results]
     python experiments/learn_weights.py --gradcheck-only --frames 24   # gradient vs finite differences
 
-The protocol is `experiments/sip_tables.py`'s: the 9 CMU clips of its `CLIPS` (same order,
-so the same simulated sensor noise), 72 frames at 30 fps, seed 0, default body (low), mean
-shape, 6 IMUs (sip6) with Xsens-like errors, SIP started from SOP, metrics of Table 3.3
-(MPJPE after per-frame Procrustes on the TotalCapture joints, MPJAE on hips, knees, neck,
-shoulders, elbows; `metrics.pose_errors`). `sip_tables.py` declares no train/test split,
-so this script declares one (`TRAIN`, `TEST`): the first clip of each activity in
-`CLIPS` trains, the other six test; no clip is in both, and no test clip is used to choose
-anything (weights, iterate, settings).
+Split (`jaxmocap.motion.splits`, recorded under "split"): three clips of the development
+subjects train (`TRAIN`: 02_01 walk, 02_03 run, 02_05 punch), six clips of the evaluated
+subjects 05, 06, 07 test (`TEST`: the first of `Split.clips("evaluation")` taking one subject
+in turn), and every clip is fitted with the prior built without the evaluated subjects
+(`held_out_prior(exclude=EVALUATION)`). No test subject chooses anything (weights, iterate,
+settings). Until 2026-11-28 the script trained on three subject-02 clips and tested on the
+other six cmu clips (subjects 02, 131) with the bundled prior, which holds every clip
+(issue 52). Protocol otherwise as `experiments/sip_tables.py`'s: 72 frames at 30 fps,
+seed 0, default body (low), mean shape, 6 IMUs (sip6) with Xsens-like errors, SIP started
+from SOP, metrics of Table 3.3 (MPJPE after per-frame Procrustes on the TotalCapture
+joints, MPJAE on hips, knees, neck, shoulders, elbows; `metrics.pose_errors`).
 
 Learned: θ = log(w / w_thesis) for w_acc, w_mahal (the prior weight) and w_limit; w_ori = 1
 (and w_anthro = 1) stay fixed, because the minimiser of E_motion is unchanged when every
@@ -41,7 +44,6 @@ import argparse
 import json
 import os
 import sys
-import tempfile
 import time
 from pathlib import Path
 
@@ -59,7 +61,8 @@ import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from sip_tables import CLIPS  # noqa: E402
+from _provenance import commit, subjects_of  # noqa: E402
+from _provenance import write_json as _write_json  # noqa: E402
 
 from jaxmocap import metrics  # noqa: E402
 from jaxmocap.body import default_body, forward  # noqa: E402
@@ -67,12 +70,32 @@ from jaxmocap.methods import inertial as I  # noqa: E402
 from jaxmocap.sensors import IMUErrorModel, ScenarioConfig, make_scenario  # noqa: E402
 from jaxmocap.solve import solve  # noqa: E402
 from jaxmocap.solve.batch import with_weights  # noqa: E402
-from jaxmocap.motion.io import find_cmu_dir  # noqa: E402
+from jaxmocap.motion.corpus import interleave  # noqa: E402
+from jaxmocap.motion.splits import DEVELOPMENT, EVALUATION, Split  # noqa: E402
+from jaxmocap.priors.build import held_out_prior  # noqa: E402
 
-#: Declared split: the first clip of each activity (in `sip_tables.CLIPS` order) trains.
+SPLIT = Split("learn_weights", tuning=DEVELOPMENT, training=DEVELOPMENT, evaluation=EVALUATION)
+#: Training clips (development subjects): walk, run, punch.
 TRAIN = ("02_01.amc", "02_03.amc", "02_05.amc")
+NUM_TEST = 6
+
+
+def split_clips() -> dict:
+    """name -> corpus Clip of TRAIN and of the test clips (NUM_TEST of the evaluated subjects)."""
+    dev = {c.name: c for c in SPLIT.clips("tuning")}
+    missing = [c for c in TRAIN if c not in dev]
+    if missing:
+        raise SystemExit(f"training clips missing: {missing} (../shared/data/cmu; set JAXMOCAP_CMU).")
+    test = interleave(SPLIT.clips("evaluation"), NUM_TEST)
+    if len(test) < NUM_TEST:
+        raise SystemExit("fewer than 6 clips of subjects 05, 06, 07 (../shared/data/cmu_cc; set JAXMOCAP_CMU_CC).")
+    out = {name: dev[name] for name in TRAIN} | {c.name: c for c in test}
+    assert not {c.subject for c in out.values() if c.name in TRAIN} & {c.subject for c in test}
+    return out
+
+
+CLIPS = {name: c.activity for name, c in split_clips().items()} if SPLIT.clips("evaluation") else {}
 TEST = tuple(c for c in CLIPS if c not in TRAIN)
-assert not set(TRAIN) & set(TEST) and set(TRAIN) | set(TEST) == set(CLIPS)
 
 #: Learned weights (log-ratios to the thesis's); w_ori = w_anthro = 1 fix the scale.
 LEARNED = ("acc", "mahal", "limit")
@@ -103,26 +126,22 @@ class Clip(eqx.Module):
     truth_poses: jax.Array
 
 
-def load_clips(frames: int, seed: int, names=CLIPS):
-    cmu = find_cmu_dir()
-    if cmu is None:
-        raise SystemExit("CMU clips not found (set JAXMOCAP_CMU).")
-    missing = [c for c in CLIPS if not (cmu / c).is_file()]
-    if missing:
-        raise SystemExit(f"CMU clips missing: {missing}")
+def load_clips(frames: int, seed: int, names=None):
+    paths = split_clips()
+    names = CLIPS if names is None else names
     body32 = default_body("low")
     body = default_body("low", dtype=F64)
-    # Exactly sip_tables' sc6: same clip list and order (per-clip noise streams follow the index).
+    prior = held_out_prior(exclude=SPLIT.evaluation, dtype=F64)  # never the bundled prior: it holds the test clips
     cfg = ScenarioConfig(fps=30.0, max_frames=frames, imu_set="sip6", imu_errors=IMUErrorModel.xsens(), betas_std=0.0)
     t0 = time.perf_counter()
-    sc = make_scenario([str(cmu / c) for c in CLIPS], cfg, seed=seed, body=body32)
+    sc = make_scenario([str(paths[c].path) for c in CLIPS], cfg, seed=seed, body=body32)
     print(f"scenario: {len(CLIPS)} clips x {frames} frames ({time.perf_counter() - t0:.0f} s)", flush=True)
     clips, setups = {}, {}
     for i, name in enumerate(CLIPS):
         if name not in names:
             continue
         t1 = time.perf_counter()
-        setup = I.from_scenario(sc, i, body, dtype=F64)
+        setup = I.from_scenario(sc, i, body, dtype=F64, prior=prior)
         sop, _ = I.sparse_orientation_poser(setup, "thesis")  # thesis weights, 20 LM steps per frame (as the tables)
         T = setup.num_frames
         truth = jnp.asarray(sc.sequence(i)["poses"][0], F64)
@@ -192,26 +211,10 @@ def adam(theta, grad, state, lr, b1=0.9, b2=0.999, eps=1e-8):
     return theta - step, (m, v, k)
 
 
-def _git_head() -> str:
-    """HEAD commit, with '+dirty jaxmocap/' if the engine differs from it."""
-    import subprocess
-
-    root = Path(__file__).resolve().parent.parent
-    try:
-        head = subprocess.run(["git", "rev-parse", "HEAD"], cwd=root, capture_output=True, text=True).stdout.strip()
-        dirty = subprocess.run(["git", "status", "--porcelain", "jaxmocap"], cwd=root, capture_output=True, text=True).stdout
-    except OSError:
-        return "unknown"
-    return head + (" +dirty jaxmocap/" if dirty.strip() else "")
-
-
-def write_json(path: Path, obj) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
-    with os.fdopen(fd, "w") as f:
-        f.write(json.dumps(obj, indent=1) + "\n")
-    os.chmod(tmp, 0o644)
-    os.replace(tmp, path)
+def write_json(path: Path, obj, names=None) -> None:
+    names = list(CLIPS) if names is None else list(names)
+    _write_json(path, obj, split=SPLIT, data={"clips": names, "subjects": subjects_of(names), "train": list(TRAIN),
+                                              "test": list(TEST)})  # fmt: skip
 
 
 def plot(history, thesis_test, path: Path, title: str):
@@ -279,7 +282,7 @@ def main(argv=None) -> int:
     check = gradcheck(loss, value_and_grad, jnp.asarray(theta, F64), clips[TRAIN[0]])
     check.update(clip=TRAIN[0], frames=args.frames, seconds=time.perf_counter() - t0)
     if args.gradcheck_only:
-        write_json(out / "learn_weights_gradcheck.json", check)
+        write_json(out / "learn_weights_gradcheck.json", check, names=TRAIN[:1])
         print(json.dumps(check, indent=1))
         return 0
 
@@ -335,8 +338,8 @@ def main(argv=None) -> int:
     body32 = default_body("low")
     ref = json.loads((Path(__file__).parent / "results" / "sip_tables.json").read_text()) if (
         Path(__file__).parent / "results" / "sip_tables.json").is_file() else None  # fmt: skip
-    same = ref is not None and ref["config"]["frames"] == args.frames and ref["config"]["seed"] == args.seed
-    ref_sip = {r["clip"]: r["methods"]["SIP"] for r in ref["per_sequence"]} if same else {}
+    same = ref is not None and ref.get("config", {}).get("frames") == args.frames and ref["config"].get("seed") == args.seed
+    ref_sip = {r["clip"]: r["methods"]["SIP"] for r in ref.get("per_clip", [])} if same else {}
     for label, th in (("thesis", np.zeros(len(LEARNED))), ("learned", theta_best)):
         for name in CLIPS:
             st = setups[name]
@@ -380,9 +383,9 @@ def main(argv=None) -> int:
         "learned_log_ratio": dict(zip(LEARNED, theta_best.tolist())),
         "final_iterate_weights": vars(sip_weights(np.asarray(history[-1]["theta"]))),
         "kept_iteration": best["iteration"],
-        "split": {"train": list(TRAIN), "test": list(TEST),
-                  "rule": "sip_tables.py declares no split; here the first clip of each activity (in sip_tables.CLIPS "
-                          "order) trains and the other six test. No clip is in both; test clips choose nothing."},  # fmt: skip
+        "clips": {"train": list(TRAIN), "test": list(TEST),
+                  "rule": "three development-subject clips (02) train; six clips of the evaluated subjects 05, 06, 07 "
+                          "test (interleaved by subject); no test subject chooses anything"},  # fmt: skip
         "per_clip": per_clip,
         "gradient_check": check,
         "history": history,
@@ -405,12 +408,11 @@ def main(argv=None) -> int:
             "metrics": "metrics.pose_errors: MPJPE Procrustes on totalcapture_mpjpe joints (mm), MPJAE on "
                        "totalcapture_mpjae joints (deg); pooled over frames and joints of the test clips",
             "seconds": seconds,
-            "git_head": _git_head(),
+            "git_head": commit(),
         },  # fmt: skip
         "notes": [
-            "Pose prior caveat: the shipped jaxmocap/priors/pose_prior.npz was built from every CMU clip in "
-            "../shared/data/cmu (jaxmocap/priors/README.md), i.e. it has seen the poses of the test clips as well as "
-            "the training clips; the prior's mean and covariance are not tuned here, only its weight.",
+            "Pose prior: held_out_prior(exclude=05, 06, 07), built from the development subjects' clips and the "
+            "procedural library; it has seen no test subject. Its mean and covariance are not tuned here, only its weight.",
             "Weight scale: E_motion's minimiser is invariant to a common factor on all weights, so w_ori = w_anthro = 1 "
             "are fixed and w_acc, w_mahal, w_limit learned (their ratios to w_ori).",
             "Gauge: E_acc sees trans only through second differences, so the SIP Hessian has an exact 6-dimensional "

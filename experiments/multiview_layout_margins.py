@@ -12,8 +12,13 @@ NumPy only after the body is posed (seconds on a CPU).
 
 from __future__ import annotations
 
+import sys as _sys
+from pathlib import Path as _Path
+
+_sys.path.insert(0, str(_Path(__file__).resolve().parent))
+import _provenance  # noqa: E402,F401  (its commit is taken now, at the start of the run)
+
 import argparse
-import json
 from pathlib import Path
 
 import numpy as np
@@ -62,8 +67,16 @@ def main(out: Path) -> dict:
                       f"(x{s[other] / s[true]:.1f})")
     result = {"description": __doc__.split("\n\n")[2].strip(), "rows": rows,
               "min_ratio": min(r["ratio"] for r in rows)}  # fmt: skip
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(result, indent=1) + "\n")
+    import sys
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from _provenance import write_json
+
+    from jaxmocap.motion.splits import Split
+
+    # The procedural walk belongs to no CMU subject: nothing is tuned, trained or evaluated on one.
+    write_json(out, result, split=Split("multiview_layout_margins", tuning=(), training=(), evaluation=()),
+               data={"motions": ["jaxmocap.motion.library.walk"], "subjects": []})
     return result
 
 

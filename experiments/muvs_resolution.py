@@ -3,11 +3,13 @@
     python experiments/muvs_resolution.py                 # -> out/muvs_resolution.json (~6 min on 2 cores)
     python experiments/muvs_resolution.py --out experiments/results
 
-The same 3 clips of ../shared/data/cmu (MuVS's training subjects: this checks the method,
-it reports no accuracy) filmed by the same 4 ring cameras with the same field of view,
+The first 3 clips of `muvs_tables.pick_clips` (CMU subjects 05, 06, 07, one each; MuVS's
+weights were chosen on the development subjects 02 and 131, `jaxmocap.motion.splits`)
+filmed by the same 4 ring cameras with the same field of view,
 at 256 x 192 px and at `--scale` times that, the detector noise scaled alike (muvs_tables'
 detector, 3 px at 256 x 192): only the pixel units differ. Joints only (stage 1 with the
-annealed prior, then stage 2), `MuVSWeights()` with its reference focal length (weights
+annealed prior, then stage 2), the development-tuned weights (`muvs_tables.tuned_weights`;
+`MuVSWeights()` until 2026-11-28) with its reference focal length (weights
 converted to each recording's pixels) and with `reference_focal=None` (raw pixels).
 MPJPE over SMPL's 24 joints in mm, no alignment.
 """
@@ -15,7 +17,6 @@ MPJPE over SMPL's 24 joints in mm, no alignment.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
@@ -23,14 +24,16 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from muvs_tables import DETECTOR, build, joints_of  # noqa: E402
+from _provenance import subjects_of, write_json  # noqa: E402
+from muvs_tables import DETECTOR, SPLIT, build, joints_of, pick_clips, tuned_weights  # noqa: E402
 
 from jaxmocap.body import default_body  # noqa: E402
 from jaxmocap.methods import multiview as mv  # noqa: E402
-from jaxmocap.motion.io import find_data_dir  # noqa: E402
+from jaxmocap.motion.splits import Split  # noqa: E402
 from jaxmocap.sensors import CameraConfig  # noqa: E402
 
-CLIPS = ("02_04.amc", "02_06.amc", "131_01.bvh")
+#: Until 2026-11-28: 02_04, 02_06, 131_01, the subjects MuVS's weights are now chosen on.
+SPLIT = Split("muvs_resolution", tuning=SPLIT.tuning, training=SPLIT.training, evaluation=SPLIT.evaluation)
 
 
 def fit(body, clips, frames: int, scale: int, weights: mv.MuVSWeights) -> dict:
@@ -54,20 +57,20 @@ def main(argv=None) -> int:
     ap.add_argument("--scale", type=int, default=4)
     ap.add_argument("--out", type=Path, default=Path("out"))
     args = ap.parse_args(argv)
-    folder = find_data_dir("JAXMOCAP_CMU", "cmu")
-    if folder is None:
-        raise SystemExit("../shared/data/cmu not found (set JAXMOCAP_CMU).")
-    clips = [Path(folder) / c for c in CLIPS]
+    clips = pick_clips(3, args.frames)
+    if len(clips) < 3:
+        raise SystemExit("fewer than 3 evaluation clips in ../shared/data/cmu_cc (set JAXMOCAP_CMU_CC).")
     body = default_body("low")
     rows = {}
-    for key, scale, w in (("low_resolution", 1, mv.MuVSWeights()), ("high_resolution", args.scale, mv.MuVSWeights()),
-                          ("high_resolution_raw_pixels", args.scale, mv.MuVSWeights(reference_focal=None))):  # fmt: skip
+    tuned, tuned_from = tuned_weights()
+    for key, scale, w in (("low_resolution", 1, tuned), ("high_resolution", args.scale, tuned),
+                          ("high_resolution_raw_pixels", args.scale, tuned.replace(reference_focal=None))):  # fmt: skip
         rows[key] = fit(body, clips, args.frames, scale, w)
         print(f"{key:28s} MPJPE stage 1 {rows[key]['stage1']:.1f}  stage 2 {rows[key]['stage2']:.1f} mm", flush=True)
-    result = {"clips": list(CLIPS), "frames": args.frames, "scale": args.scale, "image_low": [256, 192],
-              "reference_focal": mv.REFERENCE_FOCAL, "mpjpe_mm": rows}  # fmt: skip
-    args.out.mkdir(parents=True, exist_ok=True)
-    (args.out / "muvs_resolution.json").write_text(json.dumps(result, indent=1) + "\n")
+    result = {"clips": [c.name for c in clips], "frames": args.frames, "scale": args.scale, "image_low": [256, 192],
+              "reference_focal": mv.REFERENCE_FOCAL, "weights_tuned": tuned_from, "mpjpe_mm": rows}  # fmt: skip
+    write_json(args.out / "muvs_resolution.json", result, split=SPLIT, argv=argv,
+               data={"clips": result["clips"], "subjects": subjects_of(result["clips"]), "frames": args.frames})
     return 0
 
 

@@ -1,7 +1,8 @@
 """Multi-view SMPLify tables (Huang Tables 4.1, 4.2, 4.5) on synthetic multi-view sets.
 
-Data: CMU clips no weight was chosen on (`../shared/data/cmu_cc`; MuVS's weights came from
-`../shared/data/cmu`), each fitted with the pose prior built without its subject
+Data: the evaluation subjects' clips (`jaxmocap.motion.splits`: CMU 05, 06, 07, in
+`../shared/data/cmu_cc`; MuVS's weights were chosen on the development subjects 02 and 131,
+`experiments/muvs_tuning.py`), each fitted with the pose prior built without its subject
 (`jaxmocap.priors.build.evaluation_prior`: the bundled prior has seen every clip), each on a
 default body with random shape, filmed by 4 static cameras on a ring (256 x 192 px; the
 person is 45-70 px tall), BODY_25 keypoints through the detector error model (3 px noise,
@@ -46,11 +47,13 @@ from pathlib import Path
 import jax
 import jax.numpy as jnp
 import numpy as np
+from _provenance import subjects_of, write_json, write_text
 
 from jaxmocap.body import default_body, forward
 from jaxmocap.methods import multiview as mv
 from jaxmocap.metrics import procrustes_align
-from jaxmocap.motion.corpus import find_cmu_cc_dir, interleave
+from jaxmocap.motion.corpus import find_cmu_cc_dir, interleave, subject_of
+from jaxmocap.motion.splits import DEVELOPMENT, Split
 from jaxmocap.priors.build import evaluation_prior
 from jaxmocap.sensors.keypoints import KEYPOINT_FORMATS, person_track
 from jaxmocap.sensors import CameraConfig, DetectorErrorModel, ScenarioConfig, make_scenario
@@ -68,13 +71,34 @@ DETECTOR = DetectorErrorModel(
     swap_rate=0.02, swap_length=8.0, person_miss_rate=0.0, distractor_rate=0.0, max_distractors=0,
 )  # fmt: skip
 CAMERAS = CameraConfig(num_views=4, width=256, height=192)
+#: MuVSWeights chosen on the development subjects (muvs_tuning.py), priors leave-subject-out.
+SPLIT = Split("muvs_tables", tuning=DEVELOPMENT, training="leave-subject-out")
+
+
+TUNING_FILE = Path(__file__).resolve().parent / "results" / "muvs_tuning.json"
+SILHOUETTE_VARIANTS = {"default": {}, "slack_4px": {"silhouette_slack": 4.0},
+                       "weight_0.03": {"silhouette_model": 0.03, "silhouette_mask": 0.03}}  # as muvs_tuning.py
+
+
+def tuned_weights(path: Path = TUNING_FILE) -> tuple[mv.MuVSWeights, dict]:
+    """`MuVSWeights` with the pose prior and silhouette variant `muvs_tuning.py` chose on the
+    development subjects (its result file), and what was taken from where. The library's
+    default λ_θ (20) was chosen on the subjects these tables evaluate; the development
+    subjects' choice differs (experiments/results/muvs_tuning.json)."""
+    tuned = json.loads(Path(path).read_text())
+    if tuned.get("split", {}).get("tuning") != list(DEVELOPMENT):
+        raise SystemExit(f"{path} was not tuned on the development subjects {DEVELOPMENT}: run experiments/muvs_tuning.py.")
+    change = {"pose_prior": float(tuned["best_pose_prior"]), **SILHOUETTE_VARIANTS[tuned.get("best_silhouettes", "default")]}
+    return mv.MuVSWeights(**change), {"from": str(Path(path).name), "changed": change, "clips": tuned["clips"]}
 
 
 def pick_clips(n: int, frames: int) -> list[Path]:
-    """The first `n` cmu_cc clips with at least `frames` frames at 30 fps, subjects interleaved."""
+    """The first `n` cmu_cc clips of the split's evaluated subjects with at least `frames`
+    frames at 30 fps, subjects interleaved."""
     rows = list(csv.DictReader(open(CC / "index.csv")))
     ok = [r for r in rows if int(r["Frames 60fps"]) >= 2 * frames and (CC / f"{int(r['Subject']):03d}_{int(r['Trial #']):02d}.bvh").exists()]
     paths = [CC / f"{int(r['Subject']):03d}_{int(r['Trial #']):02d}.bvh" for r in ok]
+    paths = [p for p in paths if subject_of(p) in SPLIT.evaluation]
     return interleave(paths, n, key=lambda p: p.name.split("_")[0])
 
 
@@ -181,7 +205,8 @@ def main(argv=None):
     leg_kp = [i for i, n in enumerate(names) if any(p in n for p in ("hip", "knee", "ankle", "toe", "heel"))]
     true_joints = np.stack([joints_of(body, t["poses"], t["betas"][:10], t["trans"]) for t in truth])
     visible = [visible_in_image(t["kp_true"], names, 2 * DETECTOR.pixel_noise) for t in truth]  # (T, V) per clip
-    w = mv.MuVSWeights().replace(**dict(_override(x) for x in args.weights))
+    tuned, tuned_from = tuned_weights()
+    w = tuned.replace(**dict(_override(x) for x in args.weights))
     tables, shapes, swaps, sim = {}, {}, {}, {}
 
     def publish():
@@ -194,7 +219,7 @@ def main(argv=None):
         result = {
             "clips": [t["name"] for t in truth], "frames": args.frames, "seed": args.seed,
             "detector": DETECTOR.__dict__, "cameras": dataclasses.asdict(CAMERAS), "resolve_swaps": not args.keep_swaps,
-            "weights": {k: v for k, v in w.__dict__.items()},
+            "weights": {k: v for k, v in w.__dict__.items()}, "weights_tuned": tuned_from,
             "mpjpe_mm": tables, "mpjpe_sim_mm": sim, "shape_error_mm": shapes,
             "swap_repair_rate": rate(swaps), "swap_repair_rate_multiview": rate(multi),
             "swap_repair_rate_by_views": {k: rate([k]) for k in swaps},
@@ -204,14 +229,16 @@ def main(argv=None):
             "thesis": THESIS, "timing_s": timing,
             "machine": {"platform": platform.platform(), "device": str(jax.devices()[0]), "jax": jax.__version__},
         }  # fmt: skip
-        (args.out / f"{name}.json").write_text(json.dumps(result, indent=2, default=float))
+        data = {"clips": result["clips"], "subjects": subjects_of(result["clips"]), "frames": args.frames,
+                "views": sorted(int(k.split("_")[1]) for k in tables)}  # fmt: skip
+        write_json(args.out / f"{name}.json", result, split=SPLIT, data=data, argv=argv, indent=2, default=float)
         md = ["| views | stage 1 | +S | +S,T | +S,T,H | shape error stage 1 / +S (mm) | swaps repaired (+S,T) |",
               "|---|---|---|---|---|---|---|"]  # fmt: skip
         for k in tables:
             for row_name, r in ((k.split("_")[1], tables[k]), (k.split("_")[1] + " (Sim)", sim[k])):
                 md.append(f"| {row_name} | {r['stage1']:.1f} | {r['S']:.1f} | {r['S_T']:.1f} | {r['S_T_H']:.1f} | "
                           f"{shapes[k]['stage1']:.1f} / {shapes[k]['S']:.1f} | {swaps[k]['S_T']['rate']:.1%} |")  # fmt: skip
-        (args.out / f"{name}.md").write_text(
+        write_text(args.out / f"{name}.md", split=SPLIT, data=data, argv=argv, text=
             "# Multi-view SMPLify on unseen CMU clips, " + ("MuVS as written" if args.keep_swaps else "swapped views flipped back first")
             + " (MPJPE mm, 24 joints; no alignment, and (Sim) after per-frame "
             "similarity alignment, Table 4.5's protocol for one view)\n\n" + "\n".join(md) + "\n"

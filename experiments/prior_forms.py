@@ -15,9 +15,13 @@ fitted by scikit-learn's EM with the single Gaussian's (5°)² floor on every Σ
 **Protocol**: sip_tables' held-out weight selection (its `Fold`, `scenarios`, `item`,
 `mean_errors`), leave-one-subject-out over the CMU subjects of `jaxmocap.motion.corpus()`.
 For outer subject s and each form: the prior is built without s; w_mahal is chosen from
-the form's grid by the lowest MPJAE pooled (frame-weighted) over the other subjects u,
-each fitted with the prior of that form built without s *and* u; s is reported at that
-weight. No evaluated frame shapes its prior or its weight. Grids: `GRID` around the 1e-4
+the form's grid by the lowest MPJAE pooled (frame-weighted) over the development subjects
+u ≠ s (02, 131: `jaxmocap.motion.splits`), each fitted with the prior of that form built
+without s *and* u; s is reported at that weight. The summary pools the evaluated subjects
+05, 06, 07 (the development subjects' folds are kept under `development_folds`). Before
+2026-11-28 the inner subjects were all the others, so 07 (locked) and the evaluated
+subjects chose each other's weights, and the summary pooled all five. No evaluated frame
+shapes its prior or its weight. Grids: `GRID` around the 1e-4
 sip_tables chose for the single Gaussian, `MIXTURE_GRID` one step lower for the mixtures
 (narrower components: a held-out pose is further, in d_k², from its best component). SIP
 with the six "sip6" IMUs and `IMUErrorModel.xsens()` errors (seed 0), low-resolution
@@ -86,6 +90,11 @@ from jaxmocap.body import default_body  # noqa: E402
 from jaxmocap.methods import inertial as I  # noqa: E402
 from jaxmocap.motion import library  # noqa: E402
 from jaxmocap.motion.corpus import corpus, training_clips  # noqa: E402
+from jaxmocap.motion.splits import DEVELOPMENT, LEAVE_SUBJECT_OUT, Split  # noqa: E402
+from _provenance import record, subjects_of  # noqa: E402
+
+#: w_mahal chosen on the development subjects; priors leave-subject-out; summary on 05, 06, 07.
+SPLIT = Split("prior_forms", tuning=DEVELOPMENT, training=LEAVE_SUBJECT_OUT)
 from jaxmocap.priors.build import clip_poses  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -126,7 +135,8 @@ def grid_of(args, K: int) -> tuple:
 
 
 def config_key(args) -> str:
-    cfg = [list(args.forms), list(args.grid), list(args.mixture_grid), args.clips, args.frames, args.steps, args.seed]
+    cfg = [list(args.forms), list(args.grid), list(args.mixture_grid), args.clips, args.frames, args.steps, args.seed,
+           "inner: development subjects"]  # the folds before the splits are not reused
     return hashlib.sha1(json.dumps(cfg).encode()).hexdigest()[:10]
 
 
@@ -218,7 +228,7 @@ def run_fold(s: str, args) -> dict:
     idx = [i for i, k in enumerate(starts) if k is not None]
     excl = {i: (s,) if clips[i].subject == s else tuple(sorted((s, clips[i].subject))) for i in idx}
     outer = [i for i in idx if clips[i].subject == s]
-    inner = [i for i in idx if clips[i].subject != s]
+    inner = [i for i in idx if clips[i].subject != s and clips[i].subject in SPLIT.tuning]
     print(f"fold {s}: {len(outer)} outer and {len(inner)} inner windows ({time.perf_counter() - t0:.0f} s)", flush=True)
 
     # The SOP start of every window: the tracker with the single Gaussian of its fold (sip_tables' start).
@@ -446,14 +456,22 @@ def main(argv=None) -> int:
         if not path.is_file():
             write_json(path, run_fold(s, args))
         folds[s] = json.loads(path.read_text())
-    res = summary(folds, args)
+    evaluated = {s: f for s, f in folds.items() if s in SPLIT.evaluation} or folds  # tiny runs: what there is
+    res = summary(evaluated, args)
+    res["development_folds"] = {s: {f: v["outer"] for f, v in folds[s]["forms"].items()}
+                                for s in folds if s not in evaluated}  # fmt: skip
+    res["split"] = SPLIT.record()
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
+    windows = sorted({n for f in evaluated.values() for n in f["outer_windows"]})
+    data = {"clips": windows, "subjects": subjects_of(windows), "frames": args.frames, "folds": sorted(folds)}
     write_json(out / "prior_forms.json", res)
+    record(out / "prior_forms.json", split=SPLIT, data=data, argv=argv)
     md = markdown(res)
     tmp = out / f"prior_forms.md.{os.getpid()}.tmp"
     tmp.write_text(md)
     tmp.replace(out / "prior_forms.md")
+    record(out / "prior_forms.md", split=SPLIT, data=data, argv=argv)
     print(md)
     return 0
 

@@ -12,13 +12,17 @@ heading offset and drift, 5° mounting, 2 cm placement, dropouts). IMU-6 = sip6,
 TotalCapture's set. Each method is calibrated on the true pose of the first frame where
 every sensor of both sets reports (§3.4.1); earlier frames are left out everywhere.
 
-**No overlap (subject-disjoint, nested).** A clip of subject s is fitted with the prior
-built from every other subject's clips plus the procedural motions
-(`jaxmocap.priors.held_out_prior(exclude={s})`). The prior weight w_mahal is chosen by
-held-apart error, nested: for test subject s, SIP runs on every other subject u with the
-prior built without s *and* u, at every w_mahal of `GRID`, and s gets the w_mahal with the
-lowest MPJAE pooled over those u. No evaluated frame shapes its prior, its weight or its
-SOP start. The bundled prior (built from every clip) at the thesis weights is run too, as
+**No overlap (`jaxmocap.motion.splits`, recorded under "split").** A clip of subject s is
+fitted with the prior built from every other subject's clips plus the procedural motions
+(`jaxmocap.priors.held_out_prior(exclude={s})`). The prior weight w_mahal is chosen on the
+development subjects (02, 131) only: for subject s, SIP runs on every development subject
+u ≠ s with the prior built without s *and* u, at every w_mahal of `GRID`, and s gets the
+w_mahal with the lowest MPJAE pooled over those u. The tables (every headline number) pool
+the evaluated subjects 05, 06, 07; the development subjects' clips are reported apart
+(`development_subjects`). Until 2026-11-28 the inner folds pooled every other subject, so
+the locked subject 07 and the evaluated subjects chose each other's weights, and the
+tables pooled all five subjects (issue 52). No evaluated frame shapes its prior, its
+weight or its SOP start. The bundled prior (built from every clip) at the thesis weights is run too, as
 the in-sample reference the old protocol measured.
 
 **Converged solves.** The tables' solves run in float64 (in float32 the LM creeps on in
@@ -56,8 +60,15 @@ from jaxmocap.app.sweep_methods import InertialItem, InertialMethod  # noqa: E40
 from jaxmocap.body import default_body, forward, scaled_body  # noqa: E402
 from jaxmocap.methods import inertial as I  # noqa: E402
 from jaxmocap.motion.corpus import GROUPS, corpus, training_clips  # noqa: E402
+from jaxmocap.motion.splits import DEVELOPMENT, LEAVE_SUBJECT_OUT, Split  # noqa: E402
 from jaxmocap.priors import PosePrior, default_pose_prior  # noqa: E402
 from jaxmocap.priors.build import fit_prior  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _provenance import subjects_of, write_json, write_text  # noqa: E402
+
+#: w_mahal chosen on the development subjects; priors leave-subject-out; tables on 05, 06, 07.
+SPLIT = Split("sip_tables", tuning=DEVELOPMENT, training=LEAVE_SUBJECT_OUT)
 from jaxmocap.sensors import IMUErrorModel, ScenarioConfig, load_scenario, make_scenario, save_scenario  # noqa: E402
 from jaxmocap.solve import length_buckets  # noqa: E402
 from jaxmocap.viz.plot import plot_error_curves, plot_lines, plot_per_joint  # noqa: E402
@@ -254,11 +265,12 @@ def run(args) -> dict:
 
     chosen, selection = {}, {}
     for s in subjects:
-        inner = [f"{clips[i].name}|{','.join(sorted((clips[i].subject, s)))}" for i in keep if clips[i].subject != s]
+        tuners = [i for i in keep if clips[i].subject != s and clips[i].subject in SPLIT.tuning]
+        inner = [f"{clips[i].name}|{','.join(sorted((clips[i].subject, s)))}" for i in tuners]
         scores = {w: pooled(inner, w) for w in GRID} if inner else {}
         chosen[s] = min(scores, key=scores.get) if scores else THESIS_W_MAHAL
         selection[s] = {"w_mahal": chosen[s], "inner_mpjae_by_w": {repr(w): v for w, v in scores.items()},
-                        "inner_subjects": sorted({clips[i].subject for i in keep if clips[i].subject != s})}  # fmt: skip
+                        "inner_subjects": sorted({clips[i].subject for i in tuners})}  # fmt: skip
     held_out_curve = {
         key: {repr(w): pooled([f"{clips[i].name}|{clips[i].subject}" for i in keep], w, key) for w in GRID}
         for key in ("mpjae", "mpjpe")
@@ -349,12 +361,23 @@ def run(args) -> dict:
     else:
         long = long_windows(args, body, folds, chosen, sop, sip, tol)
         long_file.write_text(json.dumps(long))
-    res = tables(per_clip, frames_err, runs, selection, held_out_curve)
+    def rows_of(subjects):
+        js = [j for j, r in enumerate(per_clip) if r["subject"] in subjects]
+        pick = lambda d: {k: [v[j] for j in js] for k, v in d.items()}  # noqa: E731
+        return [per_clip[j] for j in js], pick(frames_err), pick(runs)
+
+    # The headline: the evaluated subjects alone; the development subjects (they chose w_mahal) apart.
+    res = tables(*rows_of(SPLIT.evaluation), selection, held_out_curve)
+    if any(r["subject"] in SPLIT.tuning for r in per_clip):
+        dev = tables(*rows_of(SPLIT.tuning), selection, held_out_curve)
+        res["development_subjects"] = {k: dev[k] for k in ("table_3_3", "per_subject", "sip_vs_sop_relative_change_percent")}
     res["long_windows"] = long
     res["protocol"] = {
         "prior_overlap": False,
-        "split": "leave-one-subject-out over CMU subjects " + ", ".join(subjects) + "; the w_mahal of subject s is "
-                 "chosen by pooled MPJAE on the other subjects, each fitted with a prior built without s and itself",
+        "split": "priors leave-one-subject-out over CMU subjects " + ", ".join(subjects) + "; the w_mahal of subject s "
+                 "is chosen by pooled MPJAE on the development subjects (" + ", ".join(SPLIT.tuning) + ") other than s, "
+                 "each fitted with a prior built without s and itself; the tables pool subjects "
+                 + ", ".join(SPLIT.evaluation),
         "prior": "held_out_prior(exclude={subject}): every other subject's clips + the procedural library",
         "weight_grid_w_mahal": list(GRID), "chosen_w_mahal": chosen, "selection": selection,
         "clips_in_full": args.frames >= 100000, "solves": f"float64, rtol = atol = {TOL}, at most {args.steps} LM steps",
@@ -510,9 +533,12 @@ def plots(per_clip, frames_err, res, out: Path, runs, base, body):
 def markdown(res: dict) -> str:
     T, p = res["thesis"], res["protocol"]
     fmt = lambda o: f"{o['mpjpe']['mean']:.1f} / {o['mpjae']['mean']:.1f}"  # noqa: E731
+    ev = [r for r in res["per_clip"] if r["subject"] in res.get("split", {}).get("evaluation", SPLIT.evaluation)]
+    old = res["old_protocol"]
+    old_rel = [100 * (old["SIP"][k] - old["SOP"][k]) / old["SOP"][k] for k in ("mpjpe", "mpjae")]
     L = ["# SIP tables on held-out motion (von Marcard ch. 3)", "",
-         f"Generated by `experiments/sip_tables.py`: {len(res['per_clip'])} CMU clips in full at 30 fps "
-         f"({sum(r['frames'] for r in res['per_clip'])} frames), subjects {', '.join(sorted(p['chosen_w_mahal']))}, "
+         f"Generated by `experiments/sip_tables.py`: {len(ev)} CMU clips of the evaluated subjects in full at 30 fps "
+         f"({sum(r['frames'] for r in ev)} frames), subjects {', '.join(sorted({r['subject'] for r in ev}))}, "
          "6 IMUs (SOP, SIP) and 13 (IT), Xsens-like errors, default body (low), mean shape. MPJPE (mm) after "
          "per-frame rigid Procrustes on the TotalCapture joints, MPJAE (°) on hips, knees, neck, shoulders, elbows.", "",
          f"**Protocol**: {p['split']}. Prior: {p['prior']}. Solves: {p['solves']}; grid: {p['grid_solves']}. "
@@ -522,7 +548,8 @@ def markdown(res: dict) -> str:
     io = res["in_sample_vs_no_overlap"]
     r_in, r = io["sip_vs_sop_relative_change_percent_in_sample"], res["sip_vs_sop_relative_change_percent"]
     L.append(f"| old protocol (9 cmu clips × 72 frames, prior built from them, 20 steps) | {res['old_protocol']['SOP']['mpjpe']} / "
-             f"{res['old_protocol']['SOP']['mpjae']} | {res['old_protocol']['SIP']['mpjpe']} / {res['old_protocol']['SIP']['mpjae']} | −39.5 %, −27.4 % |")
+             f"{res['old_protocol']['SOP']['mpjae']} | {res['old_protocol']['SIP']['mpjpe']} / {res['old_protocol']['SIP']['mpjae']} | "
+             f"{old_rel[0]:+.1f} %, {old_rel[1]:+.1f} % |")
     L.append(f"| bundled prior (all clips, in-sample), thesis weights | {fmt(io['in_sample']['SOP'])} | {fmt(io['in_sample']['SIP'])} | "
              f"{r_in['mpjpe']:+.1f} %, {r_in['mpjae']:+.1f} % |")
     L.append(f"| **held-out prior, chosen w_mahal** | {fmt(io['no_overlap']['SOP'])} | {fmt(io['no_overlap']['SIP'])} | "
@@ -533,7 +560,7 @@ def markdown(res: dict) -> str:
         o, t = res["table_3_3"][m], T["table_3_3_totalcapture"][m]
         L.append(f"| {m} | {o['mpjpe']['mean']:.1f} ({t['mpjpe']}) | {o['mpjae']['mean']:.1f} ({t['mpjae']}) | "
                  f"± {o['mpjpe']['std_clips']:.1f} / ± {o['mpjae']['std_clips']:.1f} |")
-    L += ["", f"SIP vs SOP: MPJPE {r['mpjpe']:+.1f} %, MPJAE {r['mpjae']:+.1f} % (thesis −31.5 %, −25.9 %). "
+    L += ["", f"SIP vs SOP: MPJPE {r['mpjpe']:+.1f} %, MPJAE {r['mpjae']:+.1f} % (thesis {r['thesis_totalcapture']['mpjpe']:+.1f} %, {r['thesis_totalcapture']['mpjae']:+.1f} %). "
           f"SIP better on {res['sip_beats_sop_clips']['mpjpe']}/{res['sip_beats_sop_clips']['of']} clips (MPJPE), "
           f"{res['sip_beats_sop_clips']['mpjae']}/{res['sip_beats_sop_clips']['of']} (MPJAE). "
           f"Converged (result 0): {100 * res['convergence']:.0f} % of SIP solves.", "",
@@ -552,7 +579,11 @@ def markdown(res: dict) -> str:
     for field in ("per_subject", "per_activity"):
         for v, row in res[field].items():
             L.append(f"| {field[4:]} {v} | {fmt(row['SOP'])} | {fmt(row['SIP'])} | {fmt(row['IT'])} | {row['SIP']['mpjpe']['clips']} |")
-    L += ["", "## Table 3.2: body scaled, size and pose error separated (thesis TNT15: 41.5 / 45.7 / 55.8 mm)", "",
+    for v, row in res.get("development_subjects", {}).get("per_subject", {}).items():
+        L.append(f"| subject {v} (development: chose w_mahal, not in the tables) | {fmt(row['SOP'])} | {fmt(row['SIP'])} | "
+                 f"{fmt(row['IT'])} | {row['SIP']['mpjpe']['clips']} |")
+    t32 = ", ".join(f"{m} {v['mpjpe']}" for m, v in T["table_3_2_tnt15"].items())
+    L += ["", f"## Table 3.2: body scaled, size and pose error separated (thesis TNT15 MPJPE: {t32} mm)", "",
           "| | MPJPE rigid Procrustes (size + pose) | MPJPE Procrustes with scale | pose on the true body | MPJAE [°] |",
           "| --- | --- | --- | --- | --- |"]  # fmt: skip
     for m, o in res["table_3_2"].items():
@@ -616,10 +647,11 @@ def main(argv=None) -> int:
     res = run(args)
     if res is None:
         return 0
-    tmp = out / "sip_tables.json.tmp"
-    tmp.write_text(json.dumps(res, indent=1, default=float) + "\n")
-    os.replace(tmp, out / "sip_tables.json")
-    (out / "sip_tables.md").write_text(markdown(res))
+    names = [r["clip"] for r in res["per_clip"]]
+    data = {"clips": names, "subjects": subjects_of(names), "frames_cap": args.frames, "seed": args.seed,
+            "evaluated": [r["clip"] for r in res["per_clip"] if r["subject"] in SPLIT.evaluation]}  # fmt: skip
+    write_json(out / "sip_tables.json", res, split=SPLIT, data=data, argv=argv, default=float)
+    write_text(out / "sip_tables.md", markdown(res), split=SPLIT, data=data, argv=argv)
     print(markdown(res))
     return 0
 

@@ -8,6 +8,12 @@ never sees: CMU subjects 2 and 131 (../shared/data/cmu) and the procedural libra
 (`jaxmocap.motion.library`). Persons 0 and 1 wear IMUs; their hypotheses are Inertial
 Tracker keypoints (eq. 4.10) from a given x₀ with 10° (1σ) error per joint.
 
+Splits (`jaxmocap.motion.splits`): training motion is the development subjects' clips
+(`SPLIT.clips("tuning")`) and the library; the wearers' Inertial Tracker runs with the prior
+built without the evaluated subjects (`held_out_prior(exclude=EVALUATION)`: before
+2026-11-28 it used the bundled prior, which holds them, issue 52). The weights file records
+the split, and experiments/results/provenance.json the run.
+
 Labels (the simulator's identity labels): a hypothesis H(l, v) is right when detection v
 is person l; an inter-frame pair is right when both detections are of one real person (the
 features measure the consistency of a track, not whose track it is: labelling it "both
@@ -43,12 +49,19 @@ sys.path.insert(0, str(ROOT))
 from jaxmocap.body.io import default_body  # noqa: E402
 from jaxmocap.methods import association as A  # noqa: E402
 from jaxmocap.methods import visual_inertial as vip  # noqa: E402
-from jaxmocap.motion.io import find_cmu_dir  # noqa: E402
+from jaxmocap.motion.splits import DEVELOPMENT, EVALUATION, Split  # noqa: E402
+from jaxmocap.priors.build import held_out_prior  # noqa: E402
 from jaxmocap.rotation import axis_angle_to_matrix, matrix_to_axis_angle  # noqa: E402
 from jaxmocap.sensors import make_scenario  # noqa: E402
 from jaxmocap.sensors.errors import random_rotations  # noqa: E402
 from jaxmocap.sensors.scenario import vip_config  # noqa: E402
 
+sys.path.insert(0, str(ROOT / "experiments"))
+from _provenance import RESULTS, command, record  # noqa: E402
+
+#: Weights trained on the development subjects (and the procedural library); the
+#: association is evaluated on 05, 06, 07 (vip_association.py).
+SPLIT = Split("train_association", tuning=DEVELOPMENT, training=DEVELOPMENT, evaluation=EVALUATION)
 WEARERS = (0, 1)
 # frames of long-range penalties (30: the thesis's window, none). Chosen on the development
 # scenes of experiments/vip_association.py (held-out subjects, seed 0, the whole method):
@@ -174,10 +187,11 @@ def train(scenes, window: int = 30, min_probability: float = 0.01, max_pairs: in
                               min_probability=min_probability), counts  # fmt: skip
 
 
-def training_motions(cmu: Path) -> list[str]:
-    clips = sorted(str(p) for p in cmu.iterdir() if p.suffix in (".amc", ".bvh"))
+def training_motions() -> list[str]:
+    """The training subjects' clips (SPLIT.training) and the procedural library."""
+    clips = [str(c.path) for c in SPLIT.clips("tuning") if c.subject in SPLIT.training]
     if not clips:
-        raise SystemExit(f"no training clips in {cmu}; pass --cmu.")
+        raise SystemExit("no clips of the training subjects 02, 131 (../shared/data/cmu; set JAXMOCAP_CMU).")
     return clips + list(LIBRARY)
 
 
@@ -188,12 +202,12 @@ def main(argv=None) -> int:
     p.add_argument("--seed", type=int, default=100)
     p.add_argument("--window", type=int, default=30)
     p.add_argument("--penalty-window", type=int, default=PENALTY_WINDOW)
-    p.add_argument("--cmu", default=str(find_cmu_dir() or ROOT.parent / "shared" / "data" / "cmu"))
     p.add_argument("--cache", default=str(ROOT / "out" / "train_association"))
     p.add_argument("--out", default=str(A.WEIGHTS_FILE))
     a = p.parse_args(argv)
     body = default_body("low")
-    pool = training_motions(Path(a.cmu))
+    pool = training_motions()
+    prior = held_out_prior(exclude=SPLIT.evaluation)  # never the bundled prior: it holds the evaluated subjects
     rng = np.random.default_rng(a.seed)
     cache = Path(a.cache)
     cache.mkdir(parents=True, exist_ok=True)
@@ -204,13 +218,13 @@ def main(argv=None) -> int:
         # too, so that scene i is the same whichever scenes a run finds cached
         wear = list(rng.choice(pool[: -len(LIBRARY)], 2, replace=False))
         motions = wear + list(rng.choice([m for m in pool if m not in wear], 3, replace=False))
-        f = cache / f"scene_{a.seed}_{i}_{a.frames}.npz"
+        f = cache / f"scene_{a.seed}_{i}_{a.frames}_heldout.npz"  # the IT with the held-out prior
         if f.exists():
             d = np.load(f, allow_pickle=True)
             scenes.append({k: d[k] for k in d.files})
             continue
         bystanders = 1 + i % 3
-        s = scene_inputs(motions, bystanders, a.frames, a.seed + i, body)
+        s = scene_inputs(motions, bystanders, a.frames, a.seed + i, body, priors=[prior] * len(WEARERS))
         np.savez(f, **{k: np.asarray(v) for k, v in s.items()})
         scenes.append(s)
         print(f"scene {i}: {s['names']} T={len(s['detections'])} ({time.time() - t0:.0f} s)", flush=True)
@@ -238,7 +252,9 @@ def main(argv=None) -> int:
                 f"{list(LIBRARY)}; no clip of ../shared/data/cmu_cc (the evaluation's subjects 5, 6, 7)",
         "scenes": [list(map(str, s["names"])) for s in scenes],
         "seed": a.seed, "window": a.window, "date": datetime.date.today().isoformat(),
-        "command": "python experiments/train_association.py " + " ".join(argv if argv is not None else sys.argv[1:]),
+        "command": command(argv),
+        "split": SPLIT.record(),
+        "prior": "held_out_prior(exclude=" + ",".join(SPLIT.evaluation) + "): development subjects and the library",
         "counts": counts, "pair_scale/assignment_cost/penalty_window grid": grid,
         "selection": "pair_scale, assignment_cost: the most recall at a training precision >= 99.5 %; "
                      f"penalty_window {reach}: see PENALTY_WINDOW in the script (development scenes)",
@@ -250,6 +266,9 @@ def main(argv=None) -> int:
     model = A.AssociationModel(**{**model.to_dict(), "pair_scale": scale, "assignment_cost": cost,
                                   "penalty_window": reach, "provenance": provenance})
     Path(a.out).write_text(json.dumps(model.to_dict(), indent=1) + "\n")
+    names = sorted({n for s in scenes for n in map(str, s["names"])})
+    record(a.out, split=SPLIT, argv=argv, provenance=RESULTS / "provenance.json",
+           data={"clips": names, "scenes": a.scenes, "frames": a.frames, "seed": a.seed})
     print(json.dumps({k: v for k, v in model.to_dict().items() if k != "provenance"}))
     return 0
 

@@ -12,13 +12,21 @@
 (fold "without_s"), and one on everything (fold "all": the shipped model, never to be
 evaluated on these clips). Early stopping reads a validation set of whole clips (every
 clip whose name hashes to 0 mod 10, with all its augmented windows) of the training
-subjects only: the held-apart subject shapes nothing.
+subjects only, never of the locked subject 07 (`jaxmocap.motion.splits.fold_tuning`; its
+validation-hashed clips train instead; before 2026-11-28 they validated): the held-apart
+subject shapes nothing, and 07 chooses nothing.
 
 Writes to `--out`: `dip_<fold>.npz` (weights with provenance), `curves.json`,
 `training_curves.png`; the synthesised windows are cached in `--out/cache/`.
 """
 
 from __future__ import annotations
+
+import sys as _sys
+from pathlib import Path as _Path
+
+_sys.path.insert(0, str(_Path(__file__).resolve().parent))
+import _provenance  # noqa: E402,F401  (its commit is taken now, at the start of the run)
 
 import argparse
 import hashlib
@@ -37,6 +45,7 @@ from jaxmocap.learned.dip import DIPConfig, save_dip_model
 from jaxmocap.learned.dip_training import DIPDataset, TrainConfig, augmented, synthesize, train_dip
 from jaxmocap.motion import library
 from jaxmocap.motion.corpus import corpus
+from jaxmocap.motion.splits import LEAVE_SUBJECT_OUT, LOCKED, Split
 from jaxmocap.motion.io import load_motion
 from jaxmocap.sensors import IMUErrorModel
 
@@ -46,6 +55,10 @@ SPEEDS = (0.8, 1.0, 1.25)
 def clip_name(source: str) -> str:
     """The clip a window came from, without the augmentation suffixes."""
     return source.split(" (")[0]
+
+
+#: One network per held-apart subject; early stopping inside the fold, never on 07.
+SPLIT = Split("train_dip", tuning=LEAVE_SUBJECT_OUT, training=LEAVE_SUBJECT_OUT)
 
 
 def is_validation(source: str) -> bool:
@@ -127,7 +140,8 @@ def main(argv=None):
     data = dataset(args, body, out / "cache")
     subjects = sorted(set(data.group) - {"procedural"})
     folds = args.folds or [*subjects, "all"]
-    val = np.asarray([is_validation(s) for s in data.source])
+    # Early stopping is a choice: never on the locked subject (its clips all train).
+    val = np.asarray([is_validation(s) and g not in LOCKED for s, g in zip(data.source, data.group)])
     train_sets, val_sets = [], []
     for fold in folds:
         if fold != "all" and fold not in subjects:
@@ -157,7 +171,11 @@ def main(argv=None):
                 "best_step": curve["best_step"], "best_val_loss": min(curve["val_loss"])}  # fmt: skip
         save_dip_model(out / f"dip_{fold}.npz", net, meta)
     named = dict(zip(folds, curves))
-    (out / "curves.json").write_text(json.dumps({"curves": named, **info}, indent=1))
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from _provenance import write_json
+
+    write_json(out / "curves.json", {"curves": named, **info}, split=SPLIT, argv=argv,
+               data={"subjects": subjects, "folds": folds, "windows": int(len(data))})
     plot(named, out / "training_curves.png")
     print(f"done: {len(folds)} networks in {seconds:.0f} s of training ({time.perf_counter() - t0:.0f} s in all) -> {out}")
 

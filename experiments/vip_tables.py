@@ -3,8 +3,10 @@
     python experiments/vip_tables.py --clips 2 --frames 60          # small, CPU
     python experiments/vip_tables.py --clips 10 --frames 300 --out experiments/results   # full, GPU
 
-Scenes (`jaxmocap.sensors.vip_config`): held-out CMU clips (../shared/data/cmu_cc, each
-fitted with the pose prior built without its subject: `evaluation_prior`), person 0 with
+Scenes (`jaxmocap.sensors.vip_config`): clips of the evaluated subjects (05, 06, 07 of
+../shared/data/cmu_cc, taken one subject in turn: `jaxmocap.motion.splits`; before
+2026-11-28 the first 10 in name order, all subject 05), each
+fitted with the pose prior built without its subject (`evaluation_prior`), person 0 with
 13 IMUs (TotalCapture set) and Xsens-like errors with a 10° (1σ) heading offset per sensor, 0-3 bystanders, a hand-held camera
 with an IMU, OpenPose-like COCO-18 detections. The given initial pose x₀ is the true
 frame-0 pose with 10° (1σ) of error per joint (the thesis's "inaccurate initial pose").
@@ -42,13 +44,20 @@ from jaxmocap.methods import inertial  # noqa: E402
 from jaxmocap.methods.association import load_model  # noqa: E402
 from jaxmocap.methods import visual_inertial as vip  # noqa: E402
 from jaxmocap.metrics import pose_errors  # noqa: E402
-from jaxmocap.motion.corpus import find_cmu_cc_dir  # noqa: E402
+from jaxmocap.motion.corpus import corpus, find_cmu_cc_dir, interleave  # noqa: E402
+from jaxmocap.motion.splits import DEVELOPMENT, LEAVE_SUBJECT_OUT, Split  # noqa: E402
 from jaxmocap.priors.build import evaluation_prior  # noqa: E402
 from jaxmocap.rotation import matrix_to_axis_angle  # noqa: E402
 from jaxmocap.sensors import make_scenario  # noqa: E402
 from jaxmocap.sensors.errors import random_rotations  # noqa: E402
 from jaxmocap.sensors.scenario import vip_config  # noqa: E402
 
+sys.path.insert(0, str(ROOT / "experiments"))
+from _provenance import subjects_of, write_json, write_text  # noqa: E402
+
+#: VIP's weights and the association model were chosen on the development subjects; priors
+#: leave-subject-out; the tables evaluate 05, 06, 07.
+SPLIT = Split("vip_tables", tuning=DEVELOPMENT, training=LEAVE_SUBJECT_OUT)
 ROWS = ("IT", "VIP", "VIP-vanilla", "VIP-IT", "VIP-noHeadParam", "VIP-2D", "VIP-Cam", "SIP-zero-init", "VIP-6IMU")
 THESIS_MPJPE = {"IT": 55.0, "VIP": 26.0, "VIP-vanilla": 45.8, "VIP-IT": 28.2, "VIP-noHeadParam": 25.9, "VIP-2D": 15.1,
                 "VIP-Cam": 25.3, "SIP-zero-init": 68.7, "VIP-6IMU": 35.8}  # fmt: skip
@@ -57,9 +66,11 @@ SIX_OF_13 = ("forearm", "lower_leg", "head", "pelvis")
 
 
 def held_out_clips(folder: Path) -> list[str]:
+    """The evaluated subjects' clips in `folder`, one subject in turn (`interleave`)."""
     if not folder.is_dir():
         raise SystemExit(f"held-out clips not found at {folder}; pass --cmu-cc.")
-    return sorted(str(p) for p in folder.iterdir() if p.suffix in (".amc", ".bvh"))
+    clips = SPLIT.clips("evaluation", corpus([folder]))
+    return [str(c.path) for c in interleave(clips, len(clips))]
 
 
 def _errors(body, poses, truth):
@@ -156,6 +167,7 @@ def run(clips: int, frames: int, seed: int, steps: int, folder: Path, out: Path,
         print(f"clip {i}: {Path(f).name}, {i % 4} bystanders", flush=True)
         r = run_clip(scenario, 0, body, rng, steps, prior=evaluation_prior(f))  # the bundled prior saw every clip
         r["clip"], r["seconds"] = Path(f).name, round(time.time() - t0, 1)
+        r["frames"] = int(len(scenario.sequence(0)["poses"][0]))
         print(json.dumps(r), flush=True)
         tmp = path.with_suffix(".tmp")
         tmp.write_text(json.dumps(r))
@@ -182,10 +194,19 @@ def run(clips: int, frames: int, seed: int, steps: int, folder: Path, out: Path,
     }
 
 
+def _frames(res: dict, c: dict) -> str:
+    """The clips' lengths as measured ("108-300 frames"), or "≤ N frames" where not recorded."""
+    n = [r["frames"] for r in res["per_clip"] if "frames" in r]
+    if len(n) < len(res["per_clip"]) or not n:
+        return f"≤ {c['frames']} frames"
+    return f"{min(n)} frames" if min(n) == max(n) else f"{min(n)}-{max(n)} frames ({sum(n)} in all)"
+
+
 def markdown(res: dict) -> str:
     c = res["config"]
     L = ["# VIP tables on synthetic camera+IMU scenes (von Marcard ch. 4)", "",
-         f"`experiments/vip_tables.py`: {c['clips']} held-out CMU clips × {c['frames']} frames, 30 fps, low-res body, "
+         f"`experiments/vip_tables.py`: {c['clips']} held-out CMU clips (subjects "
+         f"{', '.join(subjects_of(r['clip'] for r in res['per_clip']))}) × {_frames(res, c)}, 30 fps, low-res body, "
          f"{c['lm_steps']} LM steps. Thesis numbers are TotalCapture's (real data).", "",
          "| method | MPJPE [mm] | MPJAE [°] | thesis MPJPE [mm] |", "| --- | --- | --- | --- |"]  # fmt: skip
     if c["clips"] < c.get("requested_clips", c["clips"]):
@@ -193,7 +214,8 @@ def markdown(res: dict) -> str:
                   "with the same arguments resumes from the per-clip files.", ""]
     for m, r in res["rows"].items():
         L.append(f"| {m} | {r['mpjpe_mm']:.1f} | {r['mpjae_deg']:.1f} | {r['thesis_mpjpe_mm']:.1f} |")
-    L += ["", f"VIP vs IT, MPJPE: {res['vip_vs_it_relative_change_percent']['mpjpe']:+.1f} % (thesis −53 %). "
+    L += ["", f"VIP vs IT, MPJPE: {res['vip_vs_it_relative_change_percent']['mpjpe']:+.1f} % "
+          f"(thesis {100 * (THESIS_MPJPE['VIP'] / THESIS_MPJPE['IT'] - 1):+.0f} %). "
           f"Mean heading error after VIP: {res['heading_error_deg']:.2f}°. Orderings: {res['orderings_hold']}.",
           f"Association (the wearer among 0-3 bystanders): precision {100 * res['association']['precision']:.1f} %, "
           f"recall {100 * res['association']['recall']:.1f} % (association model {c.get('association_model', '?')}).",
@@ -220,8 +242,10 @@ def main(argv=None) -> int:
     res = run(a.clips, a.frames, a.seed, a.steps, Path(a.cmu_cc), out, shard, a.finished_only)
     if shard[1] > 1:
         return 0
-    (out / "vip_tables.json").write_text(json.dumps(res, indent=1) + "\n")
-    (out / "vip_tables.md").write_text(markdown(res))
+    names = [r["clip"] for r in res["per_clip"]]
+    data = {"clips": names, "subjects": subjects_of(names), "frames": a.frames, "seed": a.seed}
+    write_json(out / "vip_tables.json", res, split=SPLIT, data=data, argv=argv)
+    write_text(out / "vip_tables.md", markdown(res), split=SPLIT, data=data, argv=argv)
     print(markdown(res))
     return 0
 

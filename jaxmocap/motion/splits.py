@@ -12,7 +12,9 @@ A number we publish must come from subjects that shaped nothing it depends on. T
 
 Priors and networks are trained leave-subject-out (`fold_training`): a number on subject s
 uses a prior or network built without s (`jaxmocap.priors.build.evaluation_prior`, the
-DIP folds). Every experiment takes its subjects from a `Split` and writes
+DIP folds). A choice made inside such a fold (early stopping on validation clips) may read
+the fold's training subjects but never the locked one (`fold_tuning`): `Split(tuning=
+LEAVE_SUBJECT_OUT)` records that. Every experiment takes its subjects from a `Split` and writes
 `split.record()` into its result file, so a test can check that no table's evaluated
 subjects met its tuning or training subjects.
 
@@ -32,7 +34,7 @@ from .corpus import Clip, corpus
 
 __all__ = [
     "SUBJECTS", "DEVELOPMENT", "EVALUATION", "LOCKED", "LEAVE_SUBJECT_OUT",
-    "Split", "fold_training", "check_record", "subject_clips",
+    "Split", "fold_training", "fold_tuning", "check_record", "subject_clips",
 ]  # fmt: skip
 
 SUBJECTS = ("02", "05", "06", "07", "131")
@@ -57,11 +59,18 @@ def fold_training(evaluated: str | Iterable[str], subjects: Sequence[str] = SUBJ
     return tuple(s for s in _ids(subjects) if s not in held)
 
 
+def fold_tuning(evaluated: str | Iterable[str], subjects: Sequence[str] = SUBJECTS) -> tuple[str, ...]:
+    """The subjects a choice inside a leave-subject-out fold may read: the fold's training
+    subjects less the locked ones."""
+    return tuple(s for s in fold_training(evaluated, subjects) if s not in LOCKED)
+
+
 @dataclasses.dataclass(frozen=True)
 class Split:
     """The subjects one experiment tunes, trains and evaluates on.
 
-    tuning: subjects whose results chose anything (weights, thresholds, settings).
+    tuning: subjects whose results chose anything (weights, thresholds, settings), or
+        `LEAVE_SUBJECT_OUT` (per evaluated subject, inside its fold: `fold_tuning`).
     training: subjects a prior/network/weight was fitted on, or `LEAVE_SUBJECT_OUT`
         (per evaluated subject, every other subject: `fold_training`).
     evaluation: subjects the reported numbers come from.
@@ -70,12 +79,15 @@ class Split:
     """
 
     name: str
-    tuning: tuple[str, ...] = DEVELOPMENT
+    tuning: tuple[str, ...] | str = DEVELOPMENT
     training: tuple[str, ...] | str = LEAVE_SUBJECT_OUT
     evaluation: tuple[str, ...] = EVALUATION
 
     def __post_init__(self):
-        object.__setattr__(self, "tuning", _ids(self.tuning))
+        if self.tuning != LEAVE_SUBJECT_OUT:
+            if isinstance(self.tuning, str):
+                raise ValueError(f"Split {self.name!r}: tuning must be subjects or {LEAVE_SUBJECT_OUT!r}, got {self.tuning!r}.")
+            object.__setattr__(self, "tuning", _ids(self.tuning))
         object.__setattr__(self, "evaluation", _ids(self.evaluation))
         if self.training != LEAVE_SUBJECT_OUT:
             if isinstance(self.training, str):
@@ -87,16 +99,23 @@ class Split:
         """The subjects a model evaluated on `evaluated` may be trained on."""
         return fold_training(evaluated) if self.training == LEAVE_SUBJECT_OUT else self.training
 
+    def tuning_for(self, evaluated: str) -> tuple[str, ...]:
+        """The subjects a choice for `evaluated` may be made on."""
+        return fold_tuning(evaluated) if self.tuning == LEAVE_SUBJECT_OUT else self.tuning
+
     def clips(self, role: str = "evaluation", clips: Sequence[Clip] | None = None) -> list[Clip]:
         """The corpus clips of a role's subjects ("tuning" or "evaluation"), sorted by name."""
         if role not in ("tuning", "evaluation"):
             raise ValueError(f"role must be 'tuning' or 'evaluation', got {role!r}.")
+        if getattr(self, role) == LEAVE_SUBJECT_OUT:
+            raise ValueError(f"Split {self.name!r}: tuning is per fold; take fold_tuning(evaluated) subjects' clips.")
         return subject_clips(getattr(self, role), clips)
 
     def record(self) -> dict:
         """What a result file stores under "split" (read back by `check_record`)."""
         training = self.training if isinstance(self.training, str) else list(self.training)
-        return {"name": self.name, "tuning": list(self.tuning), "training": training,
+        tuning = self.tuning if isinstance(self.tuning, str) else list(self.tuning)
+        return {"name": self.name, "tuning": tuning, "training": training,
                 "evaluation": list(self.evaluation), "locked": list(LOCKED)}  # fmt: skip
 
 
@@ -105,7 +124,12 @@ def check_record(record: dict) -> None:
     missing = {"name", "tuning", "training", "evaluation"} - set(record)
     if missing:
         raise ValueError(f"split record lacks {sorted(missing)}: write Split(...).record().")
-    name, ev, tu = record["name"], set(_ids(record["evaluation"])), set(_ids(record["tuning"]))
+    for role in ("tuning", "training"):
+        if isinstance(record[role], str) and record[role] != LEAVE_SUBJECT_OUT:
+            raise ValueError(f"split {record['name']!r}: {role} must be subjects or {LEAVE_SUBJECT_OUT!r}, got {record[role]!r}.")
+    name, ev = record["name"], set(_ids(record["evaluation"]))
+    # Per-fold tuning (fold_tuning) never reads the evaluated subject nor the locked one.
+    tu = set() if record["tuning"] == LEAVE_SUBJECT_OUT else set(_ids(record["tuning"]))
     if ev & tu:
         raise ValueError(f"split {name!r}: subjects {sorted(ev & tu)} are both tuned and evaluated on.")
     locked = tu & set(_ids(record.get("locked", LOCKED)))
