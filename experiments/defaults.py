@@ -40,12 +40,14 @@ from pathlib import Path
 
 import jax
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 jax.config.update("jax_enable_x64", True)  # the float64 rows; float32 rows stay float32
 
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
 import jaxmocap  # noqa: E402,F401  (thread pool, compilation cache)
+from _provenance import record, write_json, write_text  # noqa: E402
 from jaxmocap._files import atomic_write  # noqa: E402
 from jaxmocap.body import default_body  # noqa: E402
 from jaxmocap.methods import inertial as I  # noqa: E402
@@ -241,8 +243,9 @@ def write(out: dict, folder: Path) -> None:
                      f"{mean('sip_best'):.1f} | {mean('sop_validated'):.1f} |")  # fmt: skip
     n_worse = sum(rows["sip_validated"][i]["mpjpe_mm"] > rows["sip_thesis"][i]["mpjpe_mm"] for i in range(len(names)))
     lines += ["", f"The default is worse than the thesis preset on {n_worse} of {len(names)} clips."]
-    atomic_write(folder / "defaults.md", "\n".join(lines) + "\n")
-    atomic_write(folder / "defaults.json", json.dumps(out, indent=1) + "\n")
+    data = {"tuning_clips": out["tuning"]["clips"], "evaluation_clips": out["evaluation"]["clips"]}
+    write_text(folder / "defaults.md", "\n".join(lines) + "\n", split=SPLIT, data=data)
+    write_json(folder / "defaults.json", out, split=SPLIT, data=data)
     from jaxmocap.viz.plot import plot_lines  # noqa: F401  (matplotlib only when writing)
     import matplotlib
 
@@ -258,6 +261,7 @@ def write(out: dict, folder: Path) -> None:
     fig.tight_layout()
     fig.savefig(folder / "defaults.png", dpi=120)
     plt.close(fig)
+    record(folder / "defaults.png", split=SPLIT, data=data)
 
 
 #: The reproduction check tests/test_presets.py re-runs: SIP under each preset on a short
@@ -312,7 +316,7 @@ def main(argv=None) -> int:
         out = json.loads((args.out / "defaults.json").read_text())
         out["check"] = reproduction_check(body)
         out.update(_copied(args.out))
-        atomic_write(args.out / "defaults.json", json.dumps(out, indent=1) + "\n")
+        write_json(args.out / "defaults.json", out, split=SPLIT, data={"check": CHECK})
         print(json.dumps(out["check"], indent=1))
         return 0
     log = lambda msg: print(msg, flush=True)  # noqa: E731
@@ -328,7 +332,7 @@ def main(argv=None) -> int:
         tuning = tune([Clip(c, args.seed + k, body) for k, c in enumerate(tune_clips)], log)
         if args.stage == "tune":
             args.out.mkdir(parents=True, exist_ok=True)
-            atomic_write(args.out / "defaults.json", json.dumps({"split": SPLIT.record(), "tuning": tuning}, indent=1) + "\n")
+            write_json(args.out / "defaults.json", {"tuning": tuning}, split=SPLIT, data={"tuning_clips": tuning["clips"]})
             log(f"tuning written to {args.out / 'defaults.json'}; set PRESETS['validated'] to it, then --stage evaluate")
             return 0
     v, c = I.PRESETS["validated"], tuning["chosen"]
