@@ -32,8 +32,6 @@ PREDATE_SPLITS = {
     "har.json": "experiments/har.py, edited by another change this wave",
     "intercap_scene06/metrics.json": "one scene's metrics of intercap_tables.py (GPU)",
     "learn_weights_gradcheck.json": "gradient check on one training clip; learn_weights.py --gradcheck-only",
-    "muvs_tables.json": "MuVS weights tuned on subjects 05-07 before 2026-11-28; muvs_tables.py on the GPU",
-    "muvs_tables_as_written.json": "as muvs_tables.json; muvs_tables.py --keep-swaps on the GPU",
     "sip_ablation/summary.json": "the sweep's summary (jaxmocap sweep experiments/sweeps/sip_ablation.toml, GPU)",
     "sip_body_scale.json": "experiments/sip_body_scale.py, edited by another change this wave",
     "sip_tables.json": "nested tuning let the locked subject 07 tune; sip_tables.py on the GPU",
