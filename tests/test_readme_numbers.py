@@ -61,6 +61,14 @@ QUOTES = [
         [1, 2, 1, 1, 2, 1, 1],
     ),
     (
+        r"MLP macro F1 ([\d.]+), MLP \+ CRF accuracy ([\d.]+) / macro F1 ([\d.]+)\s+\(([\d.]+) on the evaluation"
+        r" subjects 05, 06, 07 alone\), against accuracy ([\d.]+) / macro F1\s+([\d.]+) for always",
+        "experiments/results/har.json",
+        ["macro_f1_mlp", "accuracy_crf", "macro_f1_crf", "evaluation_subjects_only.macro_f1_crf",
+         "baseline_constant_most_frequent_test_class.accuracy", "baseline_constant_most_frequent_test_class.macro_f1"],
+        [3, 3, 3, 3, 3, 3],
+    ),
+    (
         r"`make demo`: ([\d.]+) s the first time,\s+([\d.]+) s after",
         "benchmarks/results/cold_start.json",
         ["entries.make_demo.cold_wall_s", "entries.make_demo.warm_wall_s"],
