@@ -69,6 +69,12 @@ QUOTES = [
         [3, 3, 3, 3, 3, 3],
     ),
     (
+        r"The thesis's own input and MLP, same labels and folds, reach\s+macro F1 ([\d.]+) → ([\d.]+)",
+        "experiments/results/har.json",
+        ["comparison.macro_f1_mlp", "comparison.macro_f1_crf"],
+        [3, 3],
+    ),
+    (
         r"`make demo`: ([\d.]+) s the first time,\s+([\d.]+) s after",
         "benchmarks/results/cold_start.json",
         ["entries.make_demo.cold_wall_s", "entries.make_demo.warm_wall_s"],
