@@ -334,3 +334,70 @@ def test_scores_from_a_confusion_matrix():
     assert s["accuracy"] == pytest.approx(3 / 5)
     assert s["f1"][1] == pytest.approx(0.8) and s["f1"][2] == 0.0
     assert s["macro_f1"] == pytest.approx((0.5 + 0.8 + 0.0) / 3)
+
+
+# --- turning: labels and the watch's yaw rate ------------------------------------------------
+
+
+def _turning(degrees_per_second: float, seconds: float = 3.0, fps: float = 60.0):
+    """Standing still while spinning about the vertical at a constant rate (+ = to the left,
+    counter-clockwise seen from above)."""
+    from scipy.spatial.transform import Rotation
+
+    from jaxmocap.motion.sequence import Motion
+
+    base = library.static_hold(num_frames=int(seconds * fps), fps=fps)
+    t = np.arange(base.num_frames) / fps
+    yaw = Rotation.from_rotvec(np.radians(degrees_per_second * t)[:, None] * np.array([0.0, 1.0, 0.0]))
+    poses = base.poses.copy()
+    poses[:, 0] = (yaw * Rotation.from_rotvec(base.poses[:, 0])).as_rotvec()
+    return Motion(poses, base.trans, fps)
+
+
+@pytest.mark.parametrize("rate, name", [(120.0, "turn_left"), (-120.0, "turn_right"), (20.0, "still")])
+def test_turn_direction_in_labels_and_watch_yaw_rate(rate, name):
+    motion = _turning(rate)
+    labels = A.activity_labels(motion)
+    assert _fractions(labels)[C_IDX[name]] >= 0.9
+    readings = A.watch_readings(motion, error_model=None)
+    features = A.summary_features(readings)
+    yaw = features[:, A.summary_feature_names().index("yaw_rate@10")]
+    # the watch reads the body's rotation about the vertical, sign included
+    np.testing.assert_allclose(np.median(yaw), np.radians(rate), rtol=0.05)
+    # mirroring swaps the direction of the turn
+    mirrored = A.activity_labels(motion.mirrored())
+    swap = {"turn_left": "turn_right", "turn_right": "turn_left", "still": "still"}[name]
+    assert _fractions(mirrored)[C_IDX[swap]] >= 0.9
+
+
+def test_summary_features_layout_windows_and_a_still_watch():
+    readings = np.zeros((40, 6), np.float32)
+    readings[:, 1] = 9.81  # held still, y axis up
+    x = A.summary_features(readings)
+    names = A.summary_feature_names()
+    assert x.shape == (40, len(names)) and len(names) == 19 * len(A.SUMMARY_WINDOWS)
+    col = {n: x[:, i] for i, n in enumerate(names)}
+    np.testing.assert_allclose(col["up_y@30"], 1.0, atol=1e-6)
+    np.testing.assert_allclose(col["acc_dynamic@60"], 0.0, atol=1e-4)
+    np.testing.assert_allclose(col["yaw_rate@10"], 0.0, atol=1e-6)
+    # a burst of shaking at frames 20..24: a centred window sees it before frame 20, a
+    # trailing one does not
+    shaken = readings.copy()
+    shaken[20:25, 0] = np.array([5.0, -5.0, 5.0, -5.0, 5.0])
+    c = A.summary_features(shaken, windows=(10,))
+    t = A.summary_features(shaken, windows=(10,), centred=False)
+    dyn = A.summary_feature_names((10,)).index("acc_dynamic@10")
+    assert c[17, dyn] > 1.0 and t[17, dyn] == pytest.approx(0.0, abs=1e-5) and t[22, dyn] > 1.0
+    with pytest.raises(ValueError, match="windows"):
+        A.summary_features(readings, windows=(1,))
+
+
+def test_labels_from_signals_equal_activity_labels():
+    motion = library.MOTIONS["walk"](num_frames=120, fps=30.0)
+    signals = A.label_signals(motion)
+    assert set(signals) == set(A.SIGNALS)
+    np.testing.assert_array_equal(A.labels_from_signals(signals, 30.0), A.activity_labels(motion))
+    raised = dict(signals, hand_height=np.full(120, 0.2))  # walking wins over a raised hand
+    assert (A.labels_from_signals(raised, 30.0) == C_IDX["walk"]).all()
+    slow = dict(raised, speed=np.zeros(120))
+    assert (A.labels_from_signals(slow, 30.0) == C_IDX["arms_up"]).all()

@@ -61,6 +61,20 @@ QUOTES = [
         [1, 2, 1, 1, 2, 1, 1],
     ),
     (
+        r"MLP macro F1 ([\d.]+), MLP \+ CRF accuracy ([\d.]+) / macro F1 ([\d.]+)\s+\(([\d.]+) on the evaluation"
+        r" subjects 05, 06, 07 alone\), against accuracy ([\d.]+) / macro F1\s+([\d.]+) for always",
+        "experiments/results/har.json",
+        ["macro_f1_mlp", "accuracy_crf", "macro_f1_crf", "evaluation_subjects_only.macro_f1_crf",
+         "baseline_constant_most_frequent_test_class.accuracy", "baseline_constant_most_frequent_test_class.macro_f1"],
+        [3, 3, 3, 3, 3, 3],
+    ),
+    (
+        r"The thesis's own input and MLP, same labels and folds, reach\s+macro F1 ([\d.]+) → ([\d.]+)",
+        "experiments/results/har.json",
+        ["comparison.macro_f1_mlp", "comparison.macro_f1_crf"],
+        [3, 3],
+    ),
+    (
         r"`make demo`: ([\d.]+) s the first time,\s+([\d.]+) s after",
         "benchmarks/results/cold_start.json",
         ["entries.make_demo.cold_wall_s", "entries.make_demo.warm_wall_s"],

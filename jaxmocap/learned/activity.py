@@ -33,28 +33,37 @@ Pipeline (Fig. 7.4, §7.3-7.4):
    thesis computes T from training sequences, Fig. 7.5); A and λ are then learned by
    maximising the CRF log-likelihood with the MLP fixed (`train_crf`).
 
-Labelling rule (`activity_labels`, thresholds in `LabelRule`). Labels come from the true
-motion, frame by frame, so that classes occur across subjects (a clip's own activity name
-is subject-specific in the CMU data: only subject 2 punches, only subject 5 dances). With
-v the pelvis horizontal speed, everything averaged over a centred 1 s window:
+Labelling rule (`activity_labels` = `labels_from_signals(label_signals(...))`, thresholds
+in `LabelRule`). Labels come from the true motion, frame by frame, so that classes occur
+across subjects (a clip's own activity name is subject-specific in the CMU data: only
+subject 2 punches, only subject 5 dances). With v the pelvis horizontal speed, everything
+averaged over a centred 1 s window:
 
-    jump   the lower foot is > 0.15 m above the ground (the lowest foot height within
-           ±1 s), i.e. both feet clearly off it; padded by 0.25 s on each side (take-off
-           and landing)
-    run    v > 1.8 m/s and a flight phase: in > 25 % of the window neither foot is
-           planted (each foot's ankle and toe joints both move faster than 1 m/s)
-    turn   the pelvis heading changes by > 60° within the window
-    bend   the trunk (pelvis → neck) tilts > 35° from vertical, or the pelvis is below
-           0.8 x its standing height above the soles (bend over, crouch, squat, sit)
-    walk   v > 0.5 m/s
-    arms   a wrist moves faster than 0.8 m/s relative to the pelvis (punch, wash,
-           dribble, swordplay while standing)
-    still  none of the above
+    jump        the lower foot is > 0.15 m above the ground (the lowest foot height
+                within ±1 s), i.e. both feet clearly off it; padded by 0.25 s on each
+                side (take-off and landing)
+    run         v > 1.8 m/s and a flight phase: in > 25 % of the window neither foot is
+                planted (each foot's ankle and toe joints both move faster than 1 m/s)
+    turn_left   the pelvis heading changes by > 60° within the window, counter-clockwise
+    turn_right  seen from above (y up) for turn_left, clockwise for turn_right
+    bend        the trunk (pelvis → neck) tilts > 35° from vertical, or the pelvis is
+                below 0.8 x its standing height above the soles (bend over, crouch, squat)
+    walk        v > 0.5 m/s
+    arms_up     a wrist above the head joint (window mean): reach up, arms held high
+    arms        a wrist moves faster than 0.8 m/s relative to the pelvis (punch, wash,
+                dribble, swordplay while standing)
+    still       none of the above
 
-The first matching line wins (jump before run before turn ...). Then label flicker is
+The first matching line wins (jump before run before turn ...). `LabelRule.watch_arm = 1`
+makes arms_up and arms look at the watch's (left) wrist alone. Then label flicker is
 removed: every segment shorter than 0.5 s takes the label of its longer neighbour,
 shortest first. Heights use the body's rest pose: a foot joint's height is its y minus its
 rest height above the soles, so a flat foot reads 0.
+
+Features beyond the thesis: `summary_features` (statistics of 1, 3 and 6 s windows of the
+raw readings: forearm orientation from the mean specific force, shaking, angular rate, the
+rate about the vertical) are what `experiments/har.py` feeds the MLP by default; on five
+subjects' worth of motion they are less to learn than the 360 raw values.
 
 Randomness: every function that draws takes a `numpy.random.Generator` or a JAX key.
 """
@@ -83,6 +92,12 @@ __all__ = [
     "WATCH_SENSOR",
     "LabelRule",
     "activity_labels",
+    "label_signals",
+    "labels_from_signals",
+    "SIGNALS",
+    "summary_features",
+    "summary_feature_names",
+    "SUMMARY_WINDOWS",
     "watch_readings",
     "resample_labels",
     "window_features",
@@ -111,7 +126,14 @@ __all__ = [
 ]
 
 #: The classes of the labelling rule, in label order.
-CLASSES: tuple[str, ...] = ("still", "walk", "run", "jump", "bend", "turn", "arms")
+CLASSES: tuple[str, ...] = (
+    "still", "walk", "run", "jump", "bend", "turn_left", "turn_right", "arms", "arms_up",
+)  # fmt: skip
+#: The per-frame quantities of `label_signals`, in the order experiments store them.
+SIGNALS: tuple[str, ...] = (
+    "speed", "flight", "airborne", "tilt", "crouch", "turn", "arm_speed", "hand_height",
+    "watch_arm_speed", "watch_hand_height",
+)  # fmt: skip
 #: Readings rate (fps) and window length (frames, current frame included) of §7.4.
 WATCH_RATE = 10.0
 WINDOW = 60
@@ -149,6 +171,8 @@ class LabelRule(eqx.Module):
     bend_tilt: float = 35.0  # degrees of trunk tilt from vertical
     crouch_ratio: float = 0.8  # pelvis height / standing pelvis height
     arm_speed: float = 0.8  # m/s, wrist relative to the pelvis
+    hand_above_head: float = 0.0  # m, a wrist this far above the head joint
+    watch_arm: int = 0  # 1: "arms" / "arms_up" look at the watch arm only; 0: either arm
     min_segment: float = 0.5  # s, shorter segments are merged into a neighbour
 
     def __check_init__(self):
@@ -238,25 +262,32 @@ def _merge_short_segments(labels: np.ndarray, min_length: int) -> np.ndarray:
         labels[starts[i] : ends[i]] = labels[starts[j]]
 
 
-def activity_labels(
-    motion: Motion, body: Body | None = None, rule: LabelRule = LabelRule()
-) -> np.ndarray:
-    """The class of every frame of `motion` by the labelling rule (module docstring).
+def label_signals(motion: Motion, body: Body | None = None, rule: LabelRule = LabelRule()) -> dict:
+    """The per-frame kinematic quantities the labelling rule thresholds (module docstring),
+    computed on the true motion at its own rate: a dict of (T,) float arrays
 
-    Args:
-        motion: the true motion (any frame rate; y up, metres).
-        body: the body the motion drives (default: `default_body("low")`); its rest pose
-            gives the foot and pelvis heights.
-        rule: the thresholds.
-    Returns:
-        (T,) int labels, indices into `CLASSES`.
-    """
+        speed        pelvis horizontal speed, m/s (centred `rule.window` average)
+        flight       fraction of the window with no foot planted
+        airborne     1 where the lower foot is > `rule.jump_height` above the ground
+                     (padded by `rule.jump_pad`), else 0
+        tilt         trunk (pelvis -> neck) angle from vertical, degrees
+        crouch       pelvis height above the soles / its standing height
+        turn         signed pelvis heading change across the window, degrees (+ = to the
+                     left, counter-clockwise seen from above, y up)
+        arm_speed    the faster wrist's speed relative to the pelvis, m/s (window average)
+        hand_height  the higher wrist's height above the head joint, m (window average)
+        watch_arm_speed, watch_hand_height   the same for the left wrist alone (the arm
+                     that wears the watch, `WATCH_SENSOR`)
+
+    `labels_from_signals` turns them into classes; `activity_labels` does both."""
     if not isinstance(motion, Motion):
         raise ValueError(f"activity_labels needs a jaxmocap Motion, got {type(motion).__name__}.")
     body = _default_body(body)
     T, fps = motion.num_frames, motion.fps
     if T < 3:
-        return np.zeros(T, np.int32)
+        z = np.zeros(T)
+        return dict(speed=z, flight=z, airborne=z, tilt=z, crouch=np.ones(T), turn=z, arm_speed=z,
+                    hand_height=z - 1.0, watch_arm_speed=z, watch_hand_height=z - 1.0)  # fmt: skip
     joints = np.asarray(_posed(body, motion)[2].joints, np.float64)[:T]
     rest = np.asarray(body.J_regressor, np.float64) @ np.asarray(body.v_template, np.float64)
     sole = float(np.asarray(body.v_template)[:, 1].min())
@@ -284,28 +315,76 @@ def activity_labels(
     tilt = np.degrees(np.arccos(np.clip(trunk[:, 1] / np.linalg.norm(trunk, axis=1), -1.0, 1.0)))
     pelvis_height = joints[:, 0, 1] - lower  # above the soles (lower = the sole level, y)
     standing = rest[0, 1] - sole
-    bend = (tilt > rule.bend_tilt) | (pelvis_height < rule.crouch_ratio * standing)
 
     hips = joints[:, _J["left_hip"]] - joints[:, _J["right_hip"]]
     heading = np.unwrap(np.arctan2(hips[:, 2], hips[:, 0]))
     half = w // 2
     idx = np.arange(T)
-    turned = np.abs(heading[np.minimum(idx + half, T - 1)] - heading[np.maximum(idx - half, 0)])
-    turn = np.degrees(turned) > rule.turn_degrees * (2 * half) / max(w, 1)
+    turned = heading[np.minimum(idx + half, T - 1)] - heading[np.maximum(idx - half, 0)]
+    # arctan2(z, x) grows clockwise seen from above (y up): left turns are negative.
+    turn = -np.degrees(turned) * max(w, 1) / max(2 * half, 1)
 
     wrist = joints[:, list(_WRISTS)] - joints[:, None, 0]
-    arms = _box(np.linalg.norm(np.gradient(wrist, dt, axis=0), axis=-1).max(1), w) > rule.arm_speed
+    arm_speed = _box(np.linalg.norm(np.gradient(wrist, dt, axis=0), axis=-1).max(1), w)
+    wrist_speed = _box(np.linalg.norm(np.gradient(wrist, dt, axis=0), axis=-1), w)  # (T, 2)
+    above_head = _box(joints[:, list(_WRISTS), 1] - joints[:, None, _J["head"], 1], w)  # (T, 2)
+    return dict(
+        hand_height=above_head.max(1),
+        watch_arm_speed=wrist_speed[:, 0],
+        watch_hand_height=above_head[:, 0],
+        speed=speed,
+        flight=flight,
+        airborne=jump.astype(np.float64),
+        tilt=tilt,
+        crouch=pelvis_height / standing,
+        turn=turn,
+        arm_speed=arm_speed,
+    )
 
+
+def labels_from_signals(signals: dict, fps: float, rule: LabelRule = LabelRule()) -> np.ndarray:
+    """The class of every frame from `label_signals` (first matching line of the rule
+    wins), short segments merged into a neighbour."""
+    check_rate("fps", fps)
+    sig = {k: np.asarray(v, np.float64) for k, v in signals.items()}
+    T = sig["speed"].shape[0]
     c = {n: i for i, n in enumerate(CLASSES)}
     labels = np.full(T, c["still"], np.int32)
+    if T < 3:
+        return labels
+    bend = (sig["tilt"] > rule.bend_tilt) | (sig["crouch"] < rule.crouch_ratio)
     # Lowest priority first: later assignments win.
-    labels[arms] = c["arms"]
-    labels[speed > rule.walk_speed] = c["walk"]
+    arm = "watch_arm_speed" if rule.watch_arm and "watch_arm_speed" in sig else "arm_speed"
+    hand = "watch_hand_height" if rule.watch_arm and "watch_hand_height" in sig else "hand_height"
+    labels[sig[arm] > rule.arm_speed] = c["arms"]
+    labels[sig[hand] > rule.hand_above_head] = c["arms_up"]
+    labels[sig["speed"] > rule.walk_speed] = c["walk"]
     labels[bend] = c["bend"]
-    labels[turn] = c["turn"]
-    labels[(speed > rule.run_speed) & (flight > rule.run_flight)] = c["run"]
-    labels[jump] = c["jump"]
+    labels[sig["turn"] > rule.turn_degrees] = c["turn_left"]
+    labels[sig["turn"] < -rule.turn_degrees] = c["turn_right"]
+    labels[(sig["speed"] > rule.run_speed) & (sig["flight"] > rule.run_flight)] = c["run"]
+    labels[sig["airborne"] > 0] = c["jump"]
     return _merge_short_segments(labels, int(round(rule.min_segment * fps))).astype(np.int32)
+
+
+def activity_labels(
+    motion: Motion, body: Body | None = None, rule: LabelRule = LabelRule()
+) -> np.ndarray:
+    """The class of every frame of `motion` by the labelling rule (module docstring).
+
+    Args:
+        motion: the true motion (any frame rate; y up, metres).
+        body: the body the motion drives (default: `default_body("low")`); its rest pose
+            gives the foot and pelvis heights.
+        rule: the thresholds.
+    Returns:
+        (T,) int labels, indices into `CLASSES`.
+    """
+    if not isinstance(motion, Motion):
+        raise ValueError(f"activity_labels needs a jaxmocap Motion, got {type(motion).__name__}.")
+    if motion.num_frames < 3:
+        return np.zeros(motion.num_frames, np.int32)
+    return labels_from_signals(label_signals(motion, body, rule), motion.fps, rule)
 
 
 def resample_labels(labels, fps: float, rate: float = WATCH_RATE) -> np.ndarray:
@@ -432,6 +511,88 @@ def window_features(readings, window: int = WINDOW) -> Array:
     return jnp.concatenate(
         [w[..., :3].reshape(x.shape[0], -1), w[..., 3:].reshape(x.shape[0], -1)], -1
     )
+
+
+#: Window lengths (watch frames: 1 s, 3 s, 6 s) of `summary_features`.
+SUMMARY_WINDOWS: tuple[int, ...] = (10, 30, 60)
+#: Values per window of `summary_features` (names in `summary_feature_names`).
+_SUMMARY_NAMES = (
+    "up_x", "up_y", "up_z", "acc_mean_norm", "acc_dynamic", "acc_std_x", "acc_std_y", "acc_std_z",
+    "acc_norm_std", "gyro_mean_x", "gyro_mean_y", "gyro_mean_z", "gyro_std_x", "gyro_std_y",
+    "gyro_std_z", "gyro_rms", "yaw_rate", "yaw_rate_abs", "acc_norm_crossings",
+)  # fmt: skip
+
+
+def summary_feature_names(windows: Sequence[int] = SUMMARY_WINDOWS) -> list[str]:
+    """Names of the columns of `summary_features`, window by window."""
+    return [f"{n}@{w}" for w in windows for n in _SUMMARY_NAMES]
+
+
+def _moving_mean(x: np.ndarray, length: int, centred: bool) -> np.ndarray:
+    """Mean over a window of `length` frames ending at (or centred on) each frame; the
+    sequence is continued by its first / last frame."""
+    before = length // 2 if centred else length - 1
+    after = length - 1 - before
+    pad = [(before, after)] + [(0, 0)] * (x.ndim - 1)
+    xp = np.pad(x, pad, mode="edge")
+    cs = np.concatenate([np.zeros((1, *x.shape[1:])), np.cumsum(xp, 0)], 0)
+    return (cs[length:] - cs[:-length]) / length
+
+
+def summary_features(
+    readings, windows: Sequence[int] = SUMMARY_WINDOWS, centred: bool = True
+) -> np.ndarray:
+    """Window statistics of the raw watch readings, per frame (an alternative to the
+    thesis's raw windows, `window_features`; compact enough for a few subjects of data).
+
+    For every window length L in `windows` (frames), centred on the frame (or ending at it
+    with `centred=False`), 19 values:
+
+        up (3)            the mean specific force, normalised: the direction of "up" in
+                          the watch frame, i.e. how the forearm is held
+        acc_mean_norm     |mean specific force| (≈ g unless the wrist accelerates steadily)
+        acc_dynamic       sqrt(mean |a - mean a|²): how much the wrist shakes
+        acc_std (3), acc_norm_std   per-axis and magnitude standard deviations
+        gyro_mean (3), gyro_std (3), gyro_rms   the angular rate's mean, spread, energy
+        yaw_rate, |yaw_rate|   the angular rate about the vertical (r_t · up_t, up_t from a
+                          1 s mean of a): turning of the whole body, signed (+ = left,
+                          counter-clockwise seen from above)
+        acc_norm_crossings   the rate of |a| crossing its window mean (per frame): the
+                          step or swing frequency
+
+    Args:
+        readings: (N, 6) raw watch frames (a m/s², r rad/s), as `watch_readings` returns.
+    Returns:
+        (N, 19 · len(windows)) float32, columns named by `summary_feature_names`.
+    """
+    x = np.asarray(_check_readings("readings", readings), np.float64)
+    if not windows or not all(isinstance(w, int) and w >= 2 for w in windows):
+        raise ValueError(f"windows must be whole numbers of frames >= 2, got {windows!r}.")
+    a, r = x[:, :3], x[:, 3:]
+    up_local = _moving_mean(a, 10, centred)
+    up_local /= np.maximum(np.linalg.norm(up_local, axis=1, keepdims=True), 1e-9)
+    yaw = np.sum(r * up_local, 1, keepdims=True)
+    anorm = np.linalg.norm(a, axis=1, keepdims=True)
+    out = []
+    for L in windows:
+        ma = _moving_mean(a, L, centred)
+        ma_norm = np.linalg.norm(ma, axis=1, keepdims=True)
+        up = ma / np.maximum(ma_norm, 1e-9)
+        a2 = _moving_mean(a**2, L, centred)
+        a_var = np.maximum(a2 - ma**2, 0.0)
+        dyn = np.sqrt(a_var.sum(1, keepdims=True))
+        mn = _moving_mean(anorm, L, centred)
+        n_std = np.sqrt(np.maximum(_moving_mean(anorm**2, L, centred) - mn**2, 0.0))
+        mr = _moving_mean(r, L, centred)
+        r2 = _moving_mean(r**2, L, centred)
+        r_std = np.sqrt(np.maximum(r2 - mr**2, 0.0))
+        r_rms = np.sqrt(r2.sum(1, keepdims=True))
+        yaw_mean = _moving_mean(yaw, L, centred)
+        yaw_abs = _moving_mean(np.abs(yaw), L, centred)
+        above = (anorm > mn).astype(np.float64)
+        crossings = _moving_mean(np.abs(np.diff(above, axis=0, prepend=above[:1])), L, centred)
+        out += [up, ma_norm, dyn, np.sqrt(a_var), n_std, mr, r_std, r_rms, yaw_mean, yaw_abs, crossings]
+    return np.concatenate(out, 1).astype(np.float32)
 
 
 class Standardiser(eqx.Module):
