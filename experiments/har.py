@@ -78,7 +78,6 @@ import json
 import os
 import platform
 import sys
-import tempfile
 import time
 from pathlib import Path
 
@@ -145,15 +144,6 @@ class Config:
     def data_key(self) -> str:
         """What the simulated data depends on (+ the layout version of the cached file)."""
         return self.key(("seed", "fps", "speeds", "mirror", "procedural_seconds")) + "v2"
-
-
-def write_atomic(path: Path, data: bytes | str) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
-    with os.fdopen(fd, "wb") as f:
-        f.write(data.encode() if isinstance(data, str) else data)
-    os.chmod(tmp, 0o644)
-    os.replace(tmp, path)
 
 
 def save_npz_atomic(path: Path, **arrays) -> None:
@@ -905,11 +895,17 @@ def main(argv=None) -> int:
             + " --out DIR)",
         }
     args.out.mkdir(parents=True, exist_ok=True)
-    write_atomic(args.out / "har.json", json.dumps(result, indent=1) + "\n")
-    write_atomic(args.out / "har.md", markdown(result))
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from _provenance import record, write_json, write_text
+
+    # The split record with its folds (who trained and tuned what) is the provenance's too.
+    used = {"subjects": sorted(run_subjects), "procedural_motions": "jaxmocap.motion.library (training only)"}
+    write_json(args.out / "har.json", {k: v for k, v in result.items() if k != "split"}, split=result["split"], data=used)
+    write_text(args.out / "har.md", markdown(result), split=result["split"], data=used)
     plot_confusions(
         conf["MLP"], conf["MLP + CRF"], data.kept, scores, args.out / "har_confusion.png"
     )
+    record(args.out / "har_confusion.png", split=result["split"], data=used)
     log(
         f"accuracy MLP {result['accuracy_mlp']:.3f} -> MLP + CRF {result['accuracy_mlp_crf']:.3f}; "
         f"macro F1 {result['macro_f1_mlp']:.3f} -> {result['macro_f1_mlp_crf']:.3f} ({C} classes)"

@@ -29,7 +29,6 @@ RESULTS = ROOT / "experiments" / "results"
 PREDATE_SPLITS = {
     "dip_training_curves*.json": "training curves of the DIP folds (leave-subject-out); train_dip.py on the GPU",
     "fuzz.json": "reads no clip: the file readers fuzzed with random bytes (no split applies)",
-    "har.json": "experiments/har.py, edited by another change this wave",
     "intercap_scene06/metrics.json": "one scene's metrics of intercap_tables.py (GPU)",
     "learn_weights_gradcheck.json": "gradient check on one training clip; learn_weights.py --gradcheck-only",
     "sip_ablation/summary.json": "the sweep's summary (jaxmocap sweep experiments/sweeps/sip_ablation.toml, GPU)",
@@ -189,7 +188,6 @@ def test_tuning_inside_the_folds_never_reads_the_locked_subject():
 
 # Experiments that write no result file through experiments/_provenance.py: why.
 WITHOUT_PROVENANCE = {
-    "har.py": "edited by another change this wave; its results are listed in PREDATE_SPLITS",
     "sip_body_scale.py": "edited by another change this wave; its results are listed in PREDATE_SPLITS",
     "make_datasets.py": "writes benchmark datasets into a cache folder, no result",
 }
