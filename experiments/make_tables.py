@@ -57,7 +57,13 @@ TABLES = (
           "python experiments/multiview_layout_margins.py", "cpu", "<1"),
     Table("sop_start", ("sop_start.json", "sop_start.md"), "python experiments/sop_start.py --clips 9", "cpu", "~10",
           "README quotes it (tests/test_readme_numbers.py)"),
+    Table("har", ("har.json", "har.md", "har_confusion.png"), "python experiments/har.py --out experiments/results",
+          "cpu", "~15", "--compare DIR/har.json of a --features raw --hidden 1024,512,60 run adds the thesis-input row"),
     # --- CPU, long ----------------------------------------------------------------------
+    Table("defaults", ("defaults.json", "defaults.md", "defaults.png"),
+          "python experiments/defaults.py --out experiments/results", "cpu-long", "~30",
+          "chooses the inertial posers' validated preset on 02/131, then measures it on 05-07; "
+          "PRESETS['validated'] in jaxmocap/methods/inertial.py must equal its choice (tests/test_presets.py)"),
     Table("fuzz", ("fuzz.json",), "nice -n 19 python experiments/fuzz.py", "cpu-long", "~110",
           "reads no motion data"),
     Table("train_association", (),
