@@ -205,10 +205,17 @@ def main(argv=None) -> int:
                                        "keypoints, x0 with 10 deg (1 sigma) error per joint")  # fmt: skip
     res_dir = Path(a.out)
     res_dir.mkdir(parents=True, exist_ok=True)
+    if (res_dir / "vip_association.json").exists():  # experiments/vip_association_unseen.py's blocks
+        old = json.loads((res_dir / "vip_association.json").read_text())
+        out.update({k: old[k] for k in UNSEEN_BLOCKS if k in old})
     (res_dir / "vip_association.json").write_text(json.dumps(out, indent=1) + "\n")
     (res_dir / "vip_association.md").write_text(markdown(out))
     print(markdown(out))
     return 0
+
+
+#: Blocks written by experiments/vip_association_unseen.py, kept when this script rewrites the file.
+UNSEEN_BLOCKS = ("defaults_unseen", "defaults_development", "defaults_unseen_same_clip", "defaults_development_same_clip")
 
 
 def scenes(seeds, counts, clips):
@@ -329,7 +336,9 @@ def markdown(r: dict) -> str:
     for s in r["per_scene"]:
         L.append(f"| {s['seed']} | {', '.join(s['clips'])} | {s['frames']} | {100 * s['precision']:.1f} % "
                  f"| {100 * s['recall']:.1f} % | {s['wrong']} | {s['seconds_association']} |")  # fmt: skip
-    return "\n".join(L) + "\n"
+    from vip_association_unseen import markdown as unseen_markdown
+
+    return "\n".join(L) + "\n" + unseen_markdown(r)
 
 
 if __name__ == "__main__":
