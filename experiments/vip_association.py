@@ -249,10 +249,18 @@ def main(argv=None) -> int:
     scene_clips = sorted({c for s in per_scene for c in s["clips"]})
     data = {"clips": scene_clips, "subjects": subjects_of(scene_clips), "seeds": seeds, "scenes_per_seed": counts,
             "frames": a.frames}  # fmt: skip
+    res_dir.mkdir(parents=True, exist_ok=True)
+    if (res_dir / f"{name}.json").exists():  # experiments/vip_association_unseen.py's blocks
+        old = json.loads((res_dir / f"{name}.json").read_text())
+        out.update({k: old[k] for k in UNSEEN_BLOCKS if k in old})
     write_json(res_dir / f"{name}.json", out, split=split, data=data, argv=argv)
     write_text(res_dir / f"{name}.md", markdown(out), split=split, data=data, argv=argv)
     print(markdown(out))
     return 0
+
+
+#: Blocks written by experiments/vip_association_unseen.py, kept when this script rewrites the file.
+UNSEEN_BLOCKS = ("defaults_unseen", "defaults_development", "defaults_unseen_same_clip", "defaults_development_same_clip")
 
 
 def scenes(seeds, counts, clips):
@@ -374,7 +382,9 @@ def markdown(r: dict) -> str:
     for s in r["per_scene"]:
         L.append(f"| {s['seed']} | {', '.join(s['clips'])} | {s['frames']} | {100 * s['precision']:.1f} % "
                  f"| {100 * s['recall']:.1f} % | {s['wrong']} | {s['seconds_association']} |")  # fmt: skip
-    return "\n".join(L) + "\n"
+    from vip_association_unseen import markdown as unseen_markdown
+
+    return "\n".join(L) + "\n" + unseen_markdown(r)
 
 
 if __name__ == "__main__":

@@ -346,3 +346,24 @@ def test_a_bystander_seen_beside_the_wearer_never_takes_over():
     off = A.associate(J, K, cam, det, model=A.dataclasses.replace(A.load_model(), cross_tracks=False))
     assert (on.index[0, :leave] == 1).all() and (on.index[0, leave:] == -1).all(), on.index
     assert (off.index[0, leave:] == 0).any(), off.index  # the failure the constraint prevents
+
+
+def test_the_shipped_model_was_shaped_by_development_subjects_only():
+    """Issue 46/52: the association's weights and settings come from development subjects
+    (02, 131) and the procedural library; no evaluation subject (05, 06, 07) trained them, chose
+    their settings, or built the Inertial Tracker prior behind their training features."""
+    from jaxmocap.motion.corpus import subject_of
+    from jaxmocap.motion.library import MOTIONS
+    from jaxmocap.motion.splits import DEVELOPMENT, EVALUATION, check_record
+
+    prov = A.load_model().provenance
+    check_record(prov["split"])
+    assert set(prov["split"]["training"]) <= set(DEVELOPMENT) and set(prov["split"]["tuning"]) <= set(DEVELOPMENT)
+    assert set(prov["split"]["evaluation"]) == set(EVALUATION)
+    names = [n for scene in prov["scenes"] for n in scene]
+    assert names and all(n in MOTIONS or subject_of(n) in DEVELOPMENT for n in names), names
+    assert "wearer_prior" in prov["data"]  # not the bundled prior, which holds the evaluation subjects
+    chosen = prov["settings"]
+    assert set(chosen["split"]["tuning"]) <= set(DEVELOPMENT) and chosen["chosen"] in chosen["grid"]
+    m = A.load_model()
+    assert {k: getattr(m, k) for k in chosen["values"]} == chosen["values"]  # the shipped values are the chosen

