@@ -41,7 +41,6 @@ PREDATE_SPLITS = {
     "dip_init.json": "dip_init.py on the GPU",
     "prior_forms.json": "prior_forms.py (GPU, or > 15 min on 2 CPU cores)",
     "intercap_tables.json": "intercap_tables.py on the GPU",
-    "sop_start.json": "sop_start.py --clips 9 (CPU, ~10 min unloaded; not re-run: this machine was overloaded)",
     "learn_weights.json": "trained and tested on subject 02 before 2026-11-28; learn_weights.py (CPU, > 40 min when loaded)",
 }
 
