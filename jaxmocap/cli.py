@@ -296,7 +296,13 @@ def _configure_multiview(p: argparse.ArgumentParser) -> None:
                    "intri/extri.yml (folder), .npz (default: the project's calibration/)")
     p.add_argument("--out", metavar="DIR",
                    help="output folder (default: PROJECT/multiview for a project, multiview-demo for the demo)")
-    p.add_argument("--layout", default=None, choices=("body25", "body25b", "coco18"),
+    p.add_argument("--videos", metavar="DIR",
+                   help="one video per camera (cam01.mp4, ...): detect the person with MediaPipe Pose (an "
+                   "environment of its own: --detector-python) instead of reading --keypoints")
+    p.add_argument("--detector-python", metavar="PYTHON", default=None,
+                   help="the Python with mediapipe 0.10.21 for --videos (default: $JAXMOCAP_VIDEO_PYTHON, else "
+                   "this one)")
+    p.add_argument("--layout", default=None, choices=("body25", "body25b", "coco18", "mediapipe33"),
                    help="the OpenPose model the keypoints come from (default: Config.toml's pose_model, else "
                    "detected from the skeleton); checked against the skeleton either way")
     _add_body_option(p)
@@ -326,21 +332,33 @@ def _run_multiview(args) -> int:
         out = out / "fit"
     else:
         keypoints, calib, out = args.keypoints, args.calib, args.out
+        if args.videos is not None and keypoints is not None:
+            raise ValueError("--videos and --keypoints both given: the keypoints come from one or the other.")
         if args.source is not None:
             from .formats import read_project
 
-            project = read_project(args.source, need_keypoints=keypoints is None, need_calibration=calib is None)
+            project = read_project(args.source, need_keypoints=keypoints is None and args.videos is None,
+                                   need_calibration=calib is None)  # fmt: skip
             keypoints, calib = keypoints or project.keypoints, calib or project.calibration
             out = out or project.root / "multiview"
-        missing = [flag for flag, value in (("--keypoints DIR", keypoints), ("--calib FILE", calib),
-                                            ("--out DIR", out)) if value is None]  # fmt: skip
+        source = ("--videos DIR", args.videos) if args.videos is not None else ("--keypoints DIR", keypoints)
+        missing = [flag for flag, value in (source, ("--calib FILE", calib), ("--out DIR", out)) if value is None]
         if missing:
             raise ValueError(f"missing {', '.join(missing)}: give a project folder (jaxmocap multiview PROJECT), "
-                             "or --keypoints DIR --calib FILE --out DIR.")  # fmt: skip
+                             "or --keypoints DIR (or --videos DIR) --calib FILE --out DIR.")  # fmt: skip
         out = Path(out)
-        r = fit_recording(keypoints, calib, out, layout=args.layout, body=args.body, views=args.views,
-                          frames=args.frames, temporal=not args.no_temporal, resolve_swaps=not args.keep_swaps,
-                          masks_dir=args.masks, fps=args.fps, progress=sys.stderr.isatty(), log=_say)
+        options = dict(body=args.body, frames=args.frames, temporal=not args.no_temporal,
+                       resolve_swaps=not args.keep_swaps, masks_dir=args.masks, fps=args.fps,
+                       progress=sys.stderr.isatty(), log=_say)  # fmt: skip
+        if args.videos is not None:
+            from .app.multiview_video import fit_videos
+
+            if args.layout not in (None, "mediapipe33"):
+                raise ValueError(f"--layout {args.layout} with --videos: the video detector gives mediapipe33.")
+            views = None if args.views is None else [v.removesuffix("_json") for v in args.views]
+            r = fit_videos(args.videos, calib, out, detector_python=args.detector_python, views=views, **options)
+        else:
+            r = fit_recording(keypoints, calib, out, layout=args.layout, views=args.views, **options)
     final = r["reprojection"]["final"]
     num = lambda x, spec: "-" if x is None else format(x, spec)  # noqa: E731 (None: nothing to measure)
     per_view = ", ".join(f"{v} {s['median_px']:.1f}" for v, s in final["per_view"].items() if s["count"])
@@ -502,7 +520,7 @@ COMMANDS: list[Command] = [
     Command("demo", "walk → posed body → meshes and pictures (the `make demo` job)", _configure_demo, _run_demo),
     Command("check", "physical plausibility: ground penetration, floating, foot skating", _configure_check, _run_check),
     Command("multiview", "fit SMPL to multi-camera OpenPose keypoints (Multi-view SMPLify): jaxmocap multiview "
-            "PROJECT | demo | --keypoints DIR --calib FILE --out DIR", _configure_multiview, _run_multiview),
+            "PROJECT | demo | --keypoints DIR --calib FILE --out DIR | --videos DIR --calib FILE --out DIR", _configure_multiview, _run_multiview),
     Command("interaction", "a person handling an object, from RGB-D views (InterCap): jaxmocap interaction demo",
             _configure_interaction, _run_interaction),
     Command("vip", "IMU wearers + a hand-held camera (Video Inertial Poser): jaxmocap vip demo | fit FILE.pkl",

@@ -1,5 +1,5 @@
 """Real-format input: multi-camera calibrations, OpenPose keypoints, Pose2Sim project folders,
-DIP-IMU and 3DPW pickles.
+videos (through MediaPipe Pose), DIP-IMU and 3DPW pickles.
 
 The data layer: readers and writers of the files labs have, checked and converted to one
 convention; nothing here imports from sensors, energies or methods.
@@ -10,6 +10,7 @@ from . import dip as dip
 from . import openpose as openpose
 from . import project as project
 from . import threedpw as threedpw
+from . import video as video
 from .calibration import FORMATS as FORMATS
 from .calibration import CalibratedCamera as CalibratedCamera
 from .calibration import CalibrationError as CalibrationError

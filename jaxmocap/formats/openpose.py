@@ -52,7 +52,7 @@ __all__ = [
     "write_openpose",
 ]
 
-KEYPOINT_COUNTS = {"body25": 25, "body25b": 25, "coco18": 18}
+KEYPOINT_COUNTS = {"body25": 25, "body25b": 25, "coco18": 18, "mediapipe33": 33}  # mediapipe33: formats.video
 # the last digit run of the stem (module docstring)
 _FRAME = re.compile(r"(\d+)\D*\.json$", re.IGNORECASE)
 _EMPTY_PARTS = (

@@ -30,8 +30,9 @@ from pathlib import Path
 
 __all__ = ["POSE_MODELS", "Project", "ProjectConfig", "ProjectError", "read_config", "read_project"]
 
-#: Pose2Sim ``pose_model`` names (upper case) of OpenPose models jaxmocap reads.
-POSE_MODELS = {"BODY_25": "body25", "BODY_25B": "body25b", "COCO": "coco18", "COCO_18": "coco18"}
+#: Pose2Sim ``pose_model`` names (upper case) of the models jaxmocap reads (BLAZEPOSE: MediaPipe).
+POSE_MODELS = {"BODY_25": "body25", "BODY_25B": "body25b", "COCO": "coco18", "COCO_18": "coco18",
+               "BLAZEPOSE": "mediapipe33"}  # fmt: skip
 _KEYPOINT_FOLDERS = ("pose-associated", "pose-sync", "pose")
 
 

@@ -1,4 +1,4 @@
-"""2D keypoints: COCO-18 / BODY_25 / BODY_25B regressors on the body and a detector error model.
+"""2D keypoints: COCO-18 / BODY_25 / BODY_25B / MediaPipe-33 regressors on the body and a detector error model.
 
 Regressor: a (K, V) matrix 𝒦 with keypoints = 𝒦 · vertices (posed mesh), built per body
 from its rest mesh:
@@ -12,6 +12,10 @@ from its rest mesh:
     pose, y up, facing +z).
   - BODY_25B's upper neck (below the chin, from MPII's "upper neck") = the mean of SMPL's
     neck and head rows; its head top = the crown vertex straight above the head joint.
+  - MediaPipe Pose's 33 landmarks (BlazePose: `jaxmocap.formats.video`) add eye corners,
+    mouth corners, three hand points and the foot's tip, all single skin vertices as
+    above; its shoulders, elbows, wrists, hips, knees and ankles are 𝒥's rows like the
+    others' (BlazePose was trained on the same kind of joint-centre annotations as COCO).
 OpenPose's hips sit lower and more lateral than SMPL's; we keep SMPL's (documented
 difference, as in SMPLify's use of 𝒥 for the hips).
 
@@ -50,6 +54,22 @@ of rows, vertex(x) = a skin vertex near joint x; left/right mirror each other):
 Orders follow OpenPose's `poseParameters.cpp` (POSE_COCO_BODY_PARTS, POSE_BODY_25_BODY_PARTS,
 POSE_BODY_25B_BODY_PARTS, where index 17 is called "Neck" but is the upper neck).
 
+MediaPipe-33 ("mediapipe33", the order of mediapipe's `PoseLandmark`; its "mouth_left" and
+"mouth_right" are named left_mouth / right_mouth here so that left/right pairs are found
+the same way as for the other layouts; "foot_index" is the tip of the foot):
+
+    keypoint               index (left, right)   SMPL
+    nose                   0                     as above
+    eye_inner, eye, eye_outer  (1, 4), (2, 5), (3, 6)  vertex(head), 1.7 / 3.2 / 4.7 cm to the side, 3.5 cm up
+    ear                    (7, 8)                as above
+    mouth                  (9, 10)               vertex(head), 2.5 cm to the side, 3.5 cm down
+    shoulder .. wrist      (11, 12) .. (15, 16)  J(...)
+    pinky, index           (17, 18), (19, 20)    vertex(hand), the knuckles at the back / front of the hand
+    thumb                  (21, 22)              vertex(wrist), 4 cm out, towards the front
+    hip .. ankle           (23, 24) .. (27, 28)  J(...)
+    heel                   (29, 30)              as above
+    foot_index             (31, 32)              vertex(foot), front, at the second toe
+
 Detector error model (`DetectorErrorModel`, `detect`): per view and frame, every person's
 keypoints get pixel noise, confidences that fall with the error, missed joints (and all
 joints outside the image), uniform outliers inside the person's box, left/right swaps
@@ -73,6 +93,7 @@ __all__ = [
     "COCO18_NAMES",
     "BODY25_NAMES",
     "BODY25B_NAMES",
+    "MEDIAPIPE33_NAMES",
     "KEYPOINT_FORMATS",
     "keypoint_regressor",
     "regress_keypoints",
@@ -102,7 +123,16 @@ BODY25B_NAMES = (
     "head_top", "left_big_toe", "left_small_toe", "left_heel", "right_big_toe",
     "right_small_toe", "right_heel",
 )  # fmt: skip
-KEYPOINT_FORMATS = {"coco18": COCO18_NAMES, "body25": BODY25_NAMES, "body25b": BODY25B_NAMES}
+MEDIAPIPE33_NAMES = (
+    "nose", "left_eye_inner", "left_eye", "left_eye_outer", "right_eye_inner", "right_eye",
+    "right_eye_outer", "left_ear", "right_ear", "left_mouth", "right_mouth", "left_shoulder",
+    "right_shoulder", "left_elbow", "right_elbow", "left_wrist", "right_wrist", "left_pinky",
+    "right_pinky", "left_index", "right_index", "left_thumb", "right_thumb", "left_hip",
+    "right_hip", "left_knee", "right_knee", "left_ankle", "right_ankle", "left_heel",
+    "right_heel", "left_foot_index", "right_foot_index",
+)  # fmt: skip
+KEYPOINT_FORMATS = {"coco18": COCO18_NAMES, "body25": BODY25_NAMES, "body25b": BODY25B_NAMES,
+                    "mediapipe33": MEDIAPIPE33_NAMES}  # fmt: skip
 
 _J = {n: i for i, n in enumerate(SMPL_JOINT_NAMES)}
 _JOINT_ROWS = {
@@ -125,6 +155,14 @@ _SURFACE = {
     "left_small_toe": ("left_foot", (0.03, 0.0, -0.02), (0.0, 0.0, 1.0), "left_foot"),
     "left_heel": ("left_ankle", (0.0, -0.03, 0.0), (0.0, 0.0, -1.0), "left_ankle"),
     "head_top": ("head", (0.0, 0.0, 0.01), (0.0, 1.0, 0.0), "head"),
+    # MediaPipe's extra points. Rest pose: arms out along ±x, palms down, thumbs forward (+z).
+    "left_eye_inner": ("head", (0.017, 0.035, 0.0), (0.0, 0.0, 1.0), "head"),
+    "left_eye_outer": ("head", (0.047, 0.035, 0.0), (0.0, 0.0, 1.0), "head"),
+    "left_mouth": ("head", (0.025, -0.035, 0.0), (0.0, 0.0, 1.0), "head"),
+    "left_index": ("left_hand", (0.0, 0.0, 0.0), (0.0, 0.0, 1.0), "left_hand"),
+    "left_pinky": ("left_hand", (0.0, 0.0, 0.0), (0.0, 0.0, -1.0), "left_hand"),
+    "left_thumb": ("left_wrist", (0.04, 0.0, 0.0), (0.0, 0.0, 1.0), "left_wrist"),
+    "left_foot_index": ("left_foot", (0.0, 0.0, 0.0), (0.0, 0.0, 1.0), "left_foot"),
 }
 
 
@@ -146,12 +184,13 @@ def _surface_vertex(body: Body, name: str, joints: np.ndarray) -> int:
         offset = (-offset[0], offset[1], offset[2])
         direction = (-direction[0], direction[1], direction[2])
     point = joints[_J[joint]] + np.asarray(offset)
-    if bone in ("left_foot", "right_foot"):
-        # The low-resolution mesh merges the toes into the foot; accept either foot bone.
+    if bone in ("left_foot", "right_foot", "left_hand", "right_hand"):
+        # The low-resolution mesh merges the toes into the foot and the fingers into the
+        # hand; accept the bone above.
         try:
             return ray_vertex(body, point, direction, _J[bone])
         except ValueError:
-            bone = bone.replace("foot", "ankle")
+            bone = bone.replace("foot", "ankle").replace("hand", "wrist")
     return ray_vertex(body, point, direction, _J[bone])
 
 
