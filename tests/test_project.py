@@ -78,7 +78,7 @@ def test_config_values_map_to_layouts_and_rates(tmp_path, rate, model, fps, layo
     root = _project(tmp_path / "p", rate=rate, model=model)
     config = read_config(root)
     assert (config.fps, config.layout) == (fps, layout)
-    assert set(POSE_MODELS.values()) == {"body25", "body25b", "coco18"}
+    assert set(POSE_MODELS.values()) == {"body25", "body25b", "coco18", "mediapipe33"}
     assert config.frame_range is None  # 'auto': every frame
 
 

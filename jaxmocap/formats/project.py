@@ -61,7 +61,7 @@ class ProjectConfig:
         if layout is None:
             raise ProjectError(
                 f"{self.files[-1]}: pose_model = {self.pose_model!r} has no jaxmocap layout; jaxmocap "
-                f"reads OpenPose {', '.join(sorted(POSE_MODELS))} detections. Run OpenPose with "
+                f"reads {', '.join(sorted(POSE_MODELS))} detections (OpenPose; BLAZEPOSE: MediaPipe). Run OpenPose with "
                 "BODY_25B (or BODY_25), or pass --layout if the files hold one of those."
             )
         return layout
