@@ -510,7 +510,7 @@ def test_body25_file_read_as_coco18_says_which_layout_fits(tmp_path):
     )
     with pytest.raises(
         KeypointFileError,
-        match=r"78 numbers.*no known layout has 78 numbers \(body25: 75, body25b: 75, coco18: 54\)",
+        match=r"78 numbers.*no known layout has 78 numbers \(body25: 75, body25b: 75, coco18: 54, mediapipe33: 99\)",
     ):
         read_openpose(tmp_path / "halpe", "body25")
     with pytest.raises(KeypointFileError, match="layout='body_25' is not known"):
