@@ -75,6 +75,27 @@ QUOTES = [
         [3, 3],
     ),
     (
+        r"the fit's median reprojection is ([\d.]+) px against ([\d.]+) px for a per-keypoint triangulation\s+"
+        r"of the same detections \(`fit_over_triangulation` ([\d.]+); held out: ([\d.]+) / ([\d.]+) px, ([\d.]+)\):",
+        "experiments/results/multiview_real.json",
+        ["recordings.Demo_SinglePerson.reprojection_px.fit_median",
+         "recordings.Demo_SinglePerson.reprojection_px.triangulation_median",
+         "recordings.Demo_SinglePerson.fit_over_triangulation",
+         "recordings.Demo_MultiPerson.reprojection_px.fit_median",
+         "recordings.Demo_MultiPerson.reprojection_px.triangulation_median",
+         "recordings.Demo_MultiPerson.fit_over_triangulation"],
+        [1, 1, 2, 1, 1, 2],
+    ),
+    (
+        r"up\s+to ([\d.]+) % \(held out ([\d.]+) %: arms short, shanks long\), while its limb points jitter an\s+"
+        r"eighth as much \(([\d.]+) against ([\d.]+) m/s²\)",
+        "experiments/results/multiview_real.json",
+        ["recordings.Demo_SinglePerson.limb_length_error_max_pct", "recordings.Demo_MultiPerson.limb_length_error_max_pct",
+         "recordings.Demo_SinglePerson.jitter_m_s2.fit_limb_keypoints",
+         "recordings.Demo_SinglePerson.jitter_m_s2.triangulated_limb_keypoints"],
+        [1, 1, 1, 1],
+    ),
+    (
         r"`make demo`: ([\d.]+) s the first time,\s+([\d.]+) s after",
         "benchmarks/results/cold_start.json",
         ["entries.make_demo.cold_wall_s", "entries.make_demo.warm_wall_s"],
