@@ -198,8 +198,14 @@ def run(name: str, root: Path, work: Path, frames: int, python) -> dict:
 def markdown(result: dict) -> str:
     lines = ["# Multi-view SMPLify on real recordings (Pose2Sim demo videos, MediaPipe Pose)", "",
              result["description"], "",
-             f"Machine: {result['machine']}. Frames: the first {result['frames_per_recording']} of each "
-             "recording (100 is all of them).", "",
+             f"Machine: {result['machine']}, shared with other jobs (load average {result['load_average']['start']:.1f} "
+             f"at the start, {result['load_average']['end']:.1f} at the end). Frames: the first "
+             f"{result['frames_per_recording']} of each recording (100 is all of them). Run time "
+             f"{result['run_time_s']:.0f} s in all (wall clock: "
+             + "; ".join(f"{n} {r['run_time_s']['wall_total']:.0f} s, of which the detector "
+                         f"{r['run_time_s']['detector']:.0f} s = {r['run_time_s']['detector'] / (r['frames'] * len(r['views'])):.2f} "
+                         "s a frame and camera" for n, r in result["recordings"].items())
+             + "); the fit's stages per recording are in the JSON (`run_time_s.fit`).", "",
              "| recording | role | frames x views | fit median px | triangulation median px | fit_over_triangulation "
              "| worst limb length vs triangulated | jitter fit / triangulated (limb points, m/s²) | detector s | fit s |",
              "|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
@@ -250,6 +256,7 @@ def main(argv=None) -> dict:
     root = pose2sim_root(args.pose2sim)
     result = {"description": __doc__.split("\n\n")[2].strip(), "frames_per_recording": args.frames,
               "held_out": HELD_OUT, "pose2sim": str(root), "recordings": {}}  # fmt: skip
+    load_start = os.getloadavg()[0]
     with tempfile.TemporaryDirectory() as tmp:
         work = args.work or Path(tmp)
         start = time.perf_counter()
@@ -261,6 +268,8 @@ def main(argv=None) -> dict:
                   f"{r['reprojection_px']['triangulation_median']:.1f} px: x{r['fit_over_triangulation']:.2f}; "
                   f"limbs within {r['limb_length_error_max_pct']:.1f} %", flush=True)  # fmt: skip
         result["run_time_s"] = round(time.perf_counter() - start, 1)
+    # the machine is shared: its load (runnable processes, 1-minute mean) says how much of it this run had
+    result["load_average"] = {"start": round(load_start, 2), "end": round(os.getloadavg()[0], 2)}
     m = machine()
     result["machine"] = f"{m.get('processor') or m.get('platform')}, {os.cpu_count()} CPUs"
     split = Split("multiview_real", tuning=(), training=(), evaluation=())  # no CMU subject is involved
