@@ -237,3 +237,17 @@ def test_the_detector_script_imports_nothing_from_jaxmocap():
     modules = {a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names}
     modules |= {n.module for n in ast.walk(tree) if isinstance(n, ast.ImportFrom)}
     assert modules == {"argparse", "sys", "cv2", "mediapipe", "numpy", "pathlib"}
+
+
+def test_a_project_folder_gives_the_calibration_and_output_for_its_videos(video_folder, tmp_path, capsys, monkeypatch):
+    # Pose2Sim's layout: PROJECT/videos, PROJECT/calibration/Calib.qca.txt, no pose/ folder yet
+    videos, calib = video_folder
+    project = tmp_path / "Demo"
+    (project / "calibration").mkdir(parents=True)
+    calib.rename(project / "calibration" / calib.name)
+    videos.rename(project / "videos")
+    monkeypatch.setenv(DETECTOR_ENV, str(tmp_path / "nowhere"))
+    code, io = _run([project, "--videos", project / "videos"], capsys)
+    # everything before the detector was found and accepted: only the detector is missing
+    assert code == 2 and f"{DETECTOR_ENV} = {tmp_path / 'nowhere'}: no such file" in io.err
+    assert not (project / "multiview").exists()

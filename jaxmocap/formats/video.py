@@ -51,7 +51,8 @@ _MISSING = 3  # the worker's exit status when mediapipe or its pose model is mis
 _CONSTRAINTS = Path(__file__).with_name("video_constraints.txt")
 INSTALL_HINT = (
     "the video detector is MediaPipe Pose; mediapipe 0.10.21 is the last release that ships its model, "
-    "and it needs numpy < 2, which jaxmocap's jax cannot use, so it gets an environment of its own:\n"
+    "and it needs numpy < 2, which jaxmocap's jax cannot use, so it gets an environment of its own "
+    "(Python 3.12 at most: mediapipe 0.10.21 has no wheel for 3.13):\n"
     "    python3 -m venv ~/.venvs/jaxmocap-video\n"
     f"    ~/.venvs/jaxmocap-video/bin/pip install -c {_CONSTRAINTS} mediapipe==0.10.21\n"
     f"then pass --detector-python ~/.venvs/jaxmocap-video/bin/python (or set {DETECTOR_ENV} to it)."
