@@ -36,7 +36,6 @@ _sys.path.insert(0, str(_Path(__file__).resolve().parent))
 import _provenance  # noqa: E402,F401  (its commit is taken now, at the start of the run)
 
 import argparse  # noqa: E402
-import dataclasses  # noqa: E402
 import importlib.util  # noqa: E402
 import os  # noqa: E402
 import tempfile  # noqa: E402

@@ -2,9 +2,10 @@
 
 Each module here chains the library's readers, methods and writers for one job and is
 what a command-line verb calls (`jaxmocap.cli` stays thin glue): `multiview` (a lab's
-OpenPose folders and calibration to fitted bodies), `sweep` (grids of methods and weights
-over many sequences: chunked and sharded solves, a resumable store, statistics). Nothing
-in the library proper imports from here.
+OpenPose folders and calibration to fitted bodies; `multiview_video`: videos through
+MediaPipe Pose first), `sweep` (grids of methods and weights over many sequences: chunked
+and sharded solves, a resumable store, statistics). Nothing in the library proper imports
+from here.
 """
 
 from .sweep import SweepConfigError as SweepConfigError

@@ -11,7 +11,6 @@ detector's Python) is checked before the first video is read.
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import numpy as np
 
