@@ -87,6 +87,14 @@ QUOTES = [
         [1, 1, 2, 1, 1, 2],
     ),
     (
+        r"`Demo_MultiPerson` held out; ([\d.]+) s in all here, 2 cores shared at a load of ([\d.]+)-([\d.]+), of which\s+"
+        r"the detector ([\d.]+) and ([\d.]+) s for a recording's 400 frames\)",
+        "experiments/results/multiview_real.json",
+        ["run_time_s", "load_average.start", "load_average.end", "recordings.Demo_SinglePerson.run_time_s.detector",
+         "recordings.Demo_MultiPerson.run_time_s.detector"],
+        [0, 0, 0, 0, 0],
+    ),
+    (
         r"up\s+to ([\d.]+) % \(held out ([\d.]+) %: arms short, shanks long\), while its limb points jitter an\s+"
         r"eighth as much \(([\d.]+) against ([\d.]+) m/s²\)",
         "experiments/results/multiview_real.json",
