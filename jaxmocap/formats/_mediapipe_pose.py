@@ -42,8 +42,8 @@ def main(argv=None) -> int:
         import mediapipe as mp
         import cv2
         import numpy as np
-    except ImportError as e:
-        _fail(MISSING, f"missing: {e.name} ({e})")
+    except ImportError as e:  # no name: a module that is there but cannot load (e.g. OpenCV without libGL)
+        _fail(MISSING, f"missing: {e.name} ({e})" if e.name else f"an import failed: {e}")
     from pathlib import Path
 
     model = Path(mp.__file__).parent / "modules" / "pose_landmark" / "pose_landmark_full.tflite"

@@ -110,7 +110,7 @@ def detector_python(python=None) -> str:
         raise DetectorMissing(f"{source} = {candidate}: no such file; {INSTALL_HINT}")
     try:
         run = subprocess.run([candidate, str(_WORKER), "-", "-", "--check"], capture_output=True, text=True, timeout=120)
-    except OSError as e:
+    except (OSError, subprocess.SubprocessError) as e:
         raise DetectorMissing(f"{candidate} cannot be run ({e}); {INSTALL_HINT}") from None
     if run.returncode != 0:
         why = (run.stderr.strip().splitlines() or [f"exit status {run.returncode}"])[-1]
