@@ -343,7 +343,7 @@ def _run_multiview(args) -> int:
                           masks_dir=args.masks, fps=args.fps, progress=sys.stderr.isatty(), log=_say)
     final = r["reprojection"]["final"]
     num = lambda x, spec: "-" if x is None else format(x, spec)  # noqa: E731 (None: nothing to measure)
-    per_view = ", ".join(f"{v} {s['median_px']:.1f}" for v, s in final["per_view"].items() if s["count"])
+    per_view = ", ".join(f"{v} {num(s['median_px'], '.1f')}" for v, s in final["per_view"].items())
     print(f"fitted   {r['frames']['count']} frames x {len(r['views'])} views ({r['layout']}) in "
           f"{r['timings_s']['total']:.1f} s")
     print(f"reproj   median {num(final['overall']['median_px'], '.1f')} px, "

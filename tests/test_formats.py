@@ -655,6 +655,10 @@ def test_frames_are_matched_by_number_with_gaps_kept_and_disjoint_cameras_refuse
     with pytest.raises(KeypointFileError, match=r"'cam03' shares no frame number.*cam01 1..5, cam02 2..4, cam03 102..104"):
         read_openpose(tmp_path, None)
     assert read_openpose(tmp_path, None, views=["cam03"]).frames.tolist() == [102, 103, 104]
+    # a file named otherwise is a stray, left out and listed; one named alike repeats a frame
     (tmp_path / "cam02" / "cam02.0003_keypoints.json").write_text('{"people": []}')
-    with pytest.raises(KeypointFileError, match=r"frame 3 appears twice: cam02\.0003\.json and cam02\.0003_keypoints"):
+    rec = read_openpose(tmp_path, None, views=["cam02"])
+    assert rec.ignored == ("cam02/cam02.0003_keypoints.json",) and rec.frames.tolist() == [2, 3, 4]
+    (tmp_path / "cam02" / "cam02.03.json").write_text('{"people": []}')
+    with pytest.raises(KeypointFileError, match=r"frame 3 appears twice: cam02\.0003\.json and cam02\.03\.json"):
         read_openpose(tmp_path, None, views=["cam02"])

@@ -264,6 +264,16 @@ def _overlap_warnings(recording) -> list[str]:
     return out
 
 
+def _ignored_warning(recording) -> list[str]:
+    """The JSON files left unread because their camera's frames are named otherwise."""
+    ignored = recording.ignored
+    if not ignored:
+        return []
+    shown = ", ".join(ignored[:4]) + (f", ... ({len(ignored)} in all)" if len(ignored) > 4 else "")
+    return [f"warning: not read, named unlike the other frames of their camera: {shown}; rename them like "
+            "the others if they are frames of this recording."]
+
+
 def _read_summary(recording) -> str:
     present = recording.present or tuple(np.ones(recording.num_frames, bool) for _ in recording.views)
     parts = []
@@ -565,7 +575,7 @@ def fit_recording(
         begin("read")
         recording = read_openpose(keypoints_dir, named, views)
         say(_read_summary(recording))
-        for warning in _overlap_warnings(recording):
+        for warning in _ignored_warning(recording) + _overlap_warnings(recording):
             say(warning)
         keep = _frame_filter(recording.frames, frames)
         if frames is None and config is not None and config.frame_range is not None:

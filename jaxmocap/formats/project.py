@@ -9,17 +9,20 @@ A Pose2Sim project (https://github.com/perfanalytics/pose2sim, its ``Demo_*`` fo
                                  synchronised, pose-associated/ once one person is chosen)
 
 and a batch session puts several trials, each with its own Config.toml, under a session
-folder holding the shared calibration/ and a Config.toml the trials' values override.
+folder holding the shared calibration/ and a Config.toml the trials' values override
+(pose2sim 0.8: session/participant/trial, three Config.toml; the calibration folder is
+the session's, e.g. S00_Calibration/). Pose2Sim up to 0.4 kept the settings in
+``project/User/Config.toml``.
 
 `read_project` finds these pieces with Pose2Sim's rules: the keypoint folder is the first
 of pose-associated/, pose-sync/, pose/ that holds any; the calibration is in a folder
-whose name contains "calib" (the trial's, else the session's): its one .toml, else its
-one calibration of another format (`load_calibration`'s folder rule). `read_config` reads
-the settings jaxmocap uses: ``pose_model`` (Pose2Sim's names, any case; OpenPose's
-BODY_25, BODY_25B and COCO map to jaxmocap's layouts), ``frame_rate`` ('auto' means
-"from the video", which jaxmocap does not read: None) and ``frame_range`` ([start, stop):
-positions in the frame order, as Pose2Sim indexes its sorted files; 'auto', 'all' and
-[] mean every frame).
+whose name contains "calib" (the trial's, else the nearest level above holding a
+Config.toml): its one .toml, else its one calibration of another format
+(`load_calibration`'s folder rule). `read_config` reads the settings jaxmocap uses:
+``pose_model`` (Pose2Sim's names, any case; OpenPose's BODY_25, BODY_25B and COCO map to
+jaxmocap's layouts), ``frame_rate`` ('auto' means "from the video", which jaxmocap does
+not read: None) and ``frame_range`` ([start, stop): positions in the frame order, as
+Pose2Sim indexes its sorted files; 'auto', 'all' and [] mean every frame).
 """
 
 from __future__ import annotations
@@ -84,20 +87,40 @@ def _merge(base: dict, top: dict) -> dict:
     return out
 
 
+#: At most this many levels above a trial hold Config.toml files it inherits (session, participant).
+_LEVELS_ABOVE = 2
+
+
+def _config_file(folder: Path) -> Path | None:
+    for path in (folder / "Config.toml", folder / "User" / "Config.toml"):  # User/: Pose2Sim <= 0.4
+        if path.is_file():
+            return path
+    return None
+
+
+def _levels_above(folder: Path) -> list[Path]:
+    """The folders above `folder` whose Config.toml it inherits, nearest first."""
+    out: list[Path] = []
+    folder = folder.resolve()
+    while len(out) < _LEVELS_ABOVE and (folder.parent / "Config.toml").is_file() and folder.parent != folder:
+        folder = folder.parent
+        out.append(folder)
+    return out
+
+
 def read_config(folder) -> ProjectConfig:
     """The settings of the project holding `folder` (the project, or its keypoint folder).
 
-    Config.toml is looked for in `folder`, then its parent (`folder` = project/pose), and
-    the session's Config.toml one level above a trial's is read first; none found gives an
-    empty ProjectConfig.
+    Config.toml (or User/Config.toml) is looked for in `folder`, then its parent (`folder`
+    = project/pose), and those of the levels above (session, participant) are read first,
+    outermost first, each overridden by the next; none found gives an empty ProjectConfig.
     """
     folder = Path(folder).resolve()
-    start = next((f for f in (folder, folder.parent) if (f / "Config.toml").is_file()), None)
+    start = next((f for f in (folder, folder.parent) if _config_file(f) is not None), None)
     if start is None:
         return ProjectConfig()
-    files = [start / "Config.toml"]
-    if (start.parent / "Config.toml").is_file():  # a trial in a batch session
-        files.insert(0, start.parent / "Config.toml")
+    files = [_config_file(start)] + [level / "Config.toml" for level in _levels_above(start)]
+    files.reverse()
     data: dict = {}
     for path in files:
         try:
@@ -141,9 +164,8 @@ def _has_json(folder: Path) -> bool:
 
 
 def _calibration(root: Path) -> Path | None:
-    # the session's calibration serves its trials; elsewhere the parent is not ours to search
-    session = (root.parent / "Config.toml").is_file()
-    for where in (root, root.parent) if session else (root,):
+    # a session's calibration serves its trials; elsewhere the parent is not ours to search
+    for where in [root, *_levels_above(root)]:
         folders = sorted(p for p in where.iterdir() if p.is_dir() and "calib" in p.name.lower())
         for folder in folders:
             tomls = sorted(p for p in folder.iterdir() if p.suffix.lower() == ".toml")
@@ -177,7 +199,7 @@ def read_project(path, need_keypoints: bool = True, need_calibration: bool = Tru
     calibration = _calibration(root) if need_calibration else None
     if calibration is None and need_calibration:
         raise ProjectError(
-            f"{root}: no calibration folder (a folder named like 'calibration' here or in "
-            f"{root.parent}); name the calibration file with --calib FILE."
+            f"{root}: no calibration folder (a folder named like 'calibration' here or in a session "
+            "folder above holding a Config.toml); name the calibration file with --calib FILE."
         )
     return Project(root, keypoints, calibration, read_config(root))
