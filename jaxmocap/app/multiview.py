@@ -548,6 +548,9 @@ def fit_recording(
     if not positive:
         raise ValueError(f"fps must be a positive number of frames per second, got {fps!r}.")
     fps = float(fps)
+    if fps_note is None and config is not None and config.fps is not None and fps != config.fps:
+        fps_note = (f"warning: fps {fps:g} as given, but {config.files[-1]} says frame_rate = {config.fps:g}; "
+                    "the given one is used.")  # fmt: skip
     weights = MuVSWeights() if weights is None else weights
     timings: dict[str, float] = {}
     stages = ["read", "select person", "initialise", "stage 1", "stage 2", "write"]
