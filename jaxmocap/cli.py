@@ -296,8 +296,9 @@ def _configure_multiview(p: argparse.ArgumentParser) -> None:
                    "intri/extri.yml (folder), .npz (default: the project's calibration/)")
     p.add_argument("--out", metavar="DIR",
                    help="output folder (default: PROJECT/multiview for a project, multiview-demo for the demo)")
-    p.add_argument("--layout", default=None, choices=("body25", "body25b", "coco18"),
-                   help="the OpenPose model the keypoints come from (default: Config.toml's pose_model, else "
+    p.add_argument("--layout", default=None, choices=("body25", "body25b", "coco18", "halpe26"),
+                   help="the model the keypoints come from (OpenPose's; halpe26: RTMPose's, Pose2Sim >= 0.9's) "
+                   "(default: Config.toml's pose_model, else "
                    "detected from the skeleton); checked against the skeleton either way")
     _add_body_option(p)
     p.add_argument("--views", type=lambda s: [v for v in s.split(",") if v], metavar="A,B",

@@ -508,11 +508,17 @@ def test_body25_file_read_as_coco18_says_which_layout_fits(tmp_path):
     (halpe / "cam01_000000000000_keypoints.json").write_text(
         json.dumps({"people": [{"pose_keypoints_2d": [1.0] * 78}]})
     )
+    with pytest.raises(KeypointFileError, match=r"78 numbers.*'body25' expects 75.*the layout that fits is 'halpe26'"):
+        read_openpose(tmp_path / "halpe", "body25")
+    assert read_openpose(tmp_path / "halpe", None).layout == "halpe26"  # Pose2Sim >= 0.9's RTMPose files
+    whole = tmp_path / "whole" / "cam01"  # COCO_133 (RTMPose whole body): no layout of ours
+    whole.mkdir(parents=True)
+    (whole / "cam01_000000.json").write_text(json.dumps({"people": [{"pose_keypoints_2d": [1.0] * 399}]}))
     with pytest.raises(
         KeypointFileError,
-        match=r"78 numbers.*no known layout has 78 numbers \(body25: 75, body25b: 75, coco18: 54\)",
+        match=r"399 numbers.*no known layout has 399 numbers \(body25: 75, body25b: 75, coco18: 54, halpe26: 78\)",
     ):
-        read_openpose(tmp_path / "halpe", "body25")
+        read_openpose(tmp_path / "whole", "body25")
     with pytest.raises(KeypointFileError, match="layout='body_25' is not known"):
         read_openpose(tmp_path, "body_25")
 

@@ -26,11 +26,12 @@ from jaxmocap.formats import (
     read_openpose,
     read_project,
 )
-from jaxmocap.sensors.keypoints import BODY25_NAMES, BODY25B_NAMES
+from jaxmocap.sensors.keypoints import BODY25_NAMES, BODY25B_NAMES, HALPE26_NAMES
 from jaxmocap.sensors.triangulation import projection_matrices, select_person
 
 DATA = Path(__file__).parent / "data" / "pose2sim"
 SINGLE = DATA / "S01_Demo_SingleTrial"
+CURRENT = DATA / "Demo_SinglePerson"  # pose2sim 0.10.49: settings only, and a video's header
 SESSION = DATA / "S00_Demo_BatchSession"
 STATIC = SESSION / "S00_P00_SingleParticipant" / "S00_P00_T00_StaticTrial"
 MULTI = SESSION / "S00_P01_MultiParticipants" / "S00_P01_T02_Participants1-2"
@@ -117,6 +118,28 @@ def test_points_a_little_outside_the_image_are_kept_a_wrong_image_size_is_not():
         align_views(rec, half)
 
 
+def test_pose2sim_010_halpe26_and_frame_rate_auto_from_the_videos_header(tmp_path):
+    """Pose2Sim >= 0.9: pose_model = 'Body_with_feet' (RTMPose's HALPE_26, written as
+    pose/cam01_json/cam01_000000.json), frame_rate = 'auto' (the videos' rate)."""
+    root = shutil.copytree(CURRENT, tmp_path / "Demo_SinglePerson")
+    shutil.copytree(SINGLE / "calibration", root / "calibration")
+    halpe = _rewritten(read_openpose(SINGLE / "pose", "body25b"), HALPE26_NAMES, "halpe26")
+    for view, kp in zip(halpe.views, halpe.keypoints):
+        for frame, people in zip(halpe.frames, kp):
+            rows = [{"person_id": [-1], "pose_keypoints_2d": p.ravel().tolist()} for p in people if p[:, 2].any()]
+            _write(root / "pose", {f"{view}/{view[:5]}_{frame:06d}.json": json.dumps({"people": rows})})
+    p = read_project(root)
+    assert (p.config.pose_model, p.config.layout) == ("Body_with_feet", "halpe26")
+    assert (p.config.fps, p.config.fps_from) == (60.0, root / "videos" / "cam01.mp4")
+    rec = read_openpose(p.keypoints, None)
+    assert rec.layout == "halpe26" and rec.views == CAMS and rec.frames.tolist() == list(range(6))
+    subject, P = _subject(rec, load_calibration(p.calibration))
+    assert check_layout(subject, P, default_body("low"), 26, "halpe26").verdict == "unchecked"  # the one 26-point layout
+    # 'auto' without a readable video: not known (the command then warns and assumes 30, Pose2Sim's fallback)
+    (root / "videos" / "cam01.mp4").write_bytes(b"not a video")
+    assert read_config(root).fps is None and read_config(root).fps_from is None
+
+
 # ------------------------------------------------------------------------------- naming
 
 
@@ -188,13 +211,13 @@ def test_a_camera_whose_frame_numbers_overlap_no_other_is_named(tmp_path):
 # ----------------------------------------------------------------------------- layout
 
 
-def _as_body25(rec):
-    """The demo's BODY_25B detections rewritten as BODY_25 files would hold them (neck and
-    mid-hip: OpenPose's means of the shoulders and hips, where both are seen)."""
+def _rewritten(rec, names, layout):
+    """The demo's BODY_25B detections rewritten in another layout, as its files would hold
+    them (neck and mid-hip: OpenPose's means of the shoulders and hips, where both are seen)."""
     out = []
     for kp in rec.keypoints:
-        new = np.zeros_like(kp)
-        for k, name in enumerate(BODY25_NAMES):
+        new = np.zeros((*kp.shape[:2], len(names), 3))
+        for k, name in enumerate(names):
             if name in BODY25B_NAMES:
                 new[..., k, :] = kp[..., BODY25B_NAMES.index(name), :]
             else:
@@ -203,7 +226,11 @@ def _as_body25(rec):
                 both = (pa[..., 2] > 0) & (pb[..., 2] > 0)
                 new[..., k, :] = np.where(both[..., None], 0.5 * (pa + pb), 0.0)
         out.append(new)
-    return rec.__class__(rec.views, "body25", rec.frames, tuple(out), rec.present)
+    return rec.__class__(rec.views, layout, rec.frames, tuple(out), rec.present)
+
+
+def _as_body25(rec):
+    return _rewritten(rec, BODY25_NAMES, "body25")
 
 
 def test_the_layout_is_told_from_the_real_skeleton_both_ways(body):

@@ -485,7 +485,7 @@ def fit_recording(
             intri/extri.yml or their folder, jaxmocap .npz); cameras matched to the
             keypoint folders by name (`formats.align_views`).
         out_dir: output folder (created); see the module docstring for what is written.
-        layout: "body25" | "body25b" | "coco18", the model OpenPose ran with; None takes
+        layout: "body25" | "body25b" | "coco18" | "halpe26", the model OpenPose ran with; None takes
             Config.toml's pose_model, else detects it (`app.layout.check_layout`). A named
             layout is checked against the skeleton too: a clearly worse fit is warned
             about, an absurd one refused.
@@ -536,10 +536,13 @@ def fit_recording(
     if fps is None:
         if config is not None and config.fps is not None:
             fps = config.fps
-            fps_note = f"fps      {fps:g}, from {config.files[-1]} (frame_rate)"
+            fps_note = f"fps      {fps:g}, from {config.fps_from}" + (
+                " (frame_rate)" if config.fps_from.suffix == ".toml" else
+                f" (its header; {config.files[-1]} says frame_rate = 'auto')")  # fmt: skip
         else:
             fps = DEFAULT_FPS
-            fps_note = (f"warning: the frame rate is not known (no fps given, no frame_rate in a Config.toml); "
+            fps_note = (f"warning: the frame rate is not known (no fps given, no frame_rate in a Config.toml, "
+                        "no readable video in the project's videos/); "
                         f"assuming {fps:g} fps: give the recording's (--fps).")  # fmt: skip
     try:
         positive = not isinstance(fps, bool) and float(fps) > 0
@@ -549,7 +552,7 @@ def fit_recording(
         raise ValueError(f"fps must be a positive number of frames per second, got {fps!r}.")
     fps = float(fps)
     if fps_note is None and config is not None and config.fps is not None and fps != config.fps:
-        fps_note = (f"warning: fps {fps:g} as given, but {config.files[-1]} says frame_rate = {config.fps:g}; "
+        fps_note = (f"warning: fps {fps:g} as given, but {config.fps_from} says {config.fps:g}; "
                     "the given one is used.")  # fmt: skip
     weights = MuVSWeights() if weights is None else weights
     timings: dict[str, float] = {}

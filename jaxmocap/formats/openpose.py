@@ -6,7 +6,7 @@ OpenPose's ``--write_json`` writes one file per frame, ``<name>_<frame:012d>_key
                                  "face_keypoints_2d": [], "hand_left_keypoints_2d": [], ...}]}
 
 with K (u, v, confidence) triples per person in the model's order (BODY_25, BODY_25B,
-COCO-18: `KEYPOINT_COUNTS`; names in `jaxmocap.sensors.keypoints.KEYPOINT_FORMATS`), pixel
+COCO-18, and HALPE_26 as Pose2Sim >= 0.9 writes RTMPose's in this format: `KEYPOINT_COUNTS`; names in `jaxmocap.sensors.keypoints.KEYPOINT_FORMATS`), pixel
 centres at integers, undetected keypoints as (0, 0, 0). A recording is one folder per
 camera under a root (Pose2Sim: ``pose/cam01_json/``; EasyMocap: ``openpose/01/``).
 
@@ -61,7 +61,7 @@ __all__ = [
     "write_openpose",
 ]
 
-KEYPOINT_COUNTS = {"body25": 25, "body25b": 25, "coco18": 18}
+KEYPOINT_COUNTS = {"body25": 25, "body25b": 25, "coco18": 18, "halpe26": 26}
 # the last digit run of the stem (module docstring)
 _FRAME = re.compile(r"(\d+)\D*\.json$", re.IGNORECASE)
 _EMPTY_PARTS = (
@@ -79,7 +79,7 @@ class KeypointRecording:
     """OpenPose detections of several synchronised cameras.
 
     views: camera folder names, one per view.
-    layout: "body25" | "body25b" | "coco18", or None when the files fit several layouts
+    layout: "body25" | "body25b" | "coco18" | "halpe26", or None when the files fit several layouts
         (25 points: BODY_25 or BODY_25B) and none was named.
     frames: (T,) int frame numbers (union over views, increasing).
     keypoints: per view (T, P_v, K, 3) rows (u, v, confidence) in pixels, people in file
@@ -241,7 +241,7 @@ def read_openpose(
 
     Args:
         root: folder holding one sub-folder per camera (or, for one camera, the JSON files).
-        layout: "body25" | "body25b" | "coco18", the model OpenPose ran with; None takes
+        layout: "body25" | "body25b" | "coco18" | "halpe26", the model OpenPose ran with; None takes
             the count from the files (module docstring).
         views: camera folder names to read, in this order (in one flat folder: the camera
             names, module docstring); None reads every sub-folder holding numbered
@@ -349,7 +349,7 @@ def write_openpose(root, views, keypoints, layout, frames=None, name: str = OPEN
     Args:
         root: output folder; view v goes to ``root/views[v]/<view>_<frame:012d>_keypoints.json``.
         views: camera folder names; keypoints: per view (T, P, K, 3) rows (u, v, c);
-        layout: "body25" | "body25b" | "coco18"; frames: (T,) frame numbers (default 0..T-1).
+        layout: "body25" | "body25b" | "coco18" | "halpe26"; frames: (T,) frame numbers (default 0..T-1).
         name: file name pattern with {view} and {frame} (a lab's renaming, e.g.
             "{view}.{frame:04d}.json"; `read_openpose` takes the last number as the frame).
     A slot whose confidences are all 0 is padding and not written, so a frame with no one

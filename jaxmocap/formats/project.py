@@ -19,22 +19,31 @@ of pose-associated/, pose-sync/, pose/ that holds any; the calibration is in a f
 whose name contains "calib" (the trial's, else the nearest level above holding a
 Config.toml): its one .toml, else its one calibration of another format
 (`load_calibration`'s folder rule). `read_config` reads the settings jaxmocap uses:
-``pose_model`` (Pose2Sim's names, any case; OpenPose's BODY_25, BODY_25B and COCO map to
-jaxmocap's layouts), ``frame_rate`` ('auto' means "from the video", which jaxmocap does
-not read: None) and ``frame_range`` ([start, stop): positions in the frame order, as
+``pose_model`` (Pose2Sim's names, any case; OpenPose's BODY_25, BODY_25B and COCO, and
+HALPE_26 alias Body_with_feet, map to jaxmocap's layouts), ``frame_rate`` ('auto': as
+Pose2Sim, the rate of the first video in the project's videos/, read from its MP4 /
+QuickTime header; None when there is none) and ``frame_range`` ([start, stop): positions in the frame order, as
 Pose2Sim indexes its sorted files; 'auto', 'all' and [] mean every frame).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import struct
 import tomllib
 from pathlib import Path
 
-__all__ = ["POSE_MODELS", "Project", "ProjectConfig", "ProjectError", "read_config", "read_project"]
+from .openpose import _natural_key
 
-#: Pose2Sim ``pose_model`` names (upper case) of OpenPose models jaxmocap reads.
-POSE_MODELS = {"BODY_25": "body25", "BODY_25B": "body25b", "COCO": "coco18", "COCO_18": "coco18"}
+__all__ = ["POSE_MODELS", "Project", "ProjectConfig", "ProjectError", "read_config", "read_project", "video_frame_rate"]
+
+#: Pose2Sim ``pose_model`` names (upper case) of the models jaxmocap reads: OpenPose's, and
+#: HALPE_26 (Pose2Sim >= 0.9's default, RTMPose's, named "Body_with_feet" there; its
+#: "Lower_body" runs the same model).
+POSE_MODELS = {
+    "BODY_25": "body25", "BODY_25B": "body25b", "COCO": "coco18", "COCO_18": "coco18",
+    "HALPE_26": "halpe26", "BODY_WITH_FEET": "halpe26", "LOWER_BODY": "halpe26",
+}  # fmt: skip
 _KEYPOINT_FOLDERS = ("pose-associated", "pose-sync", "pose")
 
 
@@ -45,13 +54,16 @@ class ProjectError(ValueError):
 @dataclasses.dataclass(frozen=True)
 class ProjectConfig:
     """What Config.toml says. files: the Config.toml files read, session first (the last
-    wins); pose_model: as written (None: not set); fps: frame_rate (None: not set or 'auto');
-    frame_range: (start, stop) positions (None: every frame)."""
+    wins); pose_model: as written (None: not set); fps: frame_rate (None: not set, or
+    'auto' without a readable video); fps_from: the file fps was read from (the last
+    Config.toml, or with 'auto' the video); frame_range: (start, stop) positions (None:
+    every frame)."""
 
     files: tuple[Path, ...] = ()
     pose_model: str | None = None
     fps: float | None = None
     frame_range: tuple[int, int] | None = None
+    fps_from: Path | None = None
 
     @property
     def layout(self) -> str | None:
@@ -63,8 +75,8 @@ class ProjectConfig:
         if layout is None:
             raise ProjectError(
                 f"{self.files[-1]}: pose_model = {self.pose_model!r} has no jaxmocap layout; jaxmocap "
-                f"reads OpenPose {', '.join(sorted(POSE_MODELS))} detections. Run OpenPose with "
-                "BODY_25B (or BODY_25), or pass --layout if the files hold one of those."
+                f"reads {', '.join(sorted(POSE_MODELS))} detections. Run the pose estimation with "
+                "one of those (Pose2Sim: pose_model = 'Body_with_feet'), or pass --layout if the files hold one."
             )
         return layout
 
@@ -132,9 +144,12 @@ def read_config(folder) -> ProjectConfig:
     rate = project.get("frame_rate") if isinstance(project, dict) else None
     if model is not None and not isinstance(model, str):
         raise ProjectError(f"{files[-1]}: [pose] pose_model must be a name such as 'BODY_25B', got {model!r}.")
-    fps = None
+    fps, fps_from = None, files[-1]
     if isinstance(rate, str) and rate.strip().lower() == "auto":
-        fps = None
+        videos = sorted((p for p in (start / "videos").glob("*") if p.suffix.lower() in VIDEO_SUFFIXES),
+                        key=lambda p: _natural_key(p.name)) if (start / "videos").is_dir() else []  # fmt: skip
+        fps_from = videos[0] if videos else None
+        fps = video_frame_rate(videos[0]) if videos else None
     elif rate is not None:
         if isinstance(rate, bool) or not isinstance(rate, int | float) or not rate > 0:
             raise ProjectError(
@@ -154,7 +169,68 @@ def read_config(folder) -> ProjectConfig:
         frame_range = (span[0], span[1])
     elif span is not None and not (isinstance(span, str) and span.strip().lower() in ("auto", "all")) and span != []:
         raise ProjectError(f"{files[-1]}: [project] frame_range must be [start, stop], 'auto' or 'all'; got {span!r}.")
-    return ProjectConfig(tuple(files), model, fps, frame_range)
+    return ProjectConfig(tuple(files), model, fps, frame_range, fps_from if fps is not None else None)
+
+
+#: Videos whose frame rate `video_frame_rate` reads (the ISO base media file format).
+VIDEO_SUFFIXES = (".mp4", ".mov", ".m4v")
+
+
+def _boxes(f, start: int, end: int):
+    """(type, payload start, end) of the ISO-BMFF boxes between `start` and `end`."""
+    pos = start
+    while pos + 8 <= end:
+        f.seek(pos)
+        size, kind = struct.unpack(">I4s", f.read(8))
+        header = 8
+        if size == 1:
+            size, header = struct.unpack(">Q", f.read(8))[0], 16
+        elif size == 0:  # to the end
+            size = end - pos
+        if size < header or pos + size > end:
+            return
+        yield kind, pos + header, pos + size
+        pos += size
+
+
+def _inside(f, box, kind: bytes):
+    return [b for b in _boxes(f, box[1], box[2]) if b[0] == kind]
+
+
+def video_frame_rate(path) -> float | None:
+    """Frames per second of the first video track of an MP4 / MOV file, from its header
+    (moov/trak/mdia: mdhd's timescale, stbl/stts's frame durations: frames / duration, the
+    mean rate); None when the file has no such header. No decoder is needed."""
+    try:
+        with open(path, "rb") as f:
+            f.seek(0, 2)
+            top = (b"", 0, f.tell())
+            for moov in _inside(f, top, b"moov"):
+                for trak in _inside(f, moov, b"trak"):
+                    for mdia in _inside(f, trak, b"mdia"):
+                        hdlr, mdhd = _inside(f, mdia, b"hdlr"), _inside(f, mdia, b"mdhd")
+                        if not hdlr or not mdhd:
+                            continue
+                        f.seek(hdlr[0][1] + 8)
+                        if f.read(4) != b"vide":
+                            continue
+                        f.seek(mdhd[0][1])
+                        version = f.read(1)[0]
+                        f.seek(mdhd[0][1] + (20 if version == 1 else 12))
+                        timescale = struct.unpack(">I", f.read(4))[0]
+                        stts = [b for minf in _inside(f, mdia, b"minf") for stbl in _inside(f, minf, b"stbl")
+                                for b in _inside(f, stbl, b"stts")]  # fmt: skip
+                        if not stts:
+                            continue
+                        f.seek(stts[0][1] + 4)
+                        n = min(struct.unpack(">I", f.read(4))[0], (stts[0][2] - stts[0][1] - 8) // 8)
+                        pairs = struct.unpack(f">{2 * n}I", f.read(8 * n))
+                        frames, ticks = sum(pairs[0::2]), sum(c * d for c, d in zip(pairs[0::2], pairs[1::2]))
+                        if timescale > 0 and frames > 0 and ticks > 0:
+                            return timescale * frames / ticks
+    except (OSError, struct.error, IndexError):
+        return None
+    return None
 
 
 def _has_json(folder: Path) -> bool:
