@@ -310,3 +310,16 @@ def test_the_demo_project_needs_no_flags(tmp_path, capsys, monkeypatch):
     with pytest.raises(_FitStarted):
         main(["multiview", str(root), "--fps", "50"])
     assert "warning: fps 50 as given, but " in capsys.readouterr().err
+
+
+def test_a_camera_that_never_sees_the_subject_is_named():
+    from jaxmocap.app.multiview import _blind_view_warning
+
+    kp = np.zeros((4, 3, 25, 3))
+    kp[:, :2, :, 2] = 0.8
+    assert _blind_view_warning(kp, ("a", "b", "c")) == (
+        "warning: camera folder 'c' never shows the subject the other cameras agree on (no one detected, another "
+        "person, or a wrong camera in the calibration); fitted without them.")  # fmt: skip
+    assert "camera folders 'b', 'c' never show the" in _blind_view_warning(kp[:, [0, 2, 2]], ("a", "b", "c"))
+    kp[:, 2, 0, 2] = 0.5
+    assert _blind_view_warning(kp, ("a", "b", "c")) is None

@@ -249,6 +249,18 @@ def _one_view_warning(keypoints, frames) -> str | None:
             f"{_ranges(one)}): depth there is not observed, it follows the neighbouring frames and the body's size.")
 
 
+def _blind_view_warning(keypoints, views) -> str | None:
+    """The cameras that never see the subject (T, V, K, 3): fitted without them."""
+    blind = [v for v, seen in zip(views, (keypoints[..., 2] > 0).any((0, 2))) if not seen]
+    if not blind or len(blind) == len(views):
+        return None
+    folders = f"camera folder {blind[0]!r} never shows" if len(blind) == 1 else \
+        f"camera folders {', '.join(map(repr, blind))} never show"  # fmt: skip
+    return (f"warning: {folders} the "
+            "subject the other cameras agree on (no one detected, another person, or a wrong camera in the "
+            "calibration); fitted without them.")
+
+
 def _overlap_warnings(recording) -> list[str]:
     """Cameras most of whose frame numbers no other camera has: unsynchronised, or
     numbered from another start, yet sharing a few numbers by chance."""
@@ -623,6 +635,8 @@ def fit_recording(
                 f"{calib_path}; check that the calibration belongs to this recording."
             )
         if (warning := _one_view_warning(keypoints, recording.frames)) is not None:
+            say(warning)
+        if (warning := _blind_view_warning(keypoints, recording.views)) is not None:
             say(warning)
         done("select person")
 
