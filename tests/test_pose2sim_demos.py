@@ -167,8 +167,11 @@ def test_one_folder_holding_every_cameras_files_is_split_by_their_names(tmp_path
     assert rec.ignored == ("desktop_000000000000_keypoints.json",)
     assert [c.name for c in align_views(rec, load_calibration(SINGLE / "calibration"))][0] == "cam_01"
     assert read_openpose(tmp_path / "all", None, views=["cam03"]).views == ("cam03",)
-    with pytest.raises(KeypointFileError, match=r"all/cam05: missing camera folder; cameras present in .*'cam04'"):
-        read_openpose(tmp_path / "all", None, views=["cam05"])
+    (tmp_path / "all").rename(tmp_path / "pose")  # so in a project
+    shutil.copytree(SINGLE / "calibration", tmp_path / "calibration")
+    assert read_project(tmp_path).keypoints == tmp_path / "pose"
+    with pytest.raises(KeypointFileError, match=r"pose/cam05: missing camera folder; cameras present in .*'cam04'"):
+        read_openpose(tmp_path / "pose", None, views=["cam05"])
 
 
 def test_a_camera_folder_named_two_ways_as_often_is_refused(tmp_path):

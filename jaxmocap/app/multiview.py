@@ -497,7 +497,7 @@ def fit_recording(
             intri/extri.yml or their folder, jaxmocap .npz); cameras matched to the
             keypoint folders by name (`formats.align_views`).
         out_dir: output folder (created); see the module docstring for what is written.
-        layout: "body25" | "body25b" | "coco18" | "halpe26", the model OpenPose ran with; None takes
+        layout: "body25" | "body25b" | "coco18" | "halpe26", the model the detector ran with; None takes
             Config.toml's pose_model, else detects it (`app.layout.check_layout`). A named
             layout is checked against the skeleton too: a clearly worse fit is warned
             about, an absurd one refused.

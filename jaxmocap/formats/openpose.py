@@ -6,7 +6,8 @@ OpenPose's ``--write_json`` writes one file per frame, ``<name>_<frame:012d>_key
                                  "face_keypoints_2d": [], "hand_left_keypoints_2d": [], ...}]}
 
 with K (u, v, confidence) triples per person in the model's order (BODY_25, BODY_25B,
-COCO-18, and HALPE_26 as Pose2Sim >= 0.9 writes RTMPose's in this format: `KEYPOINT_COUNTS`; names in `jaxmocap.sensors.keypoints.KEYPOINT_FORMATS`), pixel
+COCO-18; HALPE_26: RTMPose's, which Pose2Sim >= 0.9 writes in this format; counts in
+`KEYPOINT_COUNTS`, names in `jaxmocap.sensors.keypoints.KEYPOINT_FORMATS`), pixel
 centres at integers, undetected keypoints as (0, 0, 0). A recording is one folder per
 camera under a root (Pose2Sim: ``pose/cam01_json/``; EasyMocap: ``openpose/01/``).
 
@@ -79,8 +80,8 @@ class KeypointRecording:
     """OpenPose detections of several synchronised cameras.
 
     views: camera folder names, one per view.
-    layout: "body25" | "body25b" | "coco18" | "halpe26", or None when the files fit several layouts
-        (25 points: BODY_25 or BODY_25B) and none was named.
+    layout: "body25" | "body25b" | "coco18" | "halpe26", or None when the files fit
+        several layouts (25 points: BODY_25 or BODY_25B) and none was named.
     frames: (T,) int frame numbers (union over views, increasing).
     keypoints: per view (T, P_v, K, 3) rows (u, v, confidence) in pixels, people in file
         order padded with zeros to P_v = max(1, most people in any frame of that view).
@@ -241,15 +242,15 @@ def read_openpose(
 
     Args:
         root: folder holding one sub-folder per camera (or, for one camera, the JSON files).
-        layout: "body25" | "body25b" | "coco18" | "halpe26", the model OpenPose ran with; None takes
-            the count from the files (module docstring).
+        layout: "body25" | "body25b" | "coco18" | "halpe26", the model the detector ran
+            with; None takes the count from the files (module docstring).
         views: camera folder names to read, in this order (in one flat folder: the camera
             names, module docstring); None reads every sub-folder holding numbered
             ``*.json`` files, in natural order (cam2 before cam10).
     Raises:
         KeypointFileError naming the folder or file: missing camera folder, no keypoint
-        files, a camera folder whose files are named in two ways as often, truncated JSON, a keypoint count of another layout, cameras whose frame
-        numbers do not overlap.
+        files, a camera folder whose files are named in two ways as often, truncated JSON,
+        a keypoint count of another layout, cameras whose frame numbers do not overlap.
     """
     root = Path(root)
     if layout is not None and layout not in KEYPOINT_COUNTS:
@@ -349,7 +350,8 @@ def write_openpose(root, views, keypoints, layout, frames=None, name: str = OPEN
     Args:
         root: output folder; view v goes to ``root/views[v]/<view>_<frame:012d>_keypoints.json``.
         views: camera folder names; keypoints: per view (T, P, K, 3) rows (u, v, c);
-        layout: "body25" | "body25b" | "coco18" | "halpe26"; frames: (T,) frame numbers (default 0..T-1).
+        layout: "body25" | "body25b" | "coco18" | "halpe26"; frames: (T,) frame numbers
+            (default 0..T-1).
         name: file name pattern with {view} and {frame} (a lab's renaming, e.g.
             "{view}.{frame:04d}.json"; `read_openpose` takes the last number as the frame).
     A slot whose confidences are all 0 is padding and not written, so a frame with no one

@@ -234,8 +234,10 @@ def video_frame_rate(path) -> float | None:
 
 
 def _has_json(folder: Path) -> bool:
+    """JSON in camera sub-folders, or directly inside (every camera's files in one folder)."""
     return folder.is_dir() and any(
-        p.is_dir() and any(f.suffix.lower() == ".json" for f in p.iterdir()) for p in folder.iterdir()
+        (p.is_dir() and any(f.suffix.lower() == ".json" for f in p.iterdir())) or p.suffix.lower() == ".json"
+        for p in folder.iterdir()
     )
 
 
