@@ -100,6 +100,7 @@ def test_a_batch_trial_inherits_its_participants_and_sessions_settings_and_calib
     assert p.config.files == (SESSION / "Config.toml", SESSION / "S00_P00_SingleParticipant" / "Config.toml",
                               STATIC / "Config.toml")  # fmt: skip
     assert (p.config.layout, p.config.fps) == ("body25b", 60.0)  # the session's; the others are comments
+    assert p.config.sources == {key: SESSION / "Config.toml" for key in ("pose_model", "frame_rate", "frame_range")}
     assert p.calibration == SESSION / "S00_Calibration"
     rec = read_openpose(p.keypoints, None)
     assert rec.views == CAMS and rec.frames.tolist() == [0, 1, 2]  # Static_cam_01.00000.json

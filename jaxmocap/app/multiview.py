@@ -543,14 +543,14 @@ def fit_recording(
     config = read_config(keypoints_dir) if Path(keypoints_dir).is_dir() else None
     named, named_by = layout, "--layout"
     if named is None and config is not None and config.pose_model is not None:
-        named, named_by = config.layout, f"{config.files[-1]} (pose_model = {config.pose_model!r})"
+        named, named_by = config.layout, f"{config.sources['pose_model']} (pose_model = {config.pose_model!r})"
     fps_note = None  # said once the files are read, so that a bad file is the only message
     if fps is None:
         if config is not None and config.fps is not None:
             fps = config.fps
             fps_note = f"fps      {fps:g}, from {config.fps_from}" + (
                 " (frame_rate)" if config.fps_from.suffix == ".toml" else
-                f" (its header; {config.files[-1]} says frame_rate = 'auto')")  # fmt: skip
+                f" (its header; {config.sources['frame_rate']} says frame_rate = 'auto')")  # fmt: skip
         else:
             fps = DEFAULT_FPS
             fps_note = (f"warning: the frame rate is not known (no fps given, no frame_rate in a Config.toml, "
@@ -600,10 +600,10 @@ def fit_recording(
             start, stop = config.frame_range  # Pose2Sim's: positions in the frame order
             keep = keep[start:stop]
             if not len(keep):
-                raise ValueError(f"{config.files[-1]}: frame_range = [{start}, {stop}] selects no frame; the "
+                raise ValueError(f"{config.sources['frame_range']}: frame_range = [{start}, {stop}] selects no frame; the "
                                  f"recording has {recording.num_frames}.")  # fmt: skip
             say(f"frames   positions {start}..{min(stop, recording.num_frames) - 1} (frame numbers "
-                f"{recording.frames[keep[0]]}..{recording.frames[keep[-1]]}), from {config.files[-1]} (frame_range)")
+                f"{recording.frames[keep[0]]}..{recording.frames[keep[-1]]}), from {config.sources['frame_range']} (frame_range)")
         recording = _complete_frames(dataclasses.replace(
             recording, frames=recording.frames[keep], keypoints=tuple(k[keep] for k in recording.keypoints),
             present=None if recording.present is None else tuple(p[keep] for p in recording.present),

@@ -55,15 +55,16 @@ class ProjectError(ValueError):
 class ProjectConfig:
     """What Config.toml says. files: the Config.toml files read, session first (the last
     wins); pose_model: as written (None: not set); fps: frame_rate (None: not set, or
-    'auto' without a readable video); fps_from: the file fps was read from (the last
-    Config.toml, or with 'auto' the video); frame_range: (start, stop) positions (None:
-    every frame)."""
+    'auto' without a readable video); fps_from: the file fps was read from (a Config.toml,
+    or with 'auto' the video); frame_range: (start, stop) positions (None: every frame);
+    sources: the Config.toml that set each of "pose_model", "frame_rate", "frame_range"."""
 
     files: tuple[Path, ...] = ()
     pose_model: str | None = None
     fps: float | None = None
     frame_range: tuple[int, int] | None = None
     fps_from: Path | None = None
+    sources: dict = dataclasses.field(default_factory=dict)
 
     @property
     def layout(self) -> str | None:
@@ -74,7 +75,8 @@ class ProjectConfig:
         layout = POSE_MODELS.get(self.pose_model.upper())
         if layout is None:
             raise ProjectError(
-                f"{self.files[-1]}: pose_model = {self.pose_model!r} has no jaxmocap layout; jaxmocap "
+                f"{self.sources.get('pose_model', self.files[-1])}: pose_model = {self.pose_model!r} has no "
+                "jaxmocap layout; jaxmocap "
                 f"reads {', '.join(sorted(POSE_MODELS))} detections. Run the pose estimation with "
                 "one of those (Pose2Sim: pose_model = 'Body_with_feet'), or pass --layout if the files hold one."
             )
@@ -134,17 +136,22 @@ def read_config(folder) -> ProjectConfig:
     files = [_config_file(start)] + [level / "Config.toml" for level in _levels_above(start)]
     files.reverse()
     data: dict = {}
+    sources: dict[str, Path] = {}  # which file set each value: the one errors name
     for path in files:
         try:
-            data = _merge(data, tomllib.loads(path.read_text(encoding="utf-8")))
+            level = tomllib.loads(path.read_text(encoding="utf-8"))
         except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
             raise ProjectError(f"{path}: not valid TOML ({e}).") from None
+        for section, key in (("pose", "pose_model"), ("project", "frame_rate"), ("project", "frame_range")):
+            if isinstance(level.get(section), dict) and key in level[section]:
+                sources[key] = path
+        data = _merge(data, level)
     pose, project = data.get("pose", {}), data.get("project", {})
     model = pose.get("pose_model") if isinstance(pose, dict) else None
     rate = project.get("frame_rate") if isinstance(project, dict) else None
     if model is not None and not isinstance(model, str):
-        raise ProjectError(f"{files[-1]}: [pose] pose_model must be a name such as 'BODY_25B', got {model!r}.")
-    fps, fps_from = None, files[-1]
+        raise ProjectError(f"{sources['pose_model']}: [pose] pose_model must be a name such as 'BODY_25B', got {model!r}.")
+    fps, fps_from = None, sources.get("frame_rate")
     if isinstance(rate, str) and rate.strip().lower() == "auto":
         videos = sorted((p for p in (start / "videos").glob("*") if p.suffix.lower() in VIDEO_SUFFIXES),
                         key=lambda p: _natural_key(p.name)) if (start / "videos").is_dir() else []  # fmt: skip
@@ -153,7 +160,7 @@ def read_config(folder) -> ProjectConfig:
     elif rate is not None:
         if isinstance(rate, bool) or not isinstance(rate, int | float) or not rate > 0:
             raise ProjectError(
-                f"{files[-1]}: [project] frame_rate must be a positive number of frames per second "
+                f"{sources['frame_rate']}: [project] frame_rate must be a positive number of frames per second "
                 f"or 'auto', got {rate!r}."
             )
         fps = float(rate)
@@ -163,13 +170,14 @@ def read_config(folder) -> ProjectConfig:
         if len(span) != 2 or not all(isinstance(x, int) and not isinstance(x, bool) and x >= 0 for x in span) \
                 or span[0] >= span[1]:  # fmt: skip
             raise ProjectError(
-                f"{files[-1]}: [project] frame_range must be [start, stop] with 0 <= start < stop (frame "
+                f"{sources['frame_range']}: [project] frame_range must be [start, stop] with 0 <= start < stop (frame "
                 f"positions), 'auto' or 'all'; got {span!r}."
             )
         frame_range = (span[0], span[1])
     elif span is not None and not (isinstance(span, str) and span.strip().lower() in ("auto", "all")) and span != []:
-        raise ProjectError(f"{files[-1]}: [project] frame_range must be [start, stop], 'auto' or 'all'; got {span!r}.")
-    return ProjectConfig(tuple(files), model, fps, frame_range, fps_from if fps is not None else None)
+        raise ProjectError(f"{sources['frame_range']}: [project] frame_range must be [start, stop], 'auto' or 'all'; "
+                           f"got {span!r}.")
+    return ProjectConfig(tuple(files), model, fps, frame_range, fps_from if fps is not None else None, sources)
 
 
 #: Videos whose frame rate `video_frame_rate` reads (the ISO base media file format).
