@@ -83,6 +83,14 @@ def test_the_08_single_trial_reads_with_no_flags_and_its_stray_files_are_named()
     assert {(c.width, c.height) for c in cameras} == {(1088, 1920)}
 
 
+def test_backups_of_frames_are_not_frames(tmp_path):
+    # pose2sim 0.8's batch demo ships cam02.0098.json.old beside cam02.0098.json
+    root = _write(tmp_path, _frames())
+    shutil.copy(root / "cam02_json" / "cam02.0005.json", root / "cam02_json" / "cam02.0005.json.old")
+    rec = read_openpose(root, None)
+    assert rec.frames.tolist() == list(range(6)) and rec.ignored == ()
+
+
 def test_pose2sim_04_keeps_its_settings_in_user(tmp_path):
     root = shutil.copytree(DATA / "Demo", tmp_path / "Demo")
     _write(root / "pose", _frames(folder="cam{n}_json"))  # 0.4's folder names: cam1_json
