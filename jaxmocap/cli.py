@@ -302,8 +302,9 @@ def _configure_multiview(p: argparse.ArgumentParser) -> None:
     p.add_argument("--detector-python", metavar="PYTHON", default=None,
                    help="the Python with mediapipe 0.10.21 for --videos (default: $JAXMOCAP_VIDEO_PYTHON, else "
                    "this one)")
-    p.add_argument("--layout", default=None, choices=("body25", "body25b", "coco18", "mediapipe33"),
-                   help="the OpenPose model the keypoints come from (default: Config.toml's pose_model, else "
+    p.add_argument("--layout", default=None, choices=("body25", "body25b", "coco18", "halpe26", "mediapipe33"),
+                   help="the model the keypoints come from (OpenPose's; halpe26: RTMPose's, Pose2Sim >= 0.9's; "
+                   "mediapipe33: MediaPipe Pose's, what --videos writes) (default: Config.toml's pose_model, else "
                    "detected from the skeleton); checked against the skeleton either way")
     _add_body_option(p)
     p.add_argument("--views", type=lambda s: [v for v in s.split(",") if v], metavar="A,B",
@@ -361,7 +362,7 @@ def _run_multiview(args) -> int:
             r = fit_recording(keypoints, calib, out, layout=args.layout, views=args.views, **options)
     final = r["reprojection"]["final"]
     num = lambda x, spec: "-" if x is None else format(x, spec)  # noqa: E731 (None: nothing to measure)
-    per_view = ", ".join(f"{v} {s['median_px']:.1f}" for v, s in final["per_view"].items() if s["count"])
+    per_view = ", ".join(f"{v} {num(s['median_px'], '.1f')}" for v, s in final["per_view"].items())
     print(f"fitted   {r['frames']['count']} frames x {len(r['views'])} views ({r['layout']}) in "
           f"{r['timings_s']['total']:.1f} s")
     print(f"reproj   median {num(final['overall']['median_px'], '.1f')} px, "

@@ -85,6 +85,48 @@ def _release_compiled_programs():
     gc.collect()
 
 
+# `JAXMOCAP_COMPILE_REPORT=FILE make test` appends one JSON line per test: seconds spent
+# tracing, lowering and compiling (XLA), and persistent-cache hits and misses. The suite is
+# compile-bound; this says which tests pay for it (tests/compile_report.py sums it up).
+_COMPILE_REPORT = os.environ.get("JAXMOCAP_COMPILE_REPORT")
+_compile_totals: dict = {}
+
+if _COMPILE_REPORT:
+    from jax import monitoring as _monitoring
+
+    _EVENTS = {"/jax/core/compile/jaxpr_trace_duration": "trace_s",
+               "/jax/core/compile/jaxpr_to_mlir_module_duration": "lower_s",
+               "/jax/core/compile/backend_compile_duration": "compile_s"}  # fmt: skip
+
+    def _on_duration(event, seconds, **_):
+        key = _EVENTS.get(event)
+        if key:
+            _compile_totals[key] = _compile_totals.get(key, 0.0) + seconds
+            if key == "compile_s":
+                _compile_totals["programs"] = _compile_totals.get("programs", 0) + 1
+
+    def _on_event(event, **_):
+        if event.startswith("/jax/compilation_cache/cache_"):
+            key = event.rsplit("/", 1)[1]
+            _compile_totals[key] = _compile_totals.get(key, 0) + 1
+
+    _monitoring.register_event_duration_secs_listener(_on_duration)
+    _monitoring.register_event_listener(_on_event)
+
+    @pytest.hookimpl(hookwrapper=True)
+    def pytest_runtest_protocol(item, nextitem):
+        import json
+        import time
+
+        _compile_totals.clear()
+        t0 = time.perf_counter()
+        yield
+        row = {"test": item.nodeid, "wall_s": round(time.perf_counter() - t0, 3),
+               **{k: round(v, 3) if isinstance(v, float) else v for k, v in _compile_totals.items()}}  # fmt: skip
+        with open(_COMPILE_REPORT, "a") as f:
+            f.write(json.dumps(row) + "\n")
+
+
 def assert_picture(path, min_bytes=10_000, min_colour_fraction=0.0, min_drawn_fraction=0.0):
     """A PNG with content: not blank, some dark ink, and (if asked) enough drawn pixels
     (anything not page-white) and enough coloured ones.

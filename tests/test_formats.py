@@ -508,11 +508,17 @@ def test_body25_file_read_as_coco18_says_which_layout_fits(tmp_path):
     (halpe / "cam01_000000000000_keypoints.json").write_text(
         json.dumps({"people": [{"pose_keypoints_2d": [1.0] * 78}]})
     )
+    with pytest.raises(KeypointFileError, match=r"78 numbers.*'body25' expects 75.*the layout that fits is 'halpe26'"):
+        read_openpose(tmp_path / "halpe", "body25")
+    assert read_openpose(tmp_path / "halpe", None).layout == "halpe26"  # Pose2Sim >= 0.9's RTMPose files
+    whole = tmp_path / "whole" / "cam01"  # COCO_133 (RTMPose whole body): no layout of ours
+    whole.mkdir(parents=True)
+    (whole / "cam01_000000.json").write_text(json.dumps({"people": [{"pose_keypoints_2d": [1.0] * 399}]}))
     with pytest.raises(
         KeypointFileError,
-        match=r"78 numbers.*no known layout has 78 numbers \(body25: 75, body25b: 75, coco18: 54, mediapipe33: 99\)",
+        match=r"399 numbers.*no known layout has 399 numbers \(body25: 75, body25b: 75, coco18: 54, halpe26: 78, mediapipe33: 99\)",
     ):
-        read_openpose(tmp_path / "halpe", "body25")
+        read_openpose(tmp_path / "whole", "body25")
     with pytest.raises(KeypointFileError, match="layout='body_25' is not known"):
         read_openpose(tmp_path, "body_25")
 
@@ -655,6 +661,10 @@ def test_frames_are_matched_by_number_with_gaps_kept_and_disjoint_cameras_refuse
     with pytest.raises(KeypointFileError, match=r"'cam03' shares no frame number.*cam01 1..5, cam02 2..4, cam03 102..104"):
         read_openpose(tmp_path, None)
     assert read_openpose(tmp_path, None, views=["cam03"]).frames.tolist() == [102, 103, 104]
+    # a file named otherwise is a stray, left out and listed; one named alike repeats a frame
     (tmp_path / "cam02" / "cam02.0003_keypoints.json").write_text('{"people": []}')
-    with pytest.raises(KeypointFileError, match=r"frame 3 appears twice: cam02\.0003\.json and cam02\.0003_keypoints"):
+    rec = read_openpose(tmp_path, None, views=["cam02"])
+    assert rec.ignored == ("cam02/cam02.0003_keypoints.json",) and rec.frames.tolist() == [2, 3, 4]
+    (tmp_path / "cam02" / "cam02.03.json").write_text('{"people": []}')
+    with pytest.raises(KeypointFileError, match=r"frame 3 appears twice: cam02\.0003\.json and cam02\.03\.json"):
         read_openpose(tmp_path, None, views=["cam02"])

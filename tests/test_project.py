@@ -73,12 +73,13 @@ def test_a_pose2sim_project_gives_keypoints_calibration_layout_and_frame_rate(tm
 @pytest.mark.parametrize("rate, model, fps, layout", [
     ("'auto'", "'body_25'", None, "body25"),  # any case; 'auto' = from the video: unknown here
     ("29.97", "'COCO'", 29.97, "coco18"),
+    ("'auto'", "'Body_with_feet'", None, "halpe26"),  # Pose2Sim >= 0.9's default: RTMPose's HALPE_26
 ])  # fmt: skip
 def test_config_values_map_to_layouts_and_rates(tmp_path, rate, model, fps, layout):
     root = _project(tmp_path / "p", rate=rate, model=model)
     config = read_config(root)
     assert (config.fps, config.layout) == (fps, layout)
-    assert set(POSE_MODELS.values()) == {"body25", "body25b", "coco18", "mediapipe33"}
+    assert set(POSE_MODELS.values()) == {"body25", "body25b", "coco18", "halpe26", "mediapipe33"}
     assert config.frame_range is None  # 'auto': every frame
 
 
@@ -105,8 +106,9 @@ def test_a_trial_reads_its_session_config_and_calibration(tmp_path):
 
 
 def test_project_problems_name_the_file_and_the_fix(tmp_path):
-    root = _project(tmp_path / "p", model="'Body_with_feet'")
-    with pytest.raises(ProjectError, match=r"Config\.toml: pose_model = 'Body_with_feet' has no jaxmocap layout.*BODY_25B"):
+    root = _project(tmp_path / "p", model="'Whole_body'")
+    with pytest.raises(ProjectError, match=r"Config\.toml: pose_model = 'Whole_body' has no jaxmocap layout.*BODY_25B.*"
+                                           r"pose_model = 'Body_with_feet'"):
         _ = read_project(root).config.layout
     with pytest.raises(KeypointFileError, match=r"p: no camera folders.*/p/pose; or the project folder itself as `jaxmocap multiview "):
         read_openpose(root, None)  # the project given where its keypoint folder belongs

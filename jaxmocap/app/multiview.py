@@ -249,6 +249,18 @@ def _one_view_warning(keypoints, frames) -> str | None:
             f"{_ranges(one)}): depth there is not observed, it follows the neighbouring frames and the body's size.")
 
 
+def _blind_view_warning(keypoints, views) -> str | None:
+    """The cameras that never see the subject (T, V, K, 3): fitted without them."""
+    blind = [v for v, seen in zip(views, (keypoints[..., 2] > 0).any((0, 2))) if not seen]
+    if not blind or len(blind) == len(views):
+        return None
+    folders = f"camera folder {blind[0]!r} never shows" if len(blind) == 1 else \
+        f"camera folders {', '.join(map(repr, blind))} never show"  # fmt: skip
+    return (f"warning: {folders} the "
+            "subject the other cameras agree on (no one detected, another person, or a wrong camera in the "
+            "calibration); fitted without them.")
+
+
 def _overlap_warnings(recording) -> list[str]:
     """Cameras most of whose frame numbers no other camera has: unsynchronised, or
     numbered from another start, yet sharing a few numbers by chance."""
@@ -262,6 +274,16 @@ def _overlap_warnings(recording) -> list[str]:
             out.append(f"warning: camera folder {view!r} shares only {shared} of its {int(have.sum())} frame numbers "
                        "with the other cameras; are the cameras synchronised and numbered alike?")  # fmt: skip
     return out
+
+
+def _ignored_warning(recording) -> list[str]:
+    """The JSON files left unread because their camera's frames are named otherwise."""
+    ignored = recording.ignored
+    if not ignored:
+        return []
+    shown = ", ".join(ignored[:4]) + (f", ... ({len(ignored)} in all)" if len(ignored) > 4 else "")
+    return [f"warning: not read, named unlike the other frames of their camera: {shown}; rename them like "
+            "the others if they are frames of this recording."]
 
 
 def _read_summary(recording) -> str:
@@ -475,7 +497,7 @@ def fit_recording(
             intri/extri.yml or their folder, jaxmocap .npz); cameras matched to the
             keypoint folders by name (`formats.align_views`).
         out_dir: output folder (created); see the module docstring for what is written.
-        layout: "body25" | "body25b" | "coco18", the model OpenPose ran with; None takes
+        layout: "body25" | "body25b" | "coco18" | "halpe26", the model the detector ran with; None takes
             Config.toml's pose_model, else detects it (`app.layout.check_layout`). A named
             layout is checked against the skeleton too: a clearly worse fit is warned
             about, an absurd one refused.
@@ -521,15 +543,18 @@ def fit_recording(
     config = read_config(keypoints_dir) if Path(keypoints_dir).is_dir() else None
     named, named_by = layout, "--layout"
     if named is None and config is not None and config.pose_model is not None:
-        named, named_by = config.layout, f"{config.files[-1]} (pose_model = {config.pose_model!r})"
+        named, named_by = config.layout, f"{config.sources['pose_model']} (pose_model = {config.pose_model!r})"
     fps_note = None  # said once the files are read, so that a bad file is the only message
     if fps is None:
         if config is not None and config.fps is not None:
             fps = config.fps
-            fps_note = f"fps      {fps:g}, from {config.files[-1]} (frame_rate)"
+            fps_note = f"fps      {fps:g}, from {config.fps_from}" + (
+                " (frame_rate)" if config.fps_from.suffix == ".toml" else
+                f" (its header; {config.sources['frame_rate']} says frame_rate = 'auto')")  # fmt: skip
         else:
             fps = DEFAULT_FPS
-            fps_note = (f"warning: the frame rate is not known (no fps given, no frame_rate in a Config.toml); "
+            fps_note = (f"warning: the frame rate is not known (no fps given, no frame_rate in a Config.toml, "
+                        "no readable video in the project's videos/); "
                         f"assuming {fps:g} fps: give the recording's (--fps).")  # fmt: skip
     try:
         positive = not isinstance(fps, bool) and float(fps) > 0
@@ -538,6 +563,9 @@ def fit_recording(
     if not positive:
         raise ValueError(f"fps must be a positive number of frames per second, got {fps!r}.")
     fps = float(fps)
+    if fps_note is None and config is not None and config.fps is not None and fps != config.fps:
+        fps_note = (f"warning: fps {fps:g} as given, but {config.fps_from} says {config.fps:g}; "
+                    "the given one is used.")  # fmt: skip
     weights = MuVSWeights() if weights is None else weights
     timings: dict[str, float] = {}
     stages = ["read", "select person", "initialise", "stage 1", "stage 2", "write"]
@@ -565,17 +593,17 @@ def fit_recording(
         begin("read")
         recording = read_openpose(keypoints_dir, named, views)
         say(_read_summary(recording))
-        for warning in _overlap_warnings(recording):
+        for warning in _ignored_warning(recording) + _overlap_warnings(recording):
             say(warning)
         keep = _frame_filter(recording.frames, frames)
         if frames is None and config is not None and config.frame_range is not None:
             start, stop = config.frame_range  # Pose2Sim's: positions in the frame order
             keep = keep[start:stop]
             if not len(keep):
-                raise ValueError(f"{config.files[-1]}: frame_range = [{start}, {stop}] selects no frame; the "
+                raise ValueError(f"{config.sources['frame_range']}: frame_range = [{start}, {stop}] selects no frame; the "
                                  f"recording has {recording.num_frames}.")  # fmt: skip
             say(f"frames   positions {start}..{min(stop, recording.num_frames) - 1} (frame numbers "
-                f"{recording.frames[keep[0]]}..{recording.frames[keep[-1]]}), from {config.files[-1]} (frame_range)")
+                f"{recording.frames[keep[0]]}..{recording.frames[keep[-1]]}), from {config.sources['frame_range']} (frame_range)")
         recording = _complete_frames(dataclasses.replace(
             recording, frames=recording.frames[keep], keypoints=tuple(k[keep] for k in recording.keypoints),
             present=None if recording.present is None else tuple(p[keep] for p in recording.present),
@@ -607,6 +635,8 @@ def fit_recording(
                 f"{calib_path}; check that the calibration belongs to this recording."
             )
         if (warning := _one_view_warning(keypoints, recording.frames)) is not None:
+            say(warning)
+        if (warning := _blind_view_warning(keypoints, recording.views)) is not None:
             say(warning)
         done("select person")
 

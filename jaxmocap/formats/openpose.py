@@ -6,7 +6,8 @@ OpenPose's ``--write_json`` writes one file per frame, ``<name>_<frame:012d>_key
                                  "face_keypoints_2d": [], "hand_left_keypoints_2d": [], ...}]}
 
 with K (u, v, confidence) triples per person in the model's order (BODY_25, BODY_25B,
-COCO-18: `KEYPOINT_COUNTS`; names in `jaxmocap.sensors.keypoints.KEYPOINT_FORMATS`), pixel
+COCO-18; HALPE_26: RTMPose's, which Pose2Sim >= 0.9 writes in this format; counts in
+`KEYPOINT_COUNTS`, names in `jaxmocap.sensors.keypoints.KEYPOINT_FORMATS`), pixel
 centres at integers, undetected keypoints as (0, 0, 0). A recording is one folder per
 camera under a root (Pose2Sim: ``pose/cam01_json/``; EasyMocap: ``openpose/01/``).
 
@@ -16,6 +17,15 @@ trailing ``_keypoints`` aside): ``cam01_000000000012_keypoints.json`` (OpenPose)
 ``cam01_000012.json`` (Pose2Sim/RTMLib), ``cam01.0012.json``, ``frame_0012.json`` and
 ``0012.json`` are all frame 12. A name whose number comes before the camera's
 (``0012_cam01.json``) is misread; two files giving one frame number are refused.
+
+A camera's frames share one naming pattern (the name with its frame number taken out:
+``cam01.#.json``). Files of another pattern in a camera folder are strays (Pose2Sim's
+demo holds ``del_000000_0.json`` beside ``cam03.0000.json``): the pattern with the most
+files is read, the others are listed in `KeypointRecording.ignored` (a tie is refused).
+All cameras' files in one folder (OpenPose run on every video with one ``--write_json``
+folder: ``video1_000000000012_keypoints.json``, ``video2_...``) are told apart the same
+way: there, every pattern with at least half as many files as the largest is a camera,
+named by the name before its number (``video1``).
 
 `read_openpose` gathers every view into padded arrays over the union of frame numbers,
 matching frames across cameras by their numbers: a frame whose file is missing in one
@@ -52,7 +62,7 @@ __all__ = [
     "write_openpose",
 ]
 
-KEYPOINT_COUNTS = {"body25": 25, "body25b": 25, "coco18": 18, "mediapipe33": 33}  # mediapipe33: formats.video
+KEYPOINT_COUNTS = {"body25": 25, "body25b": 25, "coco18": 18, "halpe26": 26, "mediapipe33": 33}  # mediapipe33: formats.video
 # the last digit run of the stem (module docstring)
 _FRAME = re.compile(r"(\d+)\D*\.json$", re.IGNORECASE)
 _EMPTY_PARTS = (
@@ -70,12 +80,14 @@ class KeypointRecording:
     """OpenPose detections of several synchronised cameras.
 
     views: camera folder names, one per view.
-    layout: "body25" | "body25b" | "coco18", or None when the files fit several layouts
-        (25 points: BODY_25 or BODY_25B) and none was named.
+    layout: "body25" | "body25b" | "coco18" | "halpe26", or None when the files fit
+        several layouts (25 points: BODY_25 or BODY_25B) and none was named.
     frames: (T,) int frame numbers (union over views, increasing).
     keypoints: per view (T, P_v, K, 3) rows (u, v, confidence) in pixels, people in file
         order padded with zeros to P_v = max(1, most people in any frame of that view).
     present: per view (T,) bool, whether that view has a file for the frame (None: all).
+    ignored: files that look like frames but were not read (another naming pattern than
+        their camera's: module docstring), as paths relative to the keypoint folder.
     """
 
     views: tuple[str, ...]
@@ -83,6 +95,7 @@ class KeypointRecording:
     frames: np.ndarray
     keypoints: tuple[np.ndarray, ...]
     present: tuple[np.ndarray, ...] | None = None
+    ignored: tuple[str, ...] = ()
 
     @property
     def num_frames(self) -> int:
@@ -95,6 +108,60 @@ def _natural_key(name: str):
 
 def _keypoint_files(folder: Path) -> list[Path]:
     return sorted(p for p in folder.iterdir() if p.is_file() and _FRAME.search(p.name))
+
+
+def _pattern(name: str) -> str:
+    """The file name with its frame number taken out: "cam01.0012.json" -> "cam01.#.json"."""
+    m = _FRAME.search(name)
+    return name[: m.start(1)] + "#" + name[m.end(1) :]
+
+
+def _by_pattern(files: list[Path]) -> list[tuple[str, list[Path]]]:
+    """Files grouped by naming pattern, most files first (then by pattern, natural order)."""
+    groups: dict[str, list[Path]] = {}
+    for f in files:
+        groups.setdefault(_pattern(f.name), []).append(f)
+    return sorted(groups.items(), key=lambda g: (-len(g[1]), _natural_key(g[0])))
+
+
+def _camera_name(pattern: str, fallback: str) -> str:
+    return pattern[: pattern.index("#")].rstrip("._- ") or fallback
+
+
+def _frame_map(folder: Path, files: list[Path]) -> dict[int, Path]:
+    by_frame: dict[int, Path] = {}
+    for f in files:
+        frame = int(_FRAME.search(f.name).group(1))
+        if frame in by_frame:
+            raise KeypointFileError(
+                f"{folder}: frame {frame} appears twice: {by_frame[frame].name} and {f.name}."
+            )
+        by_frame[frame] = f
+    return by_frame
+
+
+def _cameras_in(folder: Path, several: bool) -> tuple[list[tuple[str, dict[int, Path]]], list[Path]]:
+    """The cameras (name, frame -> file) of `folder`'s files and the files left out
+    (module docstring). several: the folder may hold several cameras (a flat folder);
+    otherwise it is one camera, named after the folder."""
+    groups = _by_pattern(_keypoint_files(folder))
+    if not groups:
+        return [], []
+    if several:
+        cameras = [g for g in groups if 2 * len(g[1]) >= len(groups[0][1])]
+    else:
+        if len(groups) > 1 and len(groups[1][1]) == len(groups[0][1]):
+            raise KeypointFileError(
+                f"{folder}: frame files named in two ways, {len(groups[0][1])} like {groups[0][1][0].name!r} and "
+                f"{len(groups[1][1])} like {groups[1][1][0].name!r}; a camera folder holds one camera's frames "
+                "(move the others into their own folder, or delete the stray files)."
+            )
+        cameras = groups[:1]
+    names = [_camera_name(p, folder.name) for p, _ in cameras] if len(cameras) > 1 else [folder.name]
+    if len(set(names)) < len(names):
+        names = [p for p, _ in cameras]
+    ignored = [f for g in groups if g not in cameras for f in g[1]]
+    return [(n, _frame_map(folder, files)) for n, (_, files) in zip(names, cameras)], ignored
 
 
 def _layouts_for(count: int) -> list[str]:
@@ -175,14 +242,15 @@ def read_openpose(
 
     Args:
         root: folder holding one sub-folder per camera (or, for one camera, the JSON files).
-        layout: "body25" | "body25b" | "coco18", the model OpenPose ran with; None takes
-            the count from the files (module docstring).
-        views: camera folder names to read, in this order; None reads every sub-folder
-            holding numbered ``*.json`` files, in natural order (cam2 before cam10).
+        layout: "body25" | "body25b" | "coco18" | "halpe26", the model the detector ran
+            with; None takes the count from the files (module docstring).
+        views: camera folder names to read, in this order (in one flat folder: the camera
+            names, module docstring); None reads every sub-folder holding numbered
+            ``*.json`` files, in natural order (cam2 before cam10).
     Raises:
         KeypointFileError naming the folder or file: missing camera folder, no keypoint
-        files, truncated JSON, a keypoint count of another layout, cameras whose frame
-        numbers do not overlap.
+        files, a camera folder whose files are named in two ways as often, truncated JSON,
+        a keypoint count of another layout, cameras whose frame numbers do not overlap.
     """
     root = Path(root)
     if layout is not None and layout not in KEYPOINT_COUNTS:
@@ -193,14 +261,21 @@ def read_openpose(
         raise KeypointFileError(
             f"{root}: no such folder; give the folder holding one keypoint folder per camera."
         )
+    if views is not None:
+        views = [views] if isinstance(views, str) else list(views)
+    subfolders = sorted(
+        (p for p in root.iterdir() if p.is_dir() and _keypoint_files(p)), key=lambda p: _natural_key(p.name)
+    )
+    cameras: list[tuple[str, dict[int, Path]]] = []
+    ignored: list[Path] = []
+    for folder in subfolders if views is None else [f for f in subfolders if f.name in views]:
+        found_here, left = _cameras_in(folder, several=False)
+        cameras += found_here
+        ignored += left
+    if not subfolders:
+        cameras, ignored = _cameras_in(root, several=True)  # one folder: one camera, or all
     if views is None:
-        folders = sorted(
-            (p for p in root.iterdir() if p.is_dir() and _keypoint_files(p)),
-            key=lambda p: _natural_key(p.name),
-        )
-        if not folders and _keypoint_files(root):
-            folders = [root]  # a single camera's files directly under root
-        if not folders:
+        if not cameras:
             raise KeypointFileError(
                 f"{root}: no camera folders with numbered OpenPose '*.json' files (e.g. "
                 "cam01/cam01_000000000012_keypoints.json); give the folder that holds one such "
@@ -209,33 +284,21 @@ def read_openpose(
                    if (root / "pose").is_dir() else ".")
             )  # fmt: skip
     else:
-        views = [views] if isinstance(views, str) else list(views)
-        present = sorted(p.name for p in root.iterdir() if p.is_dir())
-        folders = []
+        named = dict(cameras)
+        present = sorted(set(named) | {p.name for p in root.iterdir() if p.is_dir()}, key=_natural_key)
         for v in views:
-            if not (root / v).is_dir():
+            if v in named:
+                continue
+            if (root / v).is_dir():
                 raise KeypointFileError(
-                    f"{root / v}: missing camera folder; folders present in {root}: {present}."
+                    f"{root / v}: no OpenPose JSON files with a frame number in their name "
+                    "('<name>_<frame>_keypoints.json', 'cam01.0012.json', ...)."
                 )
-            folders.append(root / v)
-    per_view = []
-    for folder in folders:
-        files = _keypoint_files(folder)
-        if not files:
-            raise KeypointFileError(
-                f"{folder}: no OpenPose JSON files with a frame number in their name "
-                "('<name>_<frame>_keypoints.json', 'cam01.0012.json', ...)."
-            )
-        by_frame: dict[int, Path] = {}
-        for f in files:
-            frame = int(_FRAME.search(f.name).group(1))
-            if frame in by_frame:
-                raise KeypointFileError(
-                    f"{folder}: frame {frame} appears twice: {by_frame[frame].name} and {f.name}."
-                )
-            by_frame[frame] = f
-        per_view.append(by_frame)
-    _check_overlap([f.name for f in folders], per_view)
+            raise KeypointFileError(f"{root / v}: missing camera folder; cameras present in {root}: {present}.")
+        cameras = [(v, named[v]) for v in views]
+    names = [name for name, _ in cameras]
+    per_view = [by_frame for _, by_frame in cameras]
+    _check_overlap(names, per_view)
     found = layout or _layout_of([f for by_frame in per_view for f in by_frame.values()])
     # undecided (25 points, none named): read as BODY_25, whose count is the same
     per_view = [
@@ -254,7 +317,8 @@ def read_openpose(
                 out[index[frame], : len(rows)] = np.stack(rows)
         keypoints.append(out)
     present = tuple(np.isin(frames, list(people)) for people in per_view)
-    return KeypointRecording(tuple(f.name for f in folders), found, frames, tuple(keypoints), present)
+    left_out = tuple(sorted((str(f.relative_to(root)) for f in ignored), key=_natural_key))
+    return KeypointRecording(tuple(names), found, frames, tuple(keypoints), present, left_out)
 
 
 def _check_overlap(names: list[str], per_view: list[dict]) -> None:
@@ -275,6 +339,9 @@ def _check_overlap(names: list[str], per_view: list[dict]) -> None:
 
 
 OPENPOSE_NAME = "{view}_{frame:012d}_keypoints.json"
+#: `align_views` refuses a view with a detection further outside its image than this
+#: share of the image's width (height).
+OUTSIDE_IMAGE = 0.1
 
 
 def write_openpose(root, views, keypoints, layout, frames=None, name: str = OPENPOSE_NAME) -> None:
@@ -283,7 +350,8 @@ def write_openpose(root, views, keypoints, layout, frames=None, name: str = OPEN
     Args:
         root: output folder; view v goes to ``root/views[v]/<view>_<frame:012d>_keypoints.json``.
         views: camera folder names; keypoints: per view (T, P, K, 3) rows (u, v, c);
-        layout: "body25" | "body25b" | "coco18"; frames: (T,) frame numbers (default 0..T-1).
+        layout: "body25" | "body25b" | "coco18" | "halpe26"; frames: (T,) frame numbers
+            (default 0..T-1).
         name: file name pattern with {view} and {frame} (a lab's renaming, e.g.
             "{view}.{frame:04d}.json"; `read_openpose` takes the last number as the frame).
     A slot whose confidences are all 0 is padding and not written, so a frame with no one
@@ -349,7 +417,7 @@ def align_views(
     number repeats (Pose2Sim's "int_cam01_img" calibration for the "cam01_json" folder).
     Cameras without a view are left out. Raises ValueError listing both name sets when a
     view has no (or no unique) camera, or when a view's detections fall outside its
-    camera's image (a wrong image size or camera).
+    camera's image by more than `OUTSIDE_IMAGE` of its size (a wrong image size or camera).
     """
     cameras = list(cameras)
     by_name = {c.name: c for c in cameras}
@@ -391,12 +459,14 @@ def align_views(
         if cam.width <= 0 or not seen.any():
             continue
         u, v = kp[..., 0][seen], kp[..., 1][seen]
-        # OpenPose never reports points outside the image
-        margin = 2.0 + 0.005 * max(cam.width, cam.height)
+        # Detectors put a few occluded points past the border (RTMPose; Pose2Sim's
+        # multi-person demo: 49 px on a 1088 px width), a wrong image size puts many far out
+        mu, mv = OUTSIDE_IMAGE * cam.width, OUTSIDE_IMAGE * cam.height
         if (
-            u.max() > cam.width - 0.5 + margin
-            or v.max() > cam.height - 0.5 + margin
-            or min(u.min(), v.min()) < -0.5 - margin
+            u.max() > cam.width - 0.5 + mu
+            or v.max() > cam.height - 0.5 + mv
+            or u.min() < -0.5 - mu
+            or v.min() < -0.5 - mv
         ):
             raise ValueError(
                 f"align_views: view {view!r} has detections in u {u.min():.0f}..{u.max():.0f}, "

@@ -9,30 +9,41 @@ A Pose2Sim project (https://github.com/perfanalytics/pose2sim, its ``Demo_*`` fo
                                  synchronised, pose-associated/ once one person is chosen)
 
 and a batch session puts several trials, each with its own Config.toml, under a session
-folder holding the shared calibration/ and a Config.toml the trials' values override.
+folder holding the shared calibration/ and a Config.toml the trials' values override
+(pose2sim 0.8: session/participant/trial, three Config.toml; the calibration folder is
+the session's, e.g. S00_Calibration/). Pose2Sim up to 0.4 kept the settings in
+``project/User/Config.toml``.
 
 `read_project` finds these pieces with Pose2Sim's rules: the keypoint folder is the first
 of pose-associated/, pose-sync/, pose/ that holds any; the calibration is in a folder
-whose name contains "calib" (the trial's, else the session's): its one .toml, else its
-one calibration of another format (`load_calibration`'s folder rule). `read_config` reads
-the settings jaxmocap uses: ``pose_model`` (Pose2Sim's names, any case; OpenPose's
-BODY_25, BODY_25B and COCO map to jaxmocap's layouts), ``frame_rate`` ('auto' means
-"from the video", which jaxmocap does not read: None) and ``frame_range`` ([start, stop):
-positions in the frame order, as Pose2Sim indexes its sorted files; 'auto', 'all' and
-[] mean every frame).
+whose name contains "calib" (the trial's, else the nearest level above holding a
+Config.toml): its one .toml, else its one calibration of another format
+(`load_calibration`'s folder rule). `read_config` reads the settings jaxmocap uses:
+``pose_model`` (Pose2Sim's names, any case; OpenPose's BODY_25, BODY_25B and COCO, and
+HALPE_26 alias Body_with_feet, map to jaxmocap's layouts), ``frame_rate`` ('auto': as
+Pose2Sim, the rate of the first video in the project's videos/, read from its MP4 /
+QuickTime header; None when there is none) and ``frame_range`` ([start, stop): positions in the frame order, as
+Pose2Sim indexes its sorted files; 'auto', 'all' and [] mean every frame).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import struct
 import tomllib
 from pathlib import Path
 
-__all__ = ["POSE_MODELS", "Project", "ProjectConfig", "ProjectError", "read_config", "read_project"]
+from .openpose import _natural_key
 
-#: Pose2Sim ``pose_model`` names (upper case) of the models jaxmocap reads (BLAZEPOSE: MediaPipe).
-POSE_MODELS = {"BODY_25": "body25", "BODY_25B": "body25b", "COCO": "coco18", "COCO_18": "coco18",
-               "BLAZEPOSE": "mediapipe33"}  # fmt: skip
+__all__ = ["POSE_MODELS", "Project", "ProjectConfig", "ProjectError", "read_config", "read_project", "video_frame_rate"]
+
+#: Pose2Sim ``pose_model`` names (upper case) of the models jaxmocap reads: OpenPose's, and
+#: HALPE_26 (Pose2Sim >= 0.9's default, RTMPose's, named "Body_with_feet" there; its
+#: "Lower_body" runs the same model), and BLAZEPOSE (MediaPipe's: `formats.video`).
+POSE_MODELS = {
+    "BODY_25": "body25", "BODY_25B": "body25b", "COCO": "coco18", "COCO_18": "coco18",
+    "HALPE_26": "halpe26", "BODY_WITH_FEET": "halpe26", "LOWER_BODY": "halpe26", "BLAZEPOSE": "mediapipe33",
+}  # fmt: skip
 _KEYPOINT_FOLDERS = ("pose-associated", "pose-sync", "pose")
 
 
@@ -43,13 +54,17 @@ class ProjectError(ValueError):
 @dataclasses.dataclass(frozen=True)
 class ProjectConfig:
     """What Config.toml says. files: the Config.toml files read, session first (the last
-    wins); pose_model: as written (None: not set); fps: frame_rate (None: not set or 'auto');
-    frame_range: (start, stop) positions (None: every frame)."""
+    wins); pose_model: as written (None: not set); fps: frame_rate (None: not set, or
+    'auto' without a readable video); fps_from: the file fps was read from (a Config.toml,
+    or with 'auto' the video); frame_range: (start, stop) positions (None: every frame);
+    sources: the Config.toml that set each of "pose_model", "frame_rate", "frame_range"."""
 
     files: tuple[Path, ...] = ()
     pose_model: str | None = None
     fps: float | None = None
     frame_range: tuple[int, int] | None = None
+    fps_from: Path | None = None
+    sources: dict = dataclasses.field(default_factory=dict)
 
     @property
     def layout(self) -> str | None:
@@ -60,9 +75,10 @@ class ProjectConfig:
         layout = POSE_MODELS.get(self.pose_model.upper())
         if layout is None:
             raise ProjectError(
-                f"{self.files[-1]}: pose_model = {self.pose_model!r} has no jaxmocap layout; jaxmocap "
-                f"reads {', '.join(sorted(POSE_MODELS))} detections (OpenPose; BLAZEPOSE: MediaPipe). Run OpenPose with "
-                "BODY_25B (or BODY_25), or pass --layout if the files hold one of those."
+                f"{self.sources.get('pose_model', self.files[-1])}: pose_model = {self.pose_model!r} has no "
+                "jaxmocap layout; jaxmocap "
+                f"reads {', '.join(sorted(POSE_MODELS))} detections. Run the pose estimation with "
+                "one of those (Pose2Sim: pose_model = 'Body_with_feet'), or pass --layout if the files hold one."
             )
         return layout
 
@@ -85,38 +101,66 @@ def _merge(base: dict, top: dict) -> dict:
     return out
 
 
+#: At most this many levels above a trial hold Config.toml files it inherits (session, participant).
+_LEVELS_ABOVE = 2
+
+
+def _config_file(folder: Path) -> Path | None:
+    for path in (folder / "Config.toml", folder / "User" / "Config.toml"):  # User/: Pose2Sim <= 0.4
+        if path.is_file():
+            return path
+    return None
+
+
+def _levels_above(folder: Path) -> list[Path]:
+    """The folders above `folder` whose Config.toml it inherits, nearest first."""
+    out: list[Path] = []
+    folder = folder.resolve()
+    while len(out) < _LEVELS_ABOVE and (folder.parent / "Config.toml").is_file() and folder.parent != folder:
+        folder = folder.parent
+        out.append(folder)
+    return out
+
+
 def read_config(folder) -> ProjectConfig:
     """The settings of the project holding `folder` (the project, or its keypoint folder).
 
-    Config.toml is looked for in `folder`, then its parent (`folder` = project/pose), and
-    the session's Config.toml one level above a trial's is read first; none found gives an
-    empty ProjectConfig.
+    Config.toml (or User/Config.toml) is looked for in `folder`, then its parent (`folder`
+    = project/pose), and those of the levels above (session, participant) are read first,
+    outermost first, each overridden by the next; none found gives an empty ProjectConfig.
     """
     folder = Path(folder).resolve()
-    start = next((f for f in (folder, folder.parent) if (f / "Config.toml").is_file()), None)
+    start = next((f for f in (folder, folder.parent) if _config_file(f) is not None), None)
     if start is None:
         return ProjectConfig()
-    files = [start / "Config.toml"]
-    if (start.parent / "Config.toml").is_file():  # a trial in a batch session
-        files.insert(0, start.parent / "Config.toml")
+    files = [_config_file(start)] + [level / "Config.toml" for level in _levels_above(start)]
+    files.reverse()
     data: dict = {}
+    sources: dict[str, Path] = {}  # which file set each value: the one errors name
     for path in files:
         try:
-            data = _merge(data, tomllib.loads(path.read_text(encoding="utf-8")))
+            level = tomllib.loads(path.read_text(encoding="utf-8"))
         except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
             raise ProjectError(f"{path}: not valid TOML ({e}).") from None
+        for section, key in (("pose", "pose_model"), ("project", "frame_rate"), ("project", "frame_range")):
+            if isinstance(level.get(section), dict) and key in level[section]:
+                sources[key] = path
+        data = _merge(data, level)
     pose, project = data.get("pose", {}), data.get("project", {})
     model = pose.get("pose_model") if isinstance(pose, dict) else None
     rate = project.get("frame_rate") if isinstance(project, dict) else None
     if model is not None and not isinstance(model, str):
-        raise ProjectError(f"{files[-1]}: [pose] pose_model must be a name such as 'BODY_25B', got {model!r}.")
-    fps = None
+        raise ProjectError(f"{sources['pose_model']}: [pose] pose_model must be a name such as 'BODY_25B', got {model!r}.")
+    fps, fps_from = None, sources.get("frame_rate")
     if isinstance(rate, str) and rate.strip().lower() == "auto":
-        fps = None
+        videos = sorted((p for p in (start / "videos").glob("*") if p.suffix.lower() in VIDEO_SUFFIXES),
+                        key=lambda p: _natural_key(p.name)) if (start / "videos").is_dir() else []  # fmt: skip
+        fps_from = videos[0] if videos else None
+        fps = video_frame_rate(videos[0]) if videos else None
     elif rate is not None:
         if isinstance(rate, bool) or not isinstance(rate, int | float) or not rate > 0:
             raise ProjectError(
-                f"{files[-1]}: [project] frame_rate must be a positive number of frames per second "
+                f"{sources['frame_rate']}: [project] frame_rate must be a positive number of frames per second "
                 f"or 'auto', got {rate!r}."
             )
         fps = float(rate)
@@ -126,25 +170,88 @@ def read_config(folder) -> ProjectConfig:
         if len(span) != 2 or not all(isinstance(x, int) and not isinstance(x, bool) and x >= 0 for x in span) \
                 or span[0] >= span[1]:  # fmt: skip
             raise ProjectError(
-                f"{files[-1]}: [project] frame_range must be [start, stop] with 0 <= start < stop (frame "
+                f"{sources['frame_range']}: [project] frame_range must be [start, stop] with 0 <= start < stop (frame "
                 f"positions), 'auto' or 'all'; got {span!r}."
             )
         frame_range = (span[0], span[1])
     elif span is not None and not (isinstance(span, str) and span.strip().lower() in ("auto", "all")) and span != []:
-        raise ProjectError(f"{files[-1]}: [project] frame_range must be [start, stop], 'auto' or 'all'; got {span!r}.")
-    return ProjectConfig(tuple(files), model, fps, frame_range)
+        raise ProjectError(f"{sources['frame_range']}: [project] frame_range must be [start, stop], 'auto' or 'all'; "
+                           f"got {span!r}.")
+    return ProjectConfig(tuple(files), model, fps, frame_range, fps_from if fps is not None else None, sources)
+
+
+#: Videos whose frame rate `video_frame_rate` reads (the ISO base media file format).
+VIDEO_SUFFIXES = (".mp4", ".mov", ".m4v")
+
+
+def _boxes(f, start: int, end: int):
+    """(type, payload start, end) of the ISO-BMFF boxes between `start` and `end`."""
+    pos = start
+    while pos + 8 <= end:
+        f.seek(pos)
+        size, kind = struct.unpack(">I4s", f.read(8))
+        header = 8
+        if size == 1:
+            size, header = struct.unpack(">Q", f.read(8))[0], 16
+        elif size == 0:  # to the end
+            size = end - pos
+        if size < header or pos + size > end:
+            return
+        yield kind, pos + header, pos + size
+        pos += size
+
+
+def _inside(f, box, kind: bytes):
+    return [b for b in _boxes(f, box[1], box[2]) if b[0] == kind]
+
+
+def video_frame_rate(path) -> float | None:
+    """Frames per second of the first video track of an MP4 / MOV file, from its header
+    (moov/trak/mdia: mdhd's timescale, stbl/stts's frame durations: frames / duration, the
+    mean rate); None when the file has no such header. No decoder is needed."""
+    try:
+        with open(path, "rb") as f:
+            f.seek(0, 2)
+            top = (b"", 0, f.tell())
+            for moov in _inside(f, top, b"moov"):
+                for trak in _inside(f, moov, b"trak"):
+                    for mdia in _inside(f, trak, b"mdia"):
+                        hdlr, mdhd = _inside(f, mdia, b"hdlr"), _inside(f, mdia, b"mdhd")
+                        if not hdlr or not mdhd:
+                            continue
+                        f.seek(hdlr[0][1] + 8)
+                        if f.read(4) != b"vide":
+                            continue
+                        f.seek(mdhd[0][1])
+                        version = f.read(1)[0]
+                        f.seek(mdhd[0][1] + (20 if version == 1 else 12))
+                        timescale = struct.unpack(">I", f.read(4))[0]
+                        stts = [b for minf in _inside(f, mdia, b"minf") for stbl in _inside(f, minf, b"stbl")
+                                for b in _inside(f, stbl, b"stts")]  # fmt: skip
+                        if not stts:
+                            continue
+                        f.seek(stts[0][1] + 4)
+                        n = min(struct.unpack(">I", f.read(4))[0], (stts[0][2] - stts[0][1] - 8) // 8)
+                        pairs = struct.unpack(f">{2 * n}I", f.read(8 * n))
+                        frames, ticks = sum(pairs[0::2]), sum(c * d for c, d in zip(pairs[0::2], pairs[1::2]))
+                        if timescale > 0 and frames > 0 and ticks > 0:
+                            return timescale * frames / ticks
+    except (OSError, struct.error, IndexError):
+        return None
+    return None
 
 
 def _has_json(folder: Path) -> bool:
+    """JSON in camera sub-folders, or directly inside (every camera's files in one folder)."""
     return folder.is_dir() and any(
-        p.is_dir() and any(f.suffix.lower() == ".json" for f in p.iterdir()) for p in folder.iterdir()
+        (p.is_dir() and any(f.suffix.lower() == ".json" for f in p.iterdir())) or p.suffix.lower() == ".json"
+        for p in folder.iterdir()
     )
 
 
 def _calibration(root: Path) -> Path | None:
-    # the session's calibration serves its trials; elsewhere the parent is not ours to search
-    session = (root.parent / "Config.toml").is_file()
-    for where in (root, root.parent) if session else (root,):
+    # a session's calibration serves its trials; elsewhere the parent is not ours to search
+    for where in [root, *_levels_above(root)]:
         folders = sorted(p for p in where.iterdir() if p.is_dir() and "calib" in p.name.lower())
         for folder in folders:
             tomls = sorted(p for p in folder.iterdir() if p.suffix.lower() == ".toml")
@@ -178,7 +285,7 @@ def read_project(path, need_keypoints: bool = True, need_calibration: bool = Tru
     calibration = _calibration(root) if need_calibration else None
     if calibration is None and need_calibration:
         raise ProjectError(
-            f"{root}: no calibration folder (a folder named like 'calibration' here or in "
-            f"{root.parent}); name the calibration file with --calib FILE."
+            f"{root}: no calibration folder (a folder named like 'calibration' here or in a session "
+            "folder above holding a Config.toml); name the calibration file with --calib FILE."
         )
     return Project(root, keypoints, calibration, read_config(root))

@@ -1,4 +1,4 @@
-"""2D keypoints: COCO-18 / BODY_25 / BODY_25B / MediaPipe-33 regressors on the body and a detector error model.
+"""2D keypoints: COCO-18 / BODY_25 / BODY_25B / HALPE_26 / MediaPipe-33 regressors on the body and a detector error model.
 
 Regressor: a (K, V) matrix 𝒦 with keypoints = 𝒦 · vertices (posed mesh), built per body
 from its rest mesh:
@@ -22,37 +22,40 @@ difference, as in SMPLify's use of 𝒥 for the hips).
 How each layout maps onto SMPL (index in each layout; J(x) = row x of 𝒥, mean(·) = mean
 of rows, vertex(x) = a skin vertex near joint x; left/right mirror each other):
 
-    keypoint          coco18  body25  body25b  SMPL
-    nose                 0       0       0     vertex(head), front of the face
-    neck                 1       1       -     mean(J(left_shoulder), J(right_shoulder))
-    upper_neck           -       -      17     mean(J(neck), J(head))
-    head_top             -       -      18     vertex(head), top of the skull
-    right_shoulder       2       2       6     J(right_shoulder)
-    right_elbow          3       3       8     J(right_elbow)
-    right_wrist          4       4      10     J(right_wrist)
-    left_shoulder        5       5       5     J(left_shoulder)
-    left_elbow           6       6       7     J(left_elbow)
-    left_wrist           7       7       9     J(left_wrist)
-    mid_hip              -       8       -     mean(J(left_hip), J(right_hip))
-    right_hip            8       9      12     J(right_hip)
-    right_knee           9      10      14     J(right_knee)
-    right_ankle         10      11      16     J(right_ankle)
-    left_hip            11      12      11     J(left_hip)
-    left_knee           12      13      13     J(left_knee)
-    left_ankle          13      14      15     J(left_ankle)
-    right_eye           14      15       2     vertex(head), 3.2 cm right, 3.5 cm up
-    left_eye            15      16       1     vertex(head), 3.2 cm left, 3.5 cm up
-    right_ear           16      17       4     vertex(head), to the right
-    left_ear            17      18       3     vertex(head), to the left
-    left_big_toe         -      19      19     vertex(left_foot), front, medial
-    left_small_toe       -      20      20     vertex(left_foot), front, lateral
-    left_heel            -      21      21     vertex(left_ankle), back
-    right_big_toe        -      22      22     vertex(right_foot), front, medial
-    right_small_toe      -      23      23     vertex(right_foot), front, lateral
-    right_heel           -      24      24     vertex(right_ankle), back
+    keypoint          coco18  body25  body25b  halpe26  SMPL
+    nose                 0       0       0           0  vertex(head), front of the face
+    neck                 1       1       -          18  mean(J(left_shoulder), J(right_shoulder))
+    upper_neck           -       -      17           -  mean(J(neck), J(head))
+    head_top             -       -      18          17  vertex(head), top of the skull
+    right_shoulder       2       2       6           6  J(right_shoulder)
+    right_elbow          3       3       8           8  J(right_elbow)
+    right_wrist          4       4      10          10  J(right_wrist)
+    left_shoulder        5       5       5           5  J(left_shoulder)
+    left_elbow           6       6       7           7  J(left_elbow)
+    left_wrist           7       7       9           9  J(left_wrist)
+    mid_hip              -       8       -          19  mean(J(left_hip), J(right_hip))
+    right_hip            8       9      12          12  J(right_hip)
+    right_knee           9      10      14          14  J(right_knee)
+    right_ankle         10      11      16          16  J(right_ankle)
+    left_hip            11      12      11          11  J(left_hip)
+    left_knee           12      13      13          13  J(left_knee)
+    left_ankle          13      14      15          15  J(left_ankle)
+    right_eye           14      15       2           2  vertex(head), 3.2 cm right, 3.5 cm up
+    left_eye            15      16       1           1  vertex(head), 3.2 cm left, 3.5 cm up
+    right_ear           16      17       4           4  vertex(head), to the right
+    left_ear            17      18       3           3  vertex(head), to the left
+    left_big_toe         -      19      19          20  vertex(left_foot), front, medial
+    left_small_toe       -      20      20          22  vertex(left_foot), front, lateral
+    left_heel            -      21      21          24  vertex(left_ankle), back
+    right_big_toe        -      22      22          21  vertex(right_foot), front, medial
+    right_small_toe      -      23      23          23  vertex(right_foot), front, lateral
+    right_heel           -      24      24          25  vertex(right_ankle), back
 
 Orders follow OpenPose's `poseParameters.cpp` (POSE_COCO_BODY_PARTS, POSE_BODY_25_BODY_PARTS,
-POSE_BODY_25B_BODY_PARTS, where index 17 is called "Neck" but is the upper neck).
+POSE_BODY_25B_BODY_PARTS, where index 17 is called "Neck" but is the upper neck) and, for
+HALPE_26 (AlphaPose's Halpe full body; RTMPose's, run by Pose2Sim >= 0.9 as its default
+"Body_with_feet"), Pose2Sim's `skeletons.py` ids: its "Head" is the top of the head, its
+"Neck" and "Hip" are OpenPose's neck and mid-hip.
 
 MediaPipe-33 ("mediapipe33", the order of mediapipe's `PoseLandmark`; its "mouth_left" and
 "mouth_right" are named left_mouth / right_mouth here so that left/right pairs are found
@@ -94,6 +97,7 @@ __all__ = [
     "BODY25_NAMES",
     "BODY25B_NAMES",
     "MEDIAPIPE33_NAMES",
+    "HALPE26_NAMES",
     "KEYPOINT_FORMATS",
     "keypoint_regressor",
     "regress_keypoints",
@@ -123,6 +127,13 @@ BODY25B_NAMES = (
     "head_top", "left_big_toe", "left_small_toe", "left_heel", "right_big_toe",
     "right_small_toe", "right_heel",
 )  # fmt: skip
+HALPE26_NAMES = (
+    "nose", "left_eye", "right_eye", "left_ear", "right_ear", "left_shoulder",
+    "right_shoulder", "left_elbow", "right_elbow", "left_wrist", "right_wrist", "left_hip",
+    "right_hip", "left_knee", "right_knee", "left_ankle", "right_ankle", "head_top", "neck",
+    "mid_hip", "left_big_toe", "right_big_toe", "left_small_toe", "right_small_toe",
+    "left_heel", "right_heel",
+)  # fmt: skip
 MEDIAPIPE33_NAMES = (
     "nose", "left_eye_inner", "left_eye", "left_eye_outer", "right_eye_inner", "right_eye",
     "right_eye_outer", "left_ear", "right_ear", "left_mouth", "right_mouth", "left_shoulder",
@@ -131,8 +142,10 @@ MEDIAPIPE33_NAMES = (
     "right_hip", "left_knee", "right_knee", "left_ankle", "right_ankle", "left_heel",
     "right_heel", "left_foot_index", "right_foot_index",
 )  # fmt: skip
-KEYPOINT_FORMATS = {"coco18": COCO18_NAMES, "body25": BODY25_NAMES, "body25b": BODY25B_NAMES,
-                    "mediapipe33": MEDIAPIPE33_NAMES}  # fmt: skip
+KEYPOINT_FORMATS = {
+    "coco18": COCO18_NAMES, "body25": BODY25_NAMES, "body25b": BODY25B_NAMES, "halpe26": HALPE26_NAMES,
+    "mediapipe33": MEDIAPIPE33_NAMES,
+}  # fmt: skip
 
 _J = {n: i for i, n in enumerate(SMPL_JOINT_NAMES)}
 _JOINT_ROWS = {
@@ -195,7 +208,7 @@ def _surface_vertex(body: Body, name: str, joints: np.ndarray) -> int:
 
 
 def keypoint_regressor(body: Body, layout: str = "coco18") -> np.ndarray:
-    """(K, V) keypoint regressor for `layout` ("coco18", "body25" or "body25b") on `body`."""
+    """(K, V) keypoint regressor for `layout` (a `KEYPOINT_FORMATS` name) on `body`."""
     if not hasattr(body, "J_regressor") or not hasattr(body, "num_vertices"):
         raise ValueError(f"keypoint_regressor: body must be a jaxmocap Body (e.g. default_body()), got {type(body).__name__}.")
     if layout not in KEYPOINT_FORMATS:
