@@ -1,11 +1,14 @@
-"""Writing files so that nothing half-written is ever read."""
+"""Files written so that nothing half-written is ever read, and pickles read without
+running code."""
 
 from __future__ import annotations
 
+import io
 import os
+import pickle
 from pathlib import Path
 
-__all__ = ["atomic_write"]
+__all__ = ["atomic_write", "load_array_pickle"]
 
 
 def atomic_write(path: Path, text: str) -> None:
@@ -18,3 +21,24 @@ def atomic_write(path: Path, text: str) -> None:
         f.flush()
         os.fsync(f.fileno())
     os.replace(tmp, path)
+
+
+class _ArrayUnpickler(pickle._Unpickler):
+    """Unpickles numpy arrays and containers only: a pickle naming anything else would run code.
+
+    The pure-Python unpickler keeps its memo in a dict; the C one grows an array to the
+    largest memo index in the file, so one damaged byte could ask for gigabytes."""
+
+    def find_class(self, module, name):
+        if module.split(".")[0] == "numpy" or (module, name) in (
+            ("copyreg", "_reconstructor"), ("_codecs", "encode"), ("builtins", "object"),
+        ):
+            return super().find_class(module, name)
+        raise pickle.UnpicklingError(f"refusing to load {module}.{name}")
+
+
+def load_array_pickle(path: Path):
+    """The object pickled in `path`, numpy arrays and plain containers only (latin1 for
+    Python-2 pickles, as DIP-IMU's and 3DPW's files are). A non-pickle or a damaged one can
+    raise almost anything: callers wrap the error with what the file should have been."""
+    return _ArrayUnpickler(io.BytesIO(Path(path).read_bytes()), encoding="latin1").load()
