@@ -1,14 +1,15 @@
-"""Files written so that nothing half-written is ever read, and pickles read without
-running code."""
+"""Files written so that nothing half-written is ever read, pickles read without running
+code, and file names sorted as people number them."""
 
 from __future__ import annotations
 
 import io
 import os
 import pickle
+import re
 from pathlib import Path
 
-__all__ = ["atomic_write", "load_array_pickle"]
+__all__ = ["atomic_write", "load_array_pickle", "natural_key"]
 
 
 def atomic_write(path: Path, text: str) -> None:
@@ -42,3 +43,9 @@ def load_array_pickle(path: Path):
     Python-2 pickles, as DIP-IMU's and 3DPW's files are). A non-pickle or a damaged one can
     raise almost anything: callers wrap the error with what the file should have been."""
     return _ArrayUnpickler(io.BytesIO(Path(path).read_bytes()), encoding="latin1").load()
+
+
+def natural_key(name: str) -> list:
+    """Sort key that orders the numbers in file names by value, "cam2" before "cam10": the
+    order of views and frames for every reader that lists a folder."""
+    return [int(s) if s.isdigit() else s.lower() for s in re.split(r"(\d+)", name)]
