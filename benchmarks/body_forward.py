@@ -49,10 +49,10 @@ from _common import machine, peak_memory_bytes, time_call, write_json  # noqa: E
 import jaxmocap  # noqa: E402
 from jaxmocap.body import SMPL_PARENTS, make_body  # noqa: E402
 from jaxmocap.body import kinematics  # noqa: E402
-from jaxmocap.body.kinematics import _forward_rotations  # noqa: E402
+from jaxmocap.body.kinematics import forward_rotations_unchecked  # noqa: E402
 from jaxmocap.rotation import axis_angle_to_matrix  # noqa: E402
 
-#: Variants of our forward: options of `_forward_rotations`. "bf16_blend" also stores the
+#: Variants of our forward: options of `forward_rotations_unchecked`. "bf16_blend" also stores the
 #: blend-shape bases in bfloat16 (the body's other leaves stay float32).
 VARIANTS = {
     "dense": {"skinning": "dense"},
@@ -109,7 +109,7 @@ def baseline_forward(body, pose, betas, trans):
 
 def _variant(options: dict):
     def run(body, pose, betas, trans):
-        out = _forward_rotations(body, axis_angle_to_matrix(pose), betas, trans, **options)
+        out = forward_rotations_unchecked(body, axis_angle_to_matrix(pose), betas, trans, **options)
         return out.vertices, out.joints
 
     return jax.jit(run)

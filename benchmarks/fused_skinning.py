@@ -200,7 +200,7 @@ def check(num_vertices: int = 500, samples: int = 40) -> float:
     """Every kernel in Pallas's interpreter against the library forward; the largest error (m)."""
     body = smpl_layout_model(num_vertices)
     x = _inputs(body, samples)
-    reference = K._forward_rotations(body, x["R"], x["betas"], x["trans"]).vertices
+    reference = K.forward_rotations_unchecked(body, x["R"], x["betas"], x["trans"]).vertices
     worst = 0.0
     for blend, skin in VARIANTS:
         if skin == "none":
@@ -218,12 +218,12 @@ def run(batch: int, min_seconds: float) -> dict:
     x = _inputs(body, batch)
     sub = {k: v[:1024] for k, v in x.items()}
     with jax.default_matmul_precision("highest"):
-        exact = jax.jit(lambda b, R, s, t: K._forward_rotations(b, R, s, t, skinning="dense").vertices)(
+        exact = jax.jit(lambda b, R, s, t: K.forward_rotations_unchecked(b, R, s, t, skinning="dense").vertices)(
             body, sub["R"], sub["betas"], sub["trans"])
     error_mm = lambda out: 1e3 * float(jnp.abs(out - exact).max())  # noqa: E731
     rate = lambda t: batch / t["median_s"]  # noqa: E731
     # XLA's stages, as the library runs them (the body an argument, as in body_forward.py)
-    library = jax.jit(lambda b, R, s, t: K._forward_rotations(b, R, s, t).vertices)
+    library = jax.jit(lambda b, R, s, t: K.forward_rotations_unchecked(b, R, s, t).vertices)
     Vp = _round_up(body.num_vertices, 128)
     product = jax.jit(functools.partial(_product, vertices_to=Vp))
     offsets = product(arrays[0], x["coeffs"])

@@ -78,7 +78,7 @@ def _one_step(spec: str, frames: int) -> dict:
     problem = inertial.inertial_problem(setup)
     params = {"pose": jnp.broadcast_to(setup.pose0, (frames, 24, 3)) + 0.01,
               "trans": jnp.broadcast_to(setup.trans0, (frames, 3))}  # fmt: skip
-    layout, params, _, dtype = solver._check(problem, params, setup.data, None, None)
+    layout, params, _, dtype = solver.check_inputs(problem, params, setup.data, None, None)
     st = solver.Args(problem, setup.data, None, layout).structure()
     method = None if method == "default" else method
     stack = lambda tree, k: jax.tree.map(lambda x: jnp.array(jnp.broadcast_to(x, (k,) + jnp.shape(x))), tree)  # noqa: E731

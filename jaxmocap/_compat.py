@@ -2,7 +2,8 @@
 
 optimistix keeps a result's integer code in `RESULTS.<member>._value` and its message in
 `RESULTS._index_to_message`, and its damped LM operator in a private class; MuJoCo MJX keeps the contacts of `mjx.collision` in
-`Data._impl.contact`. The solver's lineax adapter (`solve.structured._damped_parts`)
+`Data._impl.contact`. JAX keeps its distributed client and its started backends in
+`jax._src` (no public accessor). The solver's lineax adapter (`solve.structured._damped_parts`)
 also recognises optimistix's damped operator by its structure, not by a public type.
 An upgrade that moves any of these fails in `tests/test_compat.py`, which names the
 versions below, instead of deep inside a solve.
@@ -13,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 import optimistix as optx
 
-__all__ = ["DIVERGENCE", "MAX_STEPS", "SUCCESSFUL", "TESTED_WITH", "damped_operator", "mjx_contacts", "result_code", "result_message"]
+__all__ = ["DIVERGENCE", "MAX_STEPS", "SUCCESSFUL", "TESTED_WITH", "cpu_backend_started", "damped_operator", "distributed_client", "mjx_contacts", "result_code", "result_message"]
 
 #: The versions whose internals these hooks were written against.
 TESTED_WITH = {"optimistix": "0.1.0", "mujoco-mjx": "3.17.0"}
@@ -52,3 +53,14 @@ def distributed_client():
     from jax._src import distributed
 
     return distributed.global_state.client
+
+
+def cpu_backend_started() -> bool:
+    """Whether JAX's CPU backend already runs (`_threads` must act before it starts). JAX
+    keeps no public flag, only a private dict, read defensively: False when it cannot tell."""
+    try:
+        from jax._src import xla_bridge
+
+        return "cpu" in getattr(xla_bridge, "_backends", {})
+    except Exception:  # another JAX's internals: no warning rather than a wrong one
+        return False

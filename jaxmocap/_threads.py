@@ -21,16 +21,12 @@ if cores < MIN_CPU_THREADS:
 
 
 def _cpu_backend_started() -> bool:
-    """Whether JAX's CPU backend already runs (JAX keeps no public flag: a private dict,
-    read defensively; False when it cannot tell)."""
+    """Whether JAX's CPU backend already runs; False before JAX is imported."""
     if "jax" not in sys.modules:
         return False
-    try:
-        from jax._src import xla_bridge
+    from ._compat import cpu_backend_started  # imports optimistix, which starts no backend
 
-        return "cpu" in getattr(xla_bridge, "_backends", {})
-    except Exception:  # another JAX's internals: no warning rather than a wrong one
-        return False
+    return cpu_backend_started()
 
 
 if cores < MIN_CPU_THREADS and not _USER_POOL and _cpu_backend_started():

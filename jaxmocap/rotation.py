@@ -33,6 +33,7 @@ __all__ = [
     "geodesic_angle",
     "nearest_rotation",
     "rotation_about_axis",
+    "rotation_y",
     "left_jacobian",
     "left_jacobian_inverse",
     "log_small",
@@ -135,6 +136,12 @@ def left_jacobian(omega: Array) -> Array:
 def rotation_about_axis(axis: Array, angle: Array) -> Array:
     """Rotation by `angle` (...,) about a unit `axis` (..., 3)."""
     return axis_angle_to_matrix(axis * jnp.asarray(angle)[..., None])
+
+
+def rotation_y(angle: Array) -> Array:
+    """R_y(γ): rotation by γ (...,) about the world vertical (+y). -> (..., 3, 3)."""
+    angle = jnp.asarray(angle)
+    return axis_angle_to_matrix(jnp.stack([jnp.zeros_like(angle), angle, jnp.zeros_like(angle)], -1))
 
 
 def matrix_to_quaternion(matrix: Array) -> Array:

@@ -194,7 +194,7 @@ def test_sparse_skinning_equals_dense(smpl_dict, random_body, which):
     pose = rng.normal(scale=0.5, size=(4, 24, 3)).astype(np.float32)
     local = jaxmocap.rotation.axis_angle_to_matrix(jnp.asarray(pose))
     betas = rng.normal(size=(4, body.num_betas)).astype(np.float32)
-    out = {s: jax.jit(lambda b, r, s_=s: kinematics._forward_rotations(b, r, betas, skinning=s_).vertices)(b32, local) for s in ("dense", "sparse")}
+    out = {s: jax.jit(lambda b, r, s_=s: kinematics.forward_rotations_unchecked(b, r, betas, skinning=s_).vertices)(b32, local) for s in ("dense", "sparse")}
     np.testing.assert_allclose(out["sparse"], out["dense"], atol=2e-6)
 
 
@@ -205,7 +205,7 @@ def test_automatic_skinning_is_dense_on_cpu(smpl_dict):
     hlo = jax.jit(forward).lower(body, pose).compile().as_text()
     if jax.default_backend() == "cpu":
         assert "gather" not in hlo and "sort" not in hlo
-    dense = jax.jit(lambda b, r: kinematics._forward_rotations(b, r, skinning="dense").vertices)
+    dense = jax.jit(lambda b, r: kinematics.forward_rotations_unchecked(b, r, skinning="dense").vertices)
     np.testing.assert_allclose(
         forward_jit(body, pose).vertices, dense(body, jaxmocap.rotation.axis_angle_to_matrix(jnp.asarray(pose))), atol=1e-12
     )
@@ -221,7 +221,7 @@ def test_sparse_skinning_gradients(smpl_dict, where):
     def vertices(skinning):
         def f(p):
             local = jaxmocap.rotation.axis_angle_to_matrix(p)
-            return kinematics._forward_rotations(body, local, jnp.zeros(10), skinning=skinning).vertices[::5].ravel()
+            return kinematics.forward_rotations_unchecked(body, local, jnp.zeros(10), skinning=skinning).vertices[::5].ravel()
 
         return f
 
@@ -238,7 +238,7 @@ def test_one_and_two_blend_products_agree(random_body):
     """Shape and pose blend shapes as one product against the stacked bases or as two."""
     pose = jaxmocap.rotation.axis_angle_to_matrix(jnp.asarray(rng.normal(scale=0.5, size=(3, 24, 3))))
     betas = rng.normal(size=(3, 10))
-    run = lambda joint: jax.jit(lambda b: kinematics._forward_rotations(b, pose, betas, joint_blend=joint).vertices)(random_body)  # noqa: E731
+    run = lambda joint: jax.jit(lambda b: kinematics.forward_rotations_unchecked(b, pose, betas, joint_blend=joint).vertices)(random_body)  # noqa: E731
     np.testing.assert_allclose(run(True), run(False), atol=1e-12)
 
 

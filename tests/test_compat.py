@@ -47,3 +47,10 @@ def test_mjx_contacts():
     data = mjx.collision(model, mjx.kinematics(model, mjx.make_data(model)))
     contact = _compat.mjx_contacts(data)
     assert float(np.min(np.asarray(contact.dist))) == pytest.approx(-0.05, abs=1e-4), _versions("mujoco-mjx")
+
+
+def test_jax_cpu_backend_flag():
+    # `_threads` warns when JAX's CPU backend started before `import jaxmocap`; the flag it
+    # reads is private (`jax._src.xla_bridge._backends`) and reads False if it moved.
+    jnp.zeros(1).block_until_ready()  # the CPU backend runs from here on
+    assert _compat.cpu_backend_started(), "jax._src.xla_bridge._backends moved: fix _compat.cpu_backend_started"

@@ -319,7 +319,7 @@ def _sop_batch(stacked, term_weights=None, steps=20):
         problem = I.inertial_problem(setup, "thesis", acceleration=False)
         if w is not None:
             problem = with_weights(problem, w)
-        return I._sequential(problem, setup.data, setup.pose0, max_steps=steps, rtol=1e-6, atol=1e-10)
+        return I.solve_frames_sequentially(problem, setup.data, setup.pose0, max_steps=steps, rtol=1e-6, atol=1e-10)
 
     poses, codes = jax.vmap(one)(stacked, term_weights)
     return poses if term_weights is None else (poses, codes)

@@ -100,6 +100,17 @@ def forward_kinematics(
     return jnp.stack([rotations[j] for j in order], -3), jnp.stack([positions[j] for j in order], -2)
 
 
+def ancestors(parents: Sequence[int], bones) -> tuple[int, ...]:
+    """The joints `bones` and all their ancestors in the tree `parents`, sorted: the joints
+    whose rotation moves any of the bones."""
+    keep = set()
+    for j in bones:
+        while j >= 0:
+            keep.add(int(j))
+            j = parents[j]
+    return tuple(sorted(keep))
+
+
 def shaped_joints(body: Body, betas: Array) -> Array:
     """Rest-pose joints J(β) = 𝒥 (T̄ + 𝒮 β), (..., B) -> (..., J, 3).
 
@@ -419,7 +430,7 @@ def forward_rotations(body: Body, local_rotations, betas=None, trans=None) -> Bo
         joint_rotations (..., J, 3, 3); batch axes broadcast across the inputs.
     """
     _check_values("local_rotations", local_rotations, betas, trans)
-    return _forward_rotations(body, local_rotations, betas, trans)
+    return forward_rotations_unchecked(body, local_rotations, betas, trans)
 
 
 def _check_values(pose_name: str, pose, betas, trans) -> None:
@@ -443,14 +454,15 @@ def _check_values(pose_name: str, pose, betas, trans) -> None:
         raise ValueError(f"{pose_name} has shape {v.shape}: an empty batch (zero frames?); give at least one.")
 
 
-def _forward_rotations(
+def forward_rotations_unchecked(
     body: Body, local_rotations, betas=None, trans=None, skinning: str = "auto", joint_blend=None, blend_dtype=None,
     pose_blend: bool = True, pad_columns: bool = True,
 ) -> BodyOutput:
-    """`forward_rotations` with its implementation choices open (tests and benchmarks):
-    `skinning` as in `_skin`, `joint_blend`, `blend_dtype` and `pad_columns` as in `_blend_shapes`;
-    `pose_blend=False` skips B_p (exact only for a body whose posedirs are zero: the
-    caller checks that on the host, e.g. `methods.multiview`'s compact body)."""
+    """`forward_rotations` without its value checks and with its implementation choices
+    open (for energies, tests and benchmarks): `skinning` as in `_skin`, `joint_blend`,
+    `blend_dtype` and `pad_columns` as in `_blend_shapes`; `pose_blend=False` skips B_p
+    (exact only for a body whose posedirs are zero: the caller checks that on the host,
+    e.g. `methods.multiview`'s compact body)."""
     local, betas, trans = _check_inputs(body, local_rotations, betas, trans)
     dtype = local.dtype
     if body.dtype != dtype:
@@ -476,3 +488,7 @@ def _forward_rotations(
         joints=unflat(global_pos + trans[:, None]),
         joint_rotations=unflat(global_rot),
     )
+
+
+# The old private name, kept until `energies/camera.py` imports `forward_rotations_unchecked`.
+_forward_rotations = forward_rotations_unchecked

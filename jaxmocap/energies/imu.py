@@ -45,7 +45,7 @@ import jax
 import jax.numpy as jnp
 from jax import Array
 
-from ..body.kinematics import chain_transforms, mat3_apply, mat3_mul
+from ..body.kinematics import ancestors, chain_transforms, mat3_apply, mat3_mul
 from ..body.model import SMPL_PARENTS
 from ..priors.pose_prior import MixturePosePrior, PosePrior
 from ..rotation import hat, left_jacobian_inverse, log_small, matrix_to_axis_angle
@@ -122,7 +122,7 @@ class OrientationResidual(eqx.Module):
 
     @property
     def reads(self):
-        return (("pose", _ancestors(self.parents, self.bones)),)
+        return (("pose", ancestors(self.parents, self.bones)),)
 
     def jacobian(self, params, data: InertialData) -> dict[str, Array]:
         """∂e_ori/∂δ_j = J_l⁻¹(e) R_parent(j)^g for j on the sensor's chain: pose (T, 1, S, 3, J, 3)."""
@@ -158,7 +158,7 @@ class AccelerationResidual(eqx.Module):
 
     @property
     def reads(self):
-        return (("pose", _ancestors(self.parents, self.bones)), ("trans", None))
+        return (("pose", ancestors(self.parents, self.bones)), ("trans", None))
 
     def jacobian(self, params, data: InertialData) -> dict[str, Array]:
         """fps² (1, -2, 1)_d ∂p_{t+d}/∂x_{t+d}: pose (T, 3, S, 3, J, 3), trans (T, 3, S, 3, 3)."""
@@ -178,16 +178,6 @@ class AccelerationResidual(eqx.Module):
         return {k: jnp.stack([c * shift_frames(v, 1), -2.0 * c * v, c * shift_frames(v, -1)], 1) for k, v in out.items()}
 
 
-def _ancestors(parents, bones) -> tuple[int, ...]:
-    """The bones and all their ancestors, sorted."""
-    keep = set()
-    for j in bones:
-        while j >= 0:
-            keep.add(int(j))
-            j = parents[j]
-    return tuple(sorted(keep))
-
-
 def _chain_blocks(parents, bones, R, block, with_joint=False) -> Array:
     """Stack block(s, R_parent(j)^g[, j]) (T, 3, 3) for every sensor s and every joint j
     on its bone's chain (zero elsewhere) into (T, S, 3, J, 3)."""
@@ -195,7 +185,7 @@ def _chain_blocks(parents, bones, R, block, with_joint=False) -> Array:
     T, dtype = some.shape[0], some.dtype
     eye = jnp.broadcast_to(jnp.eye(3, dtype=dtype), (T, 3, 3))
     zero = jnp.zeros((T, 3, 3), dtype)
-    chains = [set(_ancestors(parents, (b,))) for b in bones]
+    chains = [set(ancestors(parents, (b,))) for b in bones]
     per_joint = []
     for j in range(len(parents)):
         Rp = eye if parents[j] < 0 else R.get(parents[j])

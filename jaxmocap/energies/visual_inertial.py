@@ -41,16 +41,14 @@ import equinox as eqx
 import jax.numpy as jnp
 from jax import Array
 
-from ..body.kinematics import chain_transforms, mat3_apply, mat3_mul
+from ..body.kinematics import ancestors, chain_transforms, mat3_apply, mat3_mul
 from ..body.model import SMPL_PARENTS, Body
 from ..priors.pose_prior import PosePrior
-from ..rotation import matrix_to_axis_angle
+from ..rotation import matrix_to_axis_angle, rotation_y
 from ..sensors.camera import project
-from ..sensors.imu import rotation_y
 from ..sensors.keypoints import regress_keypoints
 from ..solve import GemanMcClure, Term, nan_mask
 from ..timeseries import second_difference
-from .imu import _ancestors
 from .posed import posed_body
 
 __all__ = [
@@ -136,7 +134,7 @@ def heading_orientation_term(bones, weight, free_heading: bool = True, free_x0: 
         measured = mat3_mul(Ry[None], data.orientation)
         return matrix_to_axis_angle(mat3_mul(mat3_mul(R_bone, offset[None]), jnp.swapaxes(measured, -1, -2)))
 
-    reads = (("pose", _ancestors(SMPL_PARENTS, bones)),) + _extra_reads(free_heading, free_x0)
+    reads = (("pose", ancestors(SMPL_PARENTS, bones)),) + _extra_reads(free_heading, free_x0)
     return Term("ori", fn, weight, 0, None, lambda d: nan_mask(d.orientation, (-2, -1)), reads)
 
 
@@ -154,7 +152,7 @@ def heading_acceleration_term(bones, fps: float, weight, free_heading: bool = Tr
         Ry = rotation_y(_heading(params, data, free_heading))
         return a_model - jnp.einsum("sab,tsb->tsa", Ry, data.acceleration)
 
-    reads = (("pose", _ancestors(SMPL_PARENTS, bones)), ("trans", None)) + _extra_reads(free_heading, False)
+    reads = (("pose", ancestors(SMPL_PARENTS, bones)), ("trans", None)) + _extra_reads(free_heading, False)
     return Term("acc", fn, weight, 1, None, lambda d: nan_mask(d.acceleration, -1), reads)
 
 

@@ -51,7 +51,8 @@ import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import numpy as np
-from scipy.spatial.transform import Rotation
+
+from ..rotation import host_exp, host_log
 
 __all__ = [
     "FORMATS",
@@ -280,11 +281,7 @@ def _rodrigues(rvec, where) -> np.ndarray:
         raise CalibrationError(f"{where}: a Rodrigues rotation needs 3 numbers, got {str(rvec)[:40]!r}.") from None
     if rvec.shape != (3,) or not np.isfinite(rvec).all():
         raise CalibrationError(f"{where}: a Rodrigues rotation needs 3 finite numbers, got {rvec.tolist()}.")
-    return Rotation.from_rotvec(rvec).as_matrix()
-
-
-def _rotvec(R) -> np.ndarray:
-    return Rotation.from_matrix(R).as_rotvec()
+    return host_exp(rvec)
 
 
 def _num(x: float) -> str:
@@ -349,7 +346,7 @@ def _write_toml(path: Path, cameras) -> None:
             + ", ".join("[ " + ", ".join(_num(v) for v in row) + "]" for row in K)
             + "]",
             "distortions = [ " + ", ".join(_num(v) for v in dist) + "]",
-            "rotation = [ " + ", ".join(_num(v) for v in _rotvec(cam.R)) + "]",
+            "rotation = [ " + ", ".join(_num(v) for v in host_log(cam.R)) + "]",
             "translation = [ " + ", ".join(_num(v) for v in cam.t) + "]",
             "fisheye = false",
             "",
@@ -691,7 +688,7 @@ def _write_easymocap(path: Path, cameras) -> None:
         intri += _yaml_matrix(f"K_{c.name}", c.K) + _yaml_matrix(f"dist_{c.name}", c.dist[None])
         if c.width > 0:
             intri += [f"H_{c.name}: {c.height}", f"W_{c.name}: {c.width}"]
-        extri += _yaml_matrix(f"R_{c.name}", _rotvec(c.R)[:, None]) + _yaml_matrix(
+        extri += _yaml_matrix(f"R_{c.name}", host_log(c.R)[:, None]) + _yaml_matrix(
             f"Rot_{c.name}", c.R
         )
         extri += _yaml_matrix(f"T_{c.name}", c.t[:, None])

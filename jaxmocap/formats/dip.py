@@ -6,28 +6,12 @@ original files are Python-2 pickles (read as latin1).
 
 from __future__ import annotations
 
-import io
-import pickle
-
 import numpy as np
 
+from .._files import load_array_pickle
 from ..motion.skeleton import MotionFileError, check_file
 
 __all__ = ["load_dip"]
-
-
-class _DipUnpickler(pickle._Unpickler):
-    """Unpickles numpy arrays and containers only: a pickle naming anything else would run code.
-
-    The pure-Python unpickler keeps its memo in a dict; the C one grows an array to the
-    largest memo index in the file, so one damaged byte could ask for gigabytes."""
-
-    def find_class(self, module, name):
-        if module.split(".")[0] == "numpy" or (module, name) in (
-            ("copyreg", "_reconstructor"), ("_codecs", "encode"), ("builtins", "object"),
-        ):
-            return super().find_class(module, name)
-        raise pickle.UnpicklingError(f"refusing to load {module}.{name}")
 
 
 def load_dip(path) -> dict:
@@ -39,7 +23,7 @@ def load_dip(path) -> dict:
     """
     path = check_file(path)
     try:
-        data = _DipUnpickler(io.BytesIO(path.read_bytes()), encoding="latin1").load()
+        data = load_array_pickle(path)
     except Exception as e:  # a non-pickle or a damaged one can raise almost anything
         raise MotionFileError(
             f"{path}: not a DIP-IMU pickle ({type(e).__name__}: {e}); expected a pickled dict "

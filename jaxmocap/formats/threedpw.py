@@ -31,14 +31,13 @@ Image size: not in the pickle. 3DPW's frames are 1080 × 1920 (portrait) or 1920
 from __future__ import annotations
 
 import dataclasses
-import io
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from .._files import load_array_pickle
 from ..motion.sequence import Motion
 from ..motion.skeleton import MotionFileError, check_file
-from .dip import _DipUnpickler  # numpy arrays and plain containers only
 
 __all__ = ["IMAGE_SIZES", "ThreeDPWSequence", "load_threedpw", "valid_span"]
 
@@ -181,7 +180,7 @@ def load_threedpw(path, image_size: tuple[int, int] | None = None, world_rotatio
     """
     path = check_file(path)
     try:
-        data = _DipUnpickler(io.BytesIO(path.read_bytes()), encoding="latin1").load()
+        data = load_array_pickle(path)
     except Exception as e:  # a non-pickle or a damaged one can raise almost anything
         raise MotionFileError(f"{path}: not a 3DPW sequence pickle ({type(e).__name__}: {e}).") from e
     if not isinstance(data, dict):

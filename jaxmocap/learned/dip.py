@@ -81,7 +81,7 @@ class DIPModelError(ValueError):
     """A DIP weights file that cannot be read or does not match the network it claims."""
 
 
-def _hold_dropped(x: Array) -> Array:
+def hold_dropped(x: Array) -> Array:
     """(T, S, ...) with NaN samples replaced by the last reported one (the first before any)."""
     ok = jnp.all(jnp.isfinite(x), axis=tuple(range(2, x.ndim)))  # (T, S)
 
@@ -125,13 +125,13 @@ def dip_inputs(orientation: Array, acceleration: Array, sensor_to_bone: Array) -
 
 def _virtual_bones(orientation: Array, sensor_to_bone: Array) -> Array:
     """Eq. 6.6 with dropped samples held: (T, 6, 3, 3) virtual bone orientations."""
-    return virtual_bone_orientations(_hold_dropped(orientation), sensor_to_bone)
+    return virtual_bone_orientations(hold_dropped(orientation), sensor_to_bone)
 
 
 def _inputs(bones: Array, acceleration: Array) -> Array:
     """Eq. 6.7-6.8 and §6.3.4 from virtual bone orientations: (T, 60)."""
     T = bones.shape[0]
-    R_bar, a_bar = normalize_to_root(bones, _hold_dropped(acceleration), ROOT_SENSOR)
+    R_bar, a_bar = normalize_to_root(bones, hold_dropped(acceleration), ROOT_SENSOR)
     others = np.array([s for s in range(6) if s != ROOT_SENSOR])
     return jnp.concatenate([R_bar[:, others].reshape(T, -1), a_bar[:, others].reshape(T, -1)], -1)
 

@@ -93,12 +93,12 @@ def windows(motion: Motion, window: int, stride: int) -> list[tuple[Motion, int]
 def _calibrated_inputs(body, poses0, betas, trans0, orientation, acceleration):
     """Calibrate on the first frame's true pose (eq. 6.5) and build the inputs, one window."""
     from ..body.kinematics import forward
-    from ..sensors.calibration import sensor_to_bone_offsets, virtual_bone_orientations
-    from .dip import SIP6_BONES, _hold_dropped, _inputs
+    from ..sensors.calibration import sensor_to_bone_offsets
+    from .dip import SIP6_BONES, dip_inputs, hold_dropped
 
-    held = _hold_dropped(orientation)  # a dropout at frame 0 reads the first later sample
+    first = hold_dropped(orientation)[0]  # a dropout at frame 0 reads the first later sample
     R_b0 = forward(body, poses0, betas, trans0).joint_rotations[np.asarray(SIP6_BONES)]
-    return _inputs(virtual_bone_orientations(held, sensor_to_bone_offsets(R_b0, held[0])), acceleration)
+    return dip_inputs(orientation, acceleration, sensor_to_bone_offsets(R_b0, first))
 
 
 def synthesize(

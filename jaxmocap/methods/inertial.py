@@ -381,11 +381,14 @@ def orientation_poser(
         sol = solve_batch(problem, params, batch, **kw)
         return sol.value["pose"][:, 0], sol.result
     progress = T >= PROGRESS_FRAMES if progress is None else bool(progress)
-    return _sequential(problem, data, x0, progress=progress, **kw)
+    return solve_frames_sequentially(problem, data, x0, progress=progress, **kw)
 
 
 @eqx.filter_jit
-def _sequential(problem, data, x0, progress=False, **kw):
+def solve_frames_sequentially(problem, data, x0, progress=False, **kw):
+    """SOP's frame-by-frame solve (`orientation_poser(sequential=True)`) of a one-frame
+    `problem`: frame t of `data` starts from frame t-1's result, frame 0 from the pose `x0`;
+    `kw` are `solve`'s limits. Returns (poses (T, 24, 3), per-frame result codes (T,))."""
     T = data.num_frames
     every = max(1, T // 100)
 

@@ -25,9 +25,9 @@ opposite to the legs; the pelvis yaws toward the forward leg, the chest counter-
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from ..body.model import SMPL_JOINT_NAMES, SMPL_PARENTS
+from ..rotation import host_exp, host_log
 from .sequence import Motion
 
 __all__ = [
@@ -82,7 +82,7 @@ def _axis(axis: str, degrees) -> np.ndarray:
     degrees = np.asarray(degrees, np.float64)
     vec = np.zeros((*degrees.shape, 3))
     vec[..., "xyz".index(axis)] = np.radians(degrees)
-    return Rotation.from_rotvec(vec.reshape(-1, 3)).as_matrix().reshape(*degrees.shape, 3, 3)
+    return host_exp(vec)
 
 
 class _Pose:
@@ -103,8 +103,7 @@ class _Pose:
         return G
 
     def axis_angle(self):
-        T = self.R.shape[0]
-        return Rotation.from_matrix(self.R.reshape(-1, 3, 3)).as_rotvec().reshape(T, 24, 3)
+        return host_log(self.R)
 
 
 def _ground_height(pose: _Pose, rest, sole, tau=0.005):

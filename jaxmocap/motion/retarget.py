@@ -54,9 +54,9 @@ source's, transported by the minimal rotation A_j.
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from ..body.model import SMPL_JOINT_NAMES, SMPL_PARENTS
+from ..rotation import host_exp, host_log
 from .sequence import Motion
 from .skeleton import SkeletonMotion
 
@@ -277,8 +277,8 @@ def minimal_rotation(a: np.ndarray, b: np.ndarray) -> np.ndarray:
             return np.eye(3)
         # Antiparallel: half turn about any axis orthogonal to a.
         ortho = np.cross(a, [1.0, 0, 0] if abs(a[0]) < 0.9 else [0, 1.0, 0])
-        return Rotation.from_rotvec(np.pi * ortho / np.linalg.norm(ortho)).as_matrix()
-    return Rotation.from_rotvec(axis / s * np.arctan2(s, c)).as_matrix()
+        return host_exp(np.pi * ortho / np.linalg.norm(ortho))
+    return host_exp(axis / s * np.arctan2(s, c))
 
 
 def smpl_rest(body, betas=None) -> tuple[np.ndarray, float]:
@@ -416,7 +416,7 @@ def _twist_closest(M: np.ndarray, d_smpl: np.ndarray, d_src: np.ndarray) -> np.n
     N = M @ A0
     K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
     phi = np.arctan2(np.trace(N @ K), np.trace(N) - k @ N @ k)
-    return A0 @ Rotation.from_rotvec(phi * k).as_matrix()
+    return A0 @ host_exp(phi * k)
 
 
 def retarget_rotations(src: SkeletonMotion, rest_joints: np.ndarray, mapping: dict, rest: str = "auto") -> np.ndarray:
@@ -492,8 +492,7 @@ def retarget(
     G = retarget_rotations(src, rest_joints, mapping, rest)
     parents = np.array(SMPL_PARENTS)
     local = np.concatenate([G[:, :1], np.swapaxes(G[:, parents[1:]], -1, -2) @ G[:, 1:]], axis=1)
-    T = src.num_frames
-    poses = Rotation.from_matrix(local.reshape(-1, 3, 3)).as_rotvec().reshape(T, 24, 3)
+    poses = host_log(local)
     _, pt_idx = _resolve(mapping, src)
     trans = src.positions[:, pt_idx[0]] - rest_joints[0]
     if floor:

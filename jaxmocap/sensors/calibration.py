@@ -18,8 +18,7 @@ from __future__ import annotations
 import jax.numpy as jnp
 from jax import Array
 
-from ..rotation import matrix_to_quaternion
-from .imu import rotation_y
+from ..rotation import matrix_to_quaternion, rotation_y
 
 __all__ = [
     "heading_angle",

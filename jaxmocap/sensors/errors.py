@@ -145,11 +145,6 @@ def random_rotations(rng: np.random.Generator, std: float, shape=()) -> np.ndarr
     return host_exp(n)
 
 
-def _rotation_y(angle):
-    angle = np.asarray(angle, np.float64)
-    return host_exp(np.stack([np.zeros_like(angle), angle, np.zeros_like(angle)], -1))
-
-
 def _walk(rng, T, shape, std0, walk, fps):
     """Constant N(0, std0²) plus a Gaussian random walk with `walk`/√s increments."""
     value = rng.normal(scale=std0, size=shape) if std0 > 0 else np.zeros(shape)
@@ -237,7 +232,8 @@ def apply_imu_errors(
     else:
         R = np.asarray(readings.orientation)
         acc, gyro = np.asarray(readings.acceleration), np.asarray(readings.angular_velocity)
-    R = _rotation_y(errors.heading) @ R
+    heading = np.asarray(errors.heading, np.float64)  # R_y(heading) (`rotation.rotation_y`) on the host, in float64
+    R = host_exp(np.stack([np.zeros_like(heading), heading, np.zeros_like(heading)], -1)) @ R
     T, S = R.shape[:2]
     if model.orientation_noise > 0:
         R = random_rotations(rng, model.orientation_noise, (T, S)) @ R

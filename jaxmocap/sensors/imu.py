@@ -51,7 +51,7 @@ from jax import Array
 from .._checks import check_finite, check_frames, check_rate
 from ..body.kinematics import BodyOutput, forward
 from ..body.model import SMPL_JOINT_NAMES, Body
-from ..rotation import axis_angle_to_matrix, matrix_to_axis_angle
+from ..rotation import matrix_to_axis_angle, rotation_y  # rotation_y: re-exported where it used to live
 
 __all__ = [
     "GRAVITY",
@@ -370,12 +370,6 @@ def imu_from_body_output(
         pos = pos + jnp.einsum("...sab,sb->...sa", R_bone, jnp.asarray(offset_bone, pos.dtype))
     R = R_bone if sensor_to_bone is None else R_bone @ jnp.asarray(sensor_to_bone, R_bone.dtype)
     return imu_from_trajectory(R, pos, fps)
-
-
-def rotation_y(angle: Array) -> Array:
-    """R_y(γ): rotation by γ (...,) about the world vertical (+y). -> (..., 3, 3)."""
-    angle = jnp.asarray(angle)
-    return axis_angle_to_matrix(jnp.stack([jnp.zeros_like(angle), angle, jnp.zeros_like(angle)], -1))
 
 
 # Computed with `landmark_vertex` on default_body("low") / ("full") and frozen here so that

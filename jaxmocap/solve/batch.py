@@ -40,7 +40,7 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from .._checks import check_weight
 from .._checks import check_max_steps
-from .solver import METHODS, Args, Solution, _check, _solve_core, check_tridiagonal
+from .solver import METHODS, Args, Solution, check_inputs, check_tridiagonal, solve_unjitted
 
 __all__ = [
     "pad_sequences",
@@ -162,7 +162,7 @@ def bytes_per_sequence(problem, params0: dict, data: Any = None, frame_mask=None
     and the inputs, times `overhead` for XLA's temporaries. `params0` and `data` are
     one sequence (no batch axis); nothing is compiled or run (`jax.eval_shape`).
     """
-    layout, params0, frame_mask, dtype = _check(problem, params0, data, frame_mask, dtype)
+    layout, params0, frame_mask, dtype = check_inputs(problem, params0, data, frame_mask, dtype)
     fdtype = jnp.dtype(factor_dtype or (jnp.float64 if jax.config.jax_enable_x64 else dtype))
     shapes = jax.eval_shape(lambda p, d, m: problem.residuals(p, d, m), params0, data, frame_mask)
     T, n = layout.T, layout.n
@@ -292,7 +292,7 @@ def solve_batch(
         raise ValueError("params0 is empty; give a dict of batched (B, ...) initial parameters.")
     B = jnp.shape(leaves[0])[0]
     first = jax.tree_util.tree_map(lambda x: x[0], params0)
-    layout, _, _, dtype = _check(problem, first, None, None if frame_mask is None else frame_mask[0], dtype)
+    layout, _, _, dtype = check_inputs(problem, first, None, None if frame_mask is None else frame_mask[0], dtype)
     params0 = {k: jnp.asarray(params0[k], dtype) for k in layout.keys}
     if factor_dtype is None:
         factor_dtype = jnp.float64 if jax.config.jax_enable_x64 else dtype
@@ -364,7 +364,7 @@ def _to_device(tree, device):
 def _batch_core(problem, layout, params0, data, frame_mask, weights, rtol, atol, max_steps, static):
     def one(p, d, m, w, rt, at):
         args = Args(with_weights(problem, w), d, m, layout)
-        return _solve_core(args, p, rt, at, max_steps, solver=None, adjoint=None, **static)
+        return solve_unjitted(args, p, rt, at, max_steps, solver=None, adjoint=None, **static)
 
     mask_axis = None if frame_mask is None else 0
     return jax.vmap(one, in_axes=(0, 0, mask_axis, 0, 0, 0))(params0, data, frame_mask, weights, rtol, atol)

@@ -304,8 +304,9 @@ def _window_valid(T: int, bandwidth: int, frame_mask: Array | None) -> Array | N
     return out
 
 
-def _sanitise(data):
-    """Replace NaN/inf by 0 in every floating leaf (masks see the raw data)."""
+def sanitise(data):
+    """`data` with NaN/inf replaced by 0 in every floating leaf: what the terms read (their
+    masks see the raw data), so a masked-out NaN sample never reaches a residual (0·NaN = NaN)."""
 
     def clean(x):
         if eqx.is_array(x) and jnp.issubdtype(x.dtype, jnp.inexact):
@@ -444,7 +445,7 @@ class Problem(eqx.Module):
         if T is None:
             spec = self.spec
             T = next(jnp.shape(v)[0] for k, v in x.items() if k not in spec or spec[k].kind == "frame")
-        clean = _sanitise(data)
+        clean = sanitise(data)
         views = self.views(x)
         terms = self.terms if names is None else [t for t in self.terms if t.name in names]
         return {t.name: t.residual(views[t.name], clean, data, frame_mask, T) for t in terms}

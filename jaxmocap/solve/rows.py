@@ -38,7 +38,9 @@ import jax.numpy as jnp
 from jax import Array
 
 from ..timeseries import shift_frames
-from .tridiagonal import CYCLIC_BASE, CYCLIC_RECURSIVE_BLOCKS, SCAN_BASE, _interleave, _pad, _shift_down, _t, inverse_cholesky
+from .tridiagonal import (
+    CYCLIC_BASE, CYCLIC_RECURSIVE_BLOCKS, SCAN_BASE, interleave_blocks, inverse_cholesky, pad_blocks, shift_blocks_down,
+)  # fmt: skip
 
 __all__ = [
     "RowsFactor", "RowsCyclicFactor", "rows_factor", "rows_solve", "rows_cyclic_factor", "rows_cyclic_solve", "scale_rows",
@@ -195,7 +197,7 @@ def _diagonal(Hb: list, start: int, step: int, count: int) -> Array:
     G = len(Hb)
     Hk = [h[start::step][:count] for h in Hb]
     return jnp.concatenate([
-        jnp.concatenate([Hk[i2 - i][:, i] if i2 >= i else _t(Hk[i - i2][:, i2]) for i2 in range(G)], -1)
+        jnp.concatenate([Hk[i2 - i][:, i] if i2 >= i else Hk[i - i2][:, i2].mT for i2 in range(G)], -1)
         for i in range(G)
     ], -2)  # fmt: skip
 
@@ -236,11 +238,11 @@ def rows_cyclic_factor(P0: Array, C: Array) -> RowsCyclicFactor:
             D = D - jnp.einsum("kan,kam->knm", W, jnp.einsum("kab,kbm->kam", Sd, W))
         L = inverse_cholesky(D, CYCLIC_BASE if Ko >= CYCLIC_RECURSIVE_BLOCKS else N)
         Me, Mo = M[0::2][:Ko], M[1::2]
-        Md = _block_diag(_t(Me), Mo)
+        Md = _block_diag(Me.mT, Mo)
         PQ = jnp.einsum("knm,kam->kna", L, jnp.einsum("kba,kbm->kam", Md, W))  # [Pa Qa]
         S = jnp.einsum("kna,knb->kab", PQ, PQ)  # [[PaᵀPa, PaᵀQa], [., QaᵀQa]]
-        levels.append(RowsCyclicLevel(L, PQ, Y[0 :: 2 * s][:Ko], _pad(Z[2 * s - 1 :: 2 * s], Ko)))
-        A, Bz, M = A[0::2] + _pad(S[:, :r, :r], Ke), Bz[0::2] + _shift_down(S[:, r:, r:], Ke), _pad(-S[:, :r, r:], Ke)
+        levels.append(RowsCyclicLevel(L, PQ, Y[0 :: 2 * s][:Ko], pad_blocks(Z[2 * s - 1 :: 2 * s], Ko)))
+        A, Bz, M = A[0::2] + pad_blocks(S[:, :r, :r], Ke), Bz[0::2] + shift_blocks_down(S[:, r:, r:], Ke), pad_blocks(-S[:, :r, r:], Ke)
         K, s = Ke, 2 * s
     D = _diagonal(Hb, 0, 1, 1) - jnp.einsum("kan,kab,kbm->knm", Y[:1], A, Y[:1])  # block 0: no left boundary
     return RowsCyclicFactor(tuple(levels), inverse_cholesky(D, N))
@@ -264,11 +266,11 @@ def rows_cyclic_solve(f: RowsCyclicFactor, b: Array) -> Array:
         Ke, r = (b.shape[0] + 1) // 2, lev.Y.shape[1]
         z = lev.L @ b[1::2]
         zs.append(z)
-        t = _t(lev.PQ) @ z  # [Paᵀ z; Qaᵀ z]
-        b = b[0::2] - _pad(_t(lev.Y) @ t[:, :r], Ke) - _shift_down(_t(lev.Z) @ t[:, r:], Ke)
-    x = _t(f.last) @ (f.last @ b)
+        t = lev.PQ.mT @ z  # [Paᵀ z; Qaᵀ z]
+        b = b[0::2] - pad_blocks(lev.Y.mT @ t[:, :r], Ke) - shift_blocks_down(lev.Z.mT @ t[:, r:], Ke)
+    x = f.last.mT @ (f.last @ b)
     for lev, z in zip(reversed(f.levels), reversed(zs)):
         Ko = z.shape[0]
-        u = jnp.concatenate([lev.Y @ x[:Ko], lev.Z @ _pad(x[1:], Ko)], 1)  # x_{o-1}, x_{o+1} in the rows
-        x = _interleave(x, _t(lev.L) @ (z - lev.PQ @ u))
+        u = jnp.concatenate([lev.Y @ x[:Ko], lev.Z @ pad_blocks(x[1:], Ko)], 1)  # x_{o-1}, x_{o+1} in the rows
+        x = interleave_blocks(x, lev.L.mT @ (z - lev.PQ @ u))
     return x.reshape(Kb * G, n, k)[:T]

@@ -48,15 +48,15 @@ from .._progress import report
 from .._compat import DIVERGENCE, MAX_STEPS, SUCCESSFUL, result_code
 from .._compat import result_message as optx_message
 from .basis import BasisNormal, basis_factor, basis_normal, basis_solve
-from .residuals import BlockJacobian, Params, Problem, _sanitise
+from .residuals import BlockJacobian, Params, Problem, sanitise
 from .structured import (
     FactoredBlocks,
     Structure,
     StructuredCholesky,
     TermBlocks,
-    _cost,
     factor,
     full_precision,
+    half_squared_norm,
     jacobian_blocks,
     normal_equations,
     solve_factored,
@@ -139,7 +139,7 @@ def _observed(args: Args, value) -> Array | None:
     if not masked:
         return None
     x = to_manifold(value, args.layout)
-    clean = _sanitise(args.data)
+    clean = sanitise(args.data)
     views = args.problem.views(x)
     seen = []
     for t in masked:
@@ -260,7 +260,7 @@ def linearise(y: dict, args: Args, st: Structure, dtype, factor_dtype, tridiagon
     terms = {t.name: t for t in problem.terms}
     names = args.names
     bw, cols = args.leaf_structure()
-    clean = _sanitise(args.data)
+    clean = sanitise(args.data)
     blocks: dict[str, TermBlocks] = {}
     views = problem.views(x)  # one shared memo for the analytic terms
     analytic = {}
@@ -326,7 +326,7 @@ def _linearise_basis(y: dict, args: Args, dtype, factor_dtype):
     else:
         H, gF, cost = jnp.zeros((T, n, n), factor_dtype), jnp.zeros((T, n), factor_dtype), jnp.zeros((), factor_dtype)
     x = to_manifold(yf, lf)
-    clean = _sanitise(args.data)
+    clean = sanitise(args.data)
     coef = y[key]
 
     def features(dF):
@@ -340,7 +340,7 @@ def _linearise_basis(y: dict, args: Args, dtype, factor_dtype):
     finish = lambda e_: bt.finish(e_[:, None, :, None], args.data, args.frame_mask, T)  # noqa: E731
     r, g = jax.jvp(finish, (e,), (jnp.ones_like(e),))  # ρ per coordinate: g = ∂r/∂e elementwise
     normal, grad = basis_normal(H.astype(factor_dtype), gF.astype(factor_dtype), r, g, Jf, bt.basis, factor_dtype)
-    return normal, grad, cost + _cost([r], factor_dtype)
+    return normal, grad, cost + half_squared_norm([r], factor_dtype)
 
 
 #: `linearise` as a nested jit: init's shape query and step's call share one trace.
@@ -400,7 +400,7 @@ class VonMarcardLM(optx.AbstractLeastSquaresSolver):
         # compiled) once, not also here: init holds zeros of its shape, marked stale.
         st, dtype, fdtype = self._setup(y, args)
         res, _ = fn(y, args)
-        cost = _cost(res, fdtype)
+        cost = half_squared_norm(res, fdtype)
         shapes = eqx.filter_eval_shape(_linearise_once, y, args, st, dtype, fdtype, self.tridiagonal)[:2]
         normal, grad = jtu.tree_map(lambda s: jnp.zeros(s.shape, s.dtype), shapes)
         ok = jnp.isfinite(cost)
@@ -426,7 +426,7 @@ class VonMarcardLM(optx.AbstractLeastSquaresSolver):
         delta = layout.unravel(cast(st.from_solver_order(dF)), cast(dW), cast(dG))
         y_new = from_manifold(retract(to_manifold(y, layout), delta, layout), layout)
         res_new, _ = fn(y_new, args)
-        cost_new = _cost(res_new, fdtype)
+        cost_new = half_squared_norm(res_new, fdtype)
         accept = jnp.isfinite(cost_new) & (cost_new < state.cost)
         # Cauchy-type test (as optimistix): an accepted step that changes neither the cost
         # nor the parameters noticeably, or a rejected step already negligible.
@@ -476,7 +476,9 @@ def check_tridiagonal(tridiagonal: str | None) -> str:
     return tridiagonal
 
 
-def _check(problem, params0, data, frame_mask, dtype):
+def check_inputs(problem, params0, data, frame_mask, dtype):
+    """`solve`'s inputs checked (a clear ValueError for each mistake) and resolved:
+    (layout, params0 cast to the working dtype, frame_mask as bool or None, dtype)."""
     if not isinstance(problem, Problem):
         raise ValueError(f"problem must be a jaxmocap.solve.Problem, got {type(problem).__name__}.")
     layout = problem.layout(params0)
@@ -567,7 +569,7 @@ def solve(
         raise ValueError(f"method must be one of {METHODS}, got {method!r}.")
     if damping not in ("levenberg", "marquardt"):
         raise ValueError(f"damping must be 'levenberg' or 'marquardt', got {damping!r}.")
-    layout, params0, frame_mask, dtype = _check(problem, params0, data, frame_mask, dtype)
+    layout, params0, frame_mask, dtype = check_inputs(problem, params0, data, frame_mask, dtype)
     check_max_steps(max_steps)
     if check_bandwidth:
         check_bandwidths(problem, params0, data, frame_mask)
@@ -632,7 +634,7 @@ def check_bandwidths(problem: Problem, params0: dict, data: Any = None, frame_ma
 
 
 @full_precision
-def _solve_core(args: Args, params0, rtol, atol, max_steps, *, method, solver, factor_dtype, damping, adjoint, progress=False,
+def solve_unjitted(args: Args, params0, rtol, atol, max_steps, *, method, solver, factor_dtype, damping, adjoint, progress=False,
                 tridiagonal="scan"):
     """The unbatched, unjitted solve (vmapped by `solve_batch`)."""
     dtype = jtu.tree_leaves(params0)[0].dtype
@@ -673,7 +675,7 @@ def _solve_core(args: Args, params0, rtol, atol, max_steps, *, method, solver, f
     return Solution(value, jnp.asarray(result, jnp.int32), jnp.asarray(steps, jnp.int32), cost, costs, decrease)
 
 
-_solve_jit = eqx.filter_jit(_solve_core)
+_solve_jit = eqx.filter_jit(solve_unjitted)
 
 
 def _jaxopt(args: Args, params0, tol, max_steps):

@@ -442,10 +442,10 @@ def normal_equations(
                 for j in range(K):
                     WG = WG + _group_sum("qura,qurk->qak", t.JW[:, j].astype(dtype), JG, j, st)
     normal = _pin(Normal(FF, FW, WW, FG, WG, GG, C), st, frame_mask)
-    return normal, grad, _cost(rs, dtype)
+    return normal, grad, half_squared_norm(rs, dtype)
 
 
-def _cost(residuals, dtype) -> Array:
+def half_squared_norm(residuals, dtype) -> Array:
     """½ Σ r² over the residual leaves, in `dtype` (the LM's and the linearisation's)."""
     return 0.5 * sum(jnp.sum(r.astype(dtype) ** 2) for r in jtu.tree_leaves(residuals))
 

@@ -62,10 +62,6 @@ def default_tridiagonal_method() -> str:
     return "rows" if jax.default_backend() == "cpu" else "cyclic"
 
 
-def _t(x: Array) -> Array:
-    return jnp.swapaxes(x, -1, -2)
-
-
 def inverse_cholesky(S: Array, base: int = CYCLIC_BASE) -> Array:
     """L⁻¹ for S = L Lᵀ, batched over leading axes, by recursive halving.
 
@@ -83,8 +79,8 @@ def inverse_cholesky(S: Array, base: int = CYCLIC_BASE) -> Array:
         return jsl.solve_triangular(jnp.linalg.cholesky(S), eye, lower=True)
     k = n // 2
     L1_inv = inverse_cholesky(S[..., :k, :k], base)
-    L21 = S[..., k:, :k] @ _t(L1_inv)
-    L2_inv = inverse_cholesky(S[..., k:, k:] - L21 @ _t(L21), base)
+    L21 = S[..., k:, :k] @ L1_inv.mT
+    L2_inv = inverse_cholesky(S[..., k:, k:] - L21 @ L21.mT, base)
     top = jnp.concatenate([L1_inv, jnp.zeros(L1_inv.shape[:-1] + (n - k,), S.dtype)], -1)
     return jnp.concatenate([top, jnp.concatenate([-(L2_inv @ (L21 @ L1_inv)), L2_inv], -1)], -2)
 
@@ -140,13 +136,16 @@ def _scan_solve(f: ScanFactor, b: Array) -> Array:
     return x
 
 
-def _shift_down(x: Array, length: int) -> Array:
+# Block helpers of cyclic reduction, shared with `rows.py`'s cyclic reduction on rows.
+
+
+def shift_blocks_down(x: Array, length: int) -> Array:
     """x_{j-1} for j = 0..length-1 (zero at j = 0), from x of any length ≥ length - 1."""
     x = jnp.concatenate([jnp.zeros_like(x[:1]), x], 0)[:length]
-    return _pad(x, length)
+    return pad_blocks(x, length)
 
 
-def _pad(x: Array, length: int) -> Array:
+def pad_blocks(x: Array, length: int) -> Array:
     """x cut or zero-padded to `length` along the first axis."""
     if x.shape[0] >= length:
         return x[:length]
@@ -160,13 +159,13 @@ def _cyclic_factor(D: Array, U: Array) -> CyclicFactor:
         Ke, Ko = (K + 1) // 2, K // 2
         # Few blocks per level: the recursion's extra launches outweigh its faster products.
         L = inverse_cholesky(D[1::2], CYCLIC_BASE if Ko >= CYCLIC_RECURSIVE_BLOCKS else D.shape[-1])
-        P = L @ _t(U[0::2][:Ko])  # A_{o,o-1} = U_{o-1}ᵀ
+        P = L @ U[0::2][:Ko].mT  # A_{o,o-1} = U_{o-1}ᵀ
         Q = L @ U[1::2]  # A_{o,o+1} = U_o (zero for the last block)
         levels.append(CyclicLevel(L, P, Q))
-        QtQ = _t(Q) @ Q  # subtracted from the even block after each odd one
-        PtP = _t(P) @ P  # ... and before it
-        D = D[0::2] - _shift_down(QtQ, Ke) - _pad(PtP, Ke)
-        U = _pad(-(_t(P) @ Q), Ke)
+        QtQ = Q.mT @ Q  # subtracted from the even block after each odd one
+        PtP = P.mT @ P  # ... and before it
+        D = D[0::2] - shift_blocks_down(QtQ, Ke) - pad_blocks(PtP, Ke)
+        U = pad_blocks(-(P.mT @ Q), Ke)
     return CyclicFactor(tuple(levels), inverse_cholesky(D, D.shape[-1]))
 
 
@@ -176,16 +175,16 @@ def _cyclic_solve(f: CyclicFactor, b: Array) -> Array:
         Ke = (b.shape[0] + 1) // 2
         z = lev.L @ b[1::2]
         zs.append(z)
-        b = b[0::2] - _shift_down(_t(lev.Q) @ z, Ke) - _pad(_t(lev.P) @ z, Ke)
-    x = _t(f.last) @ (f.last @ b)
+        b = b[0::2] - shift_blocks_down(lev.Q.mT @ z, Ke) - pad_blocks(lev.P.mT @ z, Ke)
+    x = f.last.mT @ (f.last @ b)
     for lev, z in zip(reversed(f.levels), reversed(zs)):
         Ko = z.shape[0]
-        x_prev, x_next = x[:Ko], _pad(x[1:], Ko)
-        x = _interleave(x, _t(lev.L) @ (z - lev.P @ x_prev - lev.Q @ x_next))
+        x_prev, x_next = x[:Ko], pad_blocks(x[1:], Ko)
+        x = interleave_blocks(x, lev.L.mT @ (z - lev.P @ x_prev - lev.Q @ x_next))
     return x
 
 
-def _interleave(even: Array, odd: Array) -> Array:
+def interleave_blocks(even: Array, odd: Array) -> Array:
     """Blocks back in sequence order: even ones at 0, 2, ..., odd ones at 1, 3, ..."""
     out = jnp.zeros((even.shape[0] + odd.shape[0],) + even.shape[1:], even.dtype)
     return out.at[0::2].set(even).at[1::2].set(odd)

@@ -31,7 +31,8 @@ class MeshExportError(ValueError):
     """A mesh cannot be written: unknown format, or arrays of the wrong shape."""
 
 
-def _format_of(path: Path) -> str:
+def mesh_format(path: Path) -> str:
+    """The format named by `path`'s suffix, one of `MESH_FORMATS` (MeshExportError otherwise)."""
     fmt = path.suffix.lower().lstrip(".")
     if fmt not in MESH_FORMATS:
         raise MeshExportError(
@@ -80,7 +81,8 @@ def _vertex_colors(colors, num_vertices: int, cmap: str, vmin, vmax) -> np.ndarr
     )
 
 
-def _trimesh(vertices, faces, colors=None, cmap="inferno", vmin=None, vmax=None) -> trimesh.Trimesh:
+def to_trimesh(vertices, faces, colors=None, cmap="inferno", vmin=None, vmax=None) -> trimesh.Trimesh:
+    """One checked `trimesh.Trimesh` (arguments as `export_mesh`'s), vertex order kept."""
     vertices = np.asarray(vertices, np.float64)
     faces = np.asarray(faces)
     if vertices.ndim != 2 or vertices.shape[1] != 3:
@@ -98,7 +100,8 @@ def _trimesh(vertices, faces, colors=None, cmap="inferno", vmin=None, vmax=None)
     return trimesh.Trimesh(vertices=vertices, faces=faces, vertex_colors=rgba, process=False)
 
 
-def _write(mesh_or_scene, path: Path, fmt: str) -> Path:
+def write_mesh(mesh_or_scene, path: Path, fmt: str) -> Path:
+    """Write a trimesh mesh or scene to `path` as `fmt` (from `mesh_format`), folders made."""
     path.parent.mkdir(parents=True, exist_ok=True)
     if fmt == "obj":
         # No normals: an OBJ with normals is split per corner on reload by some readers.
@@ -132,8 +135,8 @@ def export_mesh(
         MeshExportError: unknown suffix or wrongly shaped arrays.
     """
     path = Path(path)
-    fmt = _format_of(path)
-    return _write(_trimesh(vertices, faces, colors, cmap, vmin, vmax), path, fmt)
+    fmt = mesh_format(path)
+    return write_mesh(to_trimesh(vertices, faces, colors, cmap, vmin, vmax), path, fmt)
 
 
 def export_sequence(
@@ -196,12 +199,12 @@ def export_sequence(
     if fmt == "glb":
         scene = trimesh.Scene()
         for t in iterator:
-            mesh = _trimesh(vertices[t], faces, colors_at(t), cmap, vmin, vmax)
+            mesh = to_trimesh(vertices[t], faces, colors_at(t), cmap, vmin, vmax)
             name = f"{prefix}{t:04d}"
             scene.add_geometry(mesh, node_name=name, geom_name=name)
-        return [_write(scene, folder / "sequence.glb", "glb")]
+        return [write_mesh(scene, folder / "sequence.glb", "glb")]
     paths = []
     for t in iterator:
-        mesh = _trimesh(vertices[t], faces, colors_at(t), cmap, vmin, vmax)
-        paths.append(_write(mesh, folder / f"{prefix}{t:04d}.{fmt}", fmt))
+        mesh = to_trimesh(vertices[t], faces, colors_at(t), cmap, vmin, vmax)
+        paths.append(write_mesh(mesh, folder / f"{prefix}{t:04d}.{fmt}", fmt))
     return paths

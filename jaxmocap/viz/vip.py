@@ -189,10 +189,10 @@ def scene_glb(
     """
     import trimesh
 
-    from .mesh import _format_of, _trimesh, _write
+    from .mesh import mesh_format, to_trimesh, write_mesh
 
     path = Path(path)
-    fmt = _format_of(path)
+    fmt = mesh_format(path)
     if fmt == "obj":
         raise ValueError(f"{path}: a scene is written as .glb or .ply.")
     verts = np.asarray(vertices, np.float64)
@@ -212,18 +212,18 @@ def scene_glb(
     for p in range(len(verts)):
         rgba = (np.array([*_rgb(_person_color(p)), 1.0]) * 255).astype(np.uint8)
         for t in frames if verts.shape[1] == T else [0]:
-            meshes[f"person{p}_frame{t:04d}"] = _trimesh(verts[p, t], faces, np.tile(rgba, (verts.shape[2], 1)))
+            meshes[f"person{p}_frame{t:04d}"] = to_trimesh(verts[p, t], faces, np.tile(rgba, (verts.shape[2], 1)))
     for t in frames:
         v, f = _frustum(centres[t], Rc[t], frustum_size)
-        meshes[f"camera_{t:04d}"] = _trimesh(v, f, np.tile([60, 60, 60, 255], (5, 1)).astype(np.uint8))
+        meshes[f"camera_{t:04d}"] = to_trimesh(v, f, np.tile([60, 60, 60, 255], (5, 1)).astype(np.uint8))
     if fmt == "ply":
-        return _write(trimesh.util.concatenate(list(meshes.values())), path, fmt)
+        return write_mesh(trimesh.util.concatenate(list(meshes.values())), path, fmt)
     scene = trimesh.Scene()
     for name, mesh in meshes.items():
         scene.add_geometry(mesh, node_name=name, geom_name=name)
     if T > 1:
         scene.add_geometry(trimesh.load_path(centres), node_name="camera_path", geom_name="camera_path")
-    return _write(scene, path, fmt)
+    return write_mesh(scene, path, fmt)
 
 
 def _rgb(color: str):
