@@ -153,10 +153,6 @@ PRIVATE_IMPORTS_ALLOWED = {
     # until the lead switches the import (camera.py owns both; no public name yet)
     ("energies/interaction.py", "jaxmocap.energies.camera._posed"),
     ("energies/interaction.py", "jaxmocap.energies.camera._views"),
-    # until the lead switches the import (to `jaxmocap._files.natural_key`, which openpose.py
-    # can use too)
-    ("formats/project.py", "jaxmocap.formats.openpose._natural_key"),
-    ("formats/video.py", "jaxmocap.formats.openpose._natural_key"),
 }
 
 

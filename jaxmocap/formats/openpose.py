@@ -50,6 +50,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .._files import natural_key
 from .calibration import CalibratedCamera
 
 __all__ = [
@@ -102,10 +103,6 @@ class KeypointRecording:
         return len(self.frames)
 
 
-def _natural_key(name: str):
-    return [int(s) if s.isdigit() else s.lower() for s in re.split(r"(\d+)", name)]
-
-
 def _keypoint_files(folder: Path) -> list[Path]:
     return sorted(p for p in folder.iterdir() if p.is_file() and _FRAME.search(p.name))
 
@@ -121,7 +118,7 @@ def _by_pattern(files: list[Path]) -> list[tuple[str, list[Path]]]:
     groups: dict[str, list[Path]] = {}
     for f in files:
         groups.setdefault(_pattern(f.name), []).append(f)
-    return sorted(groups.items(), key=lambda g: (-len(g[1]), _natural_key(g[0])))
+    return sorted(groups.items(), key=lambda g: (-len(g[1]), natural_key(g[0])))
 
 
 def _camera_name(pattern: str, fallback: str) -> str:
@@ -264,7 +261,7 @@ def read_openpose(
     if views is not None:
         views = [views] if isinstance(views, str) else list(views)
     subfolders = sorted(
-        (p for p in root.iterdir() if p.is_dir() and _keypoint_files(p)), key=lambda p: _natural_key(p.name)
+        (p for p in root.iterdir() if p.is_dir() and _keypoint_files(p)), key=lambda p: natural_key(p.name)
     )
     cameras: list[tuple[str, dict[int, Path]]] = []
     ignored: list[Path] = []
@@ -285,7 +282,7 @@ def read_openpose(
             )  # fmt: skip
     else:
         named = dict(cameras)
-        present = sorted(set(named) | {p.name for p in root.iterdir() if p.is_dir()}, key=_natural_key)
+        present = sorted(set(named) | {p.name for p in root.iterdir() if p.is_dir()}, key=natural_key)
         for v in views:
             if v in named:
                 continue
@@ -317,7 +314,7 @@ def read_openpose(
                 out[index[frame], : len(rows)] = np.stack(rows)
         keypoints.append(out)
     present = tuple(np.isin(frames, list(people)) for people in per_view)
-    left_out = tuple(sorted((str(f.relative_to(root)) for f in ignored), key=_natural_key))
+    left_out = tuple(sorted((str(f.relative_to(root)) for f in ignored), key=natural_key))
     return KeypointRecording(tuple(names), found, frames, tuple(keypoints), present, left_out)
 
 

@@ -33,7 +33,7 @@ import struct
 import tomllib
 from pathlib import Path
 
-from .openpose import _natural_key
+from .._files import natural_key
 
 __all__ = ["POSE_MODELS", "Project", "ProjectConfig", "ProjectError", "read_config", "read_project", "video_frame_rate"]
 
@@ -154,7 +154,7 @@ def read_config(folder) -> ProjectConfig:
     fps, fps_from = None, sources.get("frame_rate")
     if isinstance(rate, str) and rate.strip().lower() == "auto":
         videos = sorted((p for p in (start / "videos").glob("*") if p.suffix.lower() in VIDEO_SUFFIXES),
-                        key=lambda p: _natural_key(p.name)) if (start / "videos").is_dir() else []  # fmt: skip
+                        key=lambda p: natural_key(p.name)) if (start / "videos").is_dir() else []  # fmt: skip
         fps_from = videos[0] if videos else None
         fps = video_frame_rate(videos[0]) if videos else None
     elif rate is not None:

@@ -83,13 +83,13 @@ class VideoDetections:
 
 def find_videos(folder) -> list[Path]:
     """The videos of `folder` (one per camera), in natural order of their names."""
-    from .openpose import _natural_key
+    from .._files import natural_key
 
     folder = Path(folder)
     if not folder.is_dir():
         raise VideoError(f"{folder}: no such folder; give the folder holding one video per camera (--videos DIR).")
     videos = sorted((p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in VIDEO_SUFFIXES),
-                    key=lambda p: _natural_key(p.name))  # fmt: skip
+                    key=lambda p: natural_key(p.name))  # fmt: skip
     if not videos:
         raise VideoError(f"{folder}: no video ({', '.join('*' + s for s in VIDEO_SUFFIXES)}); give the folder "
                          "holding one video per camera.")  # fmt: skip
