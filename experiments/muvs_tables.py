@@ -71,6 +71,8 @@ DETECTOR = DetectorErrorModel(
     swap_rate=0.02, swap_length=8.0, person_miss_rate=0.0, distractor_rate=0.0, max_distractors=0,
 )  # fmt: skip
 CAMERAS = CameraConfig(num_views=4, width=256, height=192)
+FPS = 30.0  # the scenarios' frame rate (ScenarioConfig's default): stage 2's DCT windows last 0.5 s
+FLOOR = ((0.0, 1.0, 0.0), 0.0)  # the scenarios' floor: y up, feet at y = 0
 #: MuVSWeights chosen on the development subjects (muvs_tuning.py), priors leave-subject-out.
 SPLIT = Split("muvs_tables", tuning=DEVELOPMENT, training="leave-subject-out")
 
@@ -254,8 +256,11 @@ def main(argv=None):
         p0 = mv.initialise(d, w.num_betas)
         pj, _ = mv.stage_one(d, p0, w, silhouettes=False)
         ps, _ = mv.stage_one(d, pj, w.replace(anneal=()), silhouettes=True)
-        pt, _ = mv.stage_two(d, ps, w)
-        ph, _ = mv.stage_two(d, ps, w, silhouettes=True)
+        if n == 1:  # one view: the body's size scaled by where its feet meet the floor (y = 0)
+            pj, _ = mv.place_monocular(d, pj, FLOOR)
+            ps, _ = mv.place_monocular(d, ps, FLOOR)
+        pt, _ = mv.stage_two(d, ps, w, fps=FPS)
+        ph, _ = mv.stage_two(d, ps, w, silhouettes=True, fps=FPS)
         timing[f"views_{n}_s"] = time.perf_counter() - t1
         fits = {"stage1": pj, "S": ps, "S_T": pt, "S_T_H": ph}
         np.savez_compressed(args.out / f"{name}_fits_views_{n}.npz", **{f"{k}_{q}": v[q] for k, v in fits.items()

@@ -297,3 +297,29 @@ def test_weights_follow_the_image_resolution(scene):
     np.testing.assert_allclose(b["trans"], a["trans"], atol=2e-4)
     raw, _ = mv.stage_one(high, p0, w.replace(reference_focal=None), silhouettes=False, max_steps=5)
     assert np.abs(raw["betas"] - a["betas"]).max() > 1e-2  # the keypoints weigh 4x more against the priors
+
+
+def test_one_view_says_it_is_monocular_and_how_uncertain_its_depth_is(scene):
+    """One view measures size in pixels, not depth: the result says so, with a 1σ depth
+    that holds the truth; the floor (where the true feet stand) narrows it. Several views:
+    not monocular. (The joint-only solve of `test_weights_follow_the_image_resolution`.)"""
+    body = scene["body"]
+    w = mv.MuVSWeights(anneal=(1.0,), sigma_monocular=10.0)
+    data = mv.camera_data(body, scene["K"], scene["R"], scene["t"], scene["kp"], "body25")
+    one = mv.mask_views(data, [0])
+    out = forward(body, jnp.asarray(scene["pose"], jnp.float32), jnp.asarray(scene["betas"], jnp.float32),
+                  jnp.asarray(scene["trans"], jnp.float32))  # fmt: skip
+    R, t = scene["R"][0], scene["t"][0]
+    true_depth = float(np.median((np.asarray(out.joints)[:, 0] @ R.T + t)[:, 2]))
+    floor = ((0.0, 1.0, 0.0), float(np.asarray(out.vertices)[..., 1].min()))
+    alone = mv.multiview_smplify(one, w, silhouettes=False, temporal=False)
+    ground = mv.multiview_smplify(one, w, silhouettes=False, temporal=False, floor=floor)
+    for r in (alone, ground):
+        d = r.depth
+        assert r.monocular and d["view"] == 0 and d["depth_uncertainty_m"] > 0
+        assert abs(d["depth_m"] - true_depth) < 2.5 * d["depth_uncertainty_m"], (d, true_depth)
+    assert alone.depth["ground"] is None and ground.depth["ground"] is not None
+    assert ground.depth["depth_uncertainty_m"] < alone.depth["depth_uncertainty_m"]
+    assert abs(ground.depth["depth_m"] - true_depth) < abs(alone.depth["depth_m"] - true_depth)
+    both = mv.multiview_smplify(data, w, silhouettes=False, temporal=False)
+    assert not both.monocular and both.depth is None

@@ -7,10 +7,14 @@
   SMPLify, whose initialisation MuVS reuses; weights are traced, so every annealing step
   and ablation reuses one compiled solve.
 - **Stage 2, temporal** (§4.3.2): β fixed to the median of the stage-1 shapes; poses and
-  translations of all frames plus per-window DCT coefficients C (30-frame units, first
-  10 components, §4.3.3) minimise E_2 = Σ_n E_M + λ_T Σ E_T (eq. 4.7-4.8); variant "+H"
-  adds E_S here too.
-- **Monocular** (Table 4.5): the same code with one view.
+  translations of all frames plus per-window DCT coefficients C (30-frame units of
+  HumanEva's 60 Hz, i.e. 0.5 s, first 10 components, §4.3.3; given the recording's fps
+  the windows keep that duration, `temporal_window`) minimise
+  E_2 = Σ_n E_M + λ_T Σ E_T (eq. 4.7-4.8); variant "+H" adds E_S here too.
+- **Monocular** (Table 4.5): the same code with one view. The result says so
+  (`MuVSResult.monocular`) with the depth along the camera's line of sight and its 1σ
+  (`monocular_depth`: the body's size, the frames' depth scatter, and where the feet meet
+  a known floor, `place_monocular`).
 
 Left/right swaps (ours, on by default in `multiview_smplify` and the CLI): before stage 1,
 `resolve_left_right` flips back the leg labels of any view that disagrees with the others
@@ -38,6 +42,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import math
 import warnings
 from collections.abc import Sequence
 
@@ -45,6 +50,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+from scipy.ndimage import median_filter
 
 from ..body.compact import compact_body
 from ..body.kinematics import forward, shaped_joints
@@ -68,7 +74,9 @@ from ..sensors.keypoints import KEYPOINT_FORMATS, flip_pairs, keypoint_regressor
 from ..sensors.triangulation import triangulate
 from ..solve import Problem, frame, solve, solve_batch, with_weights
 
-__all__ = ["MuVSWeights", "MuVSResult", "camera_data", "compact", "initialise", "resolve_left_right", "stage_one", "stage_two", "multiview_smplify", "mask_views", "stack"]
+__all__ = ["MuVSWeights", "MuVSResult", "camera_data", "compact", "initialise", "resolve_left_right", "stage_one", "stage_two",
+           "multiview_smplify", "mask_views", "stack", "monocular_view", "monocular_depth", "place_monocular",
+           "rescale_about_camera", "STATURE_CV", "temporal_window"]
 
 
 #: Focal length (px) of the cameras MuVSWeights were tuned with: 256 x 192 px, 55° vertical.
@@ -97,6 +105,13 @@ class MuVSWeights:
         of 20 steps); E_2 falls slowly (10 / 20 / 40 steps: 86k / 73k / 42k on 02_01),
         and 10 steps of stage 2 left its MPJPE above stage 1's.
     temporal: λ_T; temporal_sigma: σ₂ (m); window, num_dct: DCT unit and basis size.
+    window_fps: the frame rate `window` is counted at: Huang's 30-frame units are of
+        HumanEva's 60 Hz video, 0.5 s with 10 vectors (up to 10 Hz). Given the recording's
+        fps, stage 2 keeps that duration (`temporal_window`: 15 frames at 30 fps); None, or
+        no fps given, takes `window` frames as they are. At 30 fps, 30 frames (1 s, 5 Hz)
+        left a synthetic walk's joints 4.5 mm from the basis span, 15 frames 1.5 mm, and E_T
+        (λ_T = 2e5: trusting the span to 1.6 mm) pulled clean data's fit off by the rest:
+        median reprojection 0.074 -> 0.169 px with λ_θ = 1, 0.084 px with 15 frames.
     reference_focal: the focal length (px) the pixel quantities above are given for: σ₁,
         the silhouette slack, and the px² scales of E_J and E_S. Each recording converts
         them by s = its mean focal length / reference_focal (`_in_pixels`), so the same
@@ -122,6 +137,7 @@ class MuVSWeights:
     temporal_sigma: float = 0.05
     window: int = 30
     num_dct: int = 10
+    window_fps: float | None = 60.0
     num_betas: int = 10
     reference_focal: float | None = REFERENCE_FOCAL
 
@@ -132,13 +148,17 @@ class MuVSWeights:
 @dataclasses.dataclass(frozen=True)
 class MuVSResult:
     """Poses (T, 24, 3) axis-angle, trans (T, 3), betas (B,) of the final stage, the
-    stage-1 outcome (`stage1`: poses, trans, per-frame betas (T, B)), and per-stage costs."""
+    stage-1 outcome (`stage1`: poses, trans, per-frame betas (T, B)), and per-stage costs.
+    monocular: one view saw the person, so depth along its line of sight was not measured;
+    depth: then `monocular_depth`'s record (depth, its 1σ uncertainty, what it came from)."""
 
     poses: np.ndarray
     trans: np.ndarray
     betas: np.ndarray
     stage1: dict
     costs: dict
+    monocular: bool = False
+    depth: dict | None = None
 
 
 def camera_data(
@@ -562,9 +582,21 @@ def stage_one(data: CameraData, params0: dict, weights: MuVSWeights = MuVSWeight
     return {k: np.asarray(v) for k, v in p.items()}, costs
 
 
+def temporal_window(weights: MuVSWeights, fps: float | None) -> int:
+    """Frames per DCT window: `weights.window` at `weights.window_fps`, as many seconds at
+    `fps` (at least `weights.num_dct` frames); `weights.window` when either is None."""
+    if fps is None or weights.window_fps is None:
+        return weights.window
+    if not (isinstance(fps, (int, float, np.integer, np.floating)) and np.isfinite(fps) and fps > 0):
+        raise ValueError(f"fps must be a positive number of frames per second, got {fps!r}.")
+    return max(weights.num_dct, round(weights.window * float(fps) / weights.window_fps))
+
+
 def stage_two(data: CameraData, params1: dict, weights: MuVSWeights = MuVSWeights(), silhouettes: bool = False,
-              max_steps: int | None = None) -> tuple[dict, dict]:
-    """Temporal fit (eq. 4.7-4.8) with β = median of the stage-1 shapes.
+              max_steps: int | None = None, fps: float | None = None) -> tuple[dict, dict]:
+    """Temporal fit (eq. 4.7-4.8) with β = median of the stage-1 shapes; DCT windows of
+    `temporal_window(weights, fps)` frames (give the recording's fps: Huang's windows last
+    0.5 s).
 
     E_T is a basis term (`energies.camera.temporal_term`): the engine eliminates the DCT
     coefficients by their Kronecker structure (`jaxmocap.solve.basis`).
@@ -572,6 +604,7 @@ def stage_two(data: CameraData, params1: dict, weights: MuVSWeights = MuVSWeight
     "temporal_result"}).
     """
     dtype = data.K.dtype
+    weights = weights.replace(window=temporal_window(weights, fps), window_fps=None)
     betas = np.median(np.asarray(params1["betas"]), -2)  # over frames: (B,) or (batch, B)
     data2 = dataclasses_replace(data, betas=jnp.asarray(betas, dtype))
     body = _member(data, 0).body if _batched(data) else data.body
@@ -604,6 +637,144 @@ def dataclasses_replace(data: CameraData, **changes) -> CameraData:
                        is_leaf=lambda x: x is None)
 
 
+# --- one camera: depth from the body's size and the ground -------------------------------
+
+#: Relative spread (1σ) of body size (adult stature: SD ≈ 9 cm about 1.70 m, sexes pooled).
+#: With one view, depth is the body's size in pixels read against the fitted body's size,
+#: which the shape prior keeps near the mean body: this is that depth's relative error.
+STATURE_CV = 0.055
+#: Feet lift off the floor (a step, a jump): the ground gives the size from the frames whose
+#: lowest point is lowest, this quantile of the per-frame scales (ours).
+GROUND_QUANTILE = 0.25
+
+
+def monocular_view(data: CameraData) -> int | None:
+    """The one view that has detections, or None when there are none or several."""
+    seen = np.flatnonzero(np.asarray(jnp.any(data.confidence > 0, axis=(0, 2))))
+    return int(seen[0]) if len(seen) == 1 else None
+
+
+def _full_pose(data: CameraData, params: dict):
+    """Vertices (T, N, 3) and joints (T, 24, 3) (float64) of params on data's body."""
+    betas = np.asarray(params["betas"], np.float64)
+    T = len(params["pose"])
+    betas = np.broadcast_to(betas if betas.ndim == 2 else betas[None], (T, betas.shape[-1]))
+    out = forward(data.body, jnp.asarray(params["pose"], data.body.dtype), jnp.asarray(betas, data.body.dtype),
+                  jnp.asarray(params["trans"], data.body.dtype))  # fmt: skip
+    return np.asarray(out.vertices, np.float64), np.asarray(out.joints, np.float64)
+
+
+def monocular_depth(data: CameraData, params: dict, floor=None) -> dict:
+    """With one view: how far the body is along that camera's line of sight, how uncertain
+    that is, and the scale `k` (about the camera centre) that the ground asks for.
+
+    One view measures the body's size in pixels, not its depth: a body k times larger k
+    times further away looks the same. Two estimates of the scale (ours; MuVS's monocular
+    variant, Table 4.5, is evaluated after similarity alignment only):
+    - the body's size: the fit's shape, which the shape prior keeps near the mean body:
+      k = 1 ± `STATURE_CV` combined with the detections' scale error (median reprojection
+      over the body's median pixel extent) and the frames' depth scatter (1.4826 MAD about
+      a 9-frame running median, over the depth: the depth each frame's pose allows);
+    - the ground, with `floor` = (up (3,), height) the plane {x: up·x = height} and the
+      camera above it: per frame, the k that puts the body's lowest vertex on the floor
+      (a point at height y below a camera at height h: k = h / (h - y)); the frames whose
+      feet are down are the lower `GROUND_QUANTILE` of those k; error: their spread
+      (1.4826 MAD) and the angle of the feet under the horizon (δd/d = δα / (sin α cos α),
+      δα the reprojection error over the focal length).
+    The two are combined by their inverse variances.
+    Returns {"view", "depth_m" (median pelvis depth after scaling by k),
+    "depth_uncertainty_m" (1σ), "relative", "scale" (k), "from", "size": {...},
+    "ground": {...} or None}.
+    """
+    view = monocular_view(data)
+    if view is None:
+        raise ValueError("monocular_depth: the data must have detections in exactly one view.")
+    K, R, t = (np.asarray(a, np.float64)[view] for a in (data.K, data.R, data.t))
+    verts, joints = _full_pose(data, params)
+    per_frame = (joints[:, 0] @ R.T + t)[:, 2]
+    depth = float(np.median(per_frame))
+    # frames fitted independently (stage 1) scatter in depth as much as their poses can
+    # trade depth for foreshortening: their spread about a running median is an error too
+    scatter = 1.4826 * float(np.median(np.abs(per_frame - median_filter(per_frame, min(9, len(per_frame)), mode="nearest"))))
+    # the detections' scale error: reprojection over the body's extent in the image
+    reg = np.asarray(data.regressor, np.float64)
+    kp = np.einsum("kn,tnc->tkc", reg, verts) @ R.T + t
+    uv = kp[..., :2] / kp[..., 2:] * np.diag(K)[:2] + K[:2, 2]
+    det = np.asarray(data.keypoints, np.float64)[:, view]
+    seen = np.asarray(data.confidence)[:, view] > 0
+    px = float(np.median(np.linalg.norm(uv - det, axis=-1)[seen])) if seen.any() else 0.0
+    extents = [np.ptp(d[s], 0).max() for d, s in zip(det, seen) if s.sum() >= 2]
+    extent = float(np.median(extents)) if extents else float("nan")
+    size_rel = math.hypot(STATURE_CV, px / extent if extent > 0 else 0.0, scatter / depth)
+    ground = None
+    if floor is not None:
+        up, height = np.asarray(floor[0], np.float64), float(floor[1])
+        up = up / np.linalg.norm(up)
+        centre = -R.T @ t
+        h = float(up @ centre) - height
+        lowest = (verts @ up).min(1) - height  # (T,)
+        if h > 0 and np.any(lowest < h):
+            k_t = h / (h - lowest[lowest < h])
+            down = k_t[k_t <= np.quantile(k_t, GROUND_QUANTILE)]
+            k_g = float(np.median(down))
+            alpha = math.atan2(h, depth)
+            angle = (px / float(np.mean(np.diag(K)[:2]))) / (math.sin(alpha) * math.cos(alpha))
+            ground_rel = math.hypot(1.4826 * float(np.median(np.abs(down - k_g))), angle)
+            ground = {"scale": k_g, "relative": ground_rel, "camera_height_m": h, "frames": int(len(down))}
+    if ground is None:
+        k, rel, source = 1.0, size_rel, "the body's size in the image (shape prior: the mean body)"
+    else:
+        w_s, w_g = size_rel**-2, ground["relative"] ** -2
+        k = (w_s * 1.0 + w_g * ground["scale"]) / (w_s + w_g)
+        rel = (w_s + w_g) ** -0.5
+        source = "the body's size in the image and where its feet meet the floor"
+    return {"view": view, "depth_m": depth * k, "depth_uncertainty_m": depth * k * rel, "relative": rel, "scale": k,
+            "from": source, "size": {"relative": size_rel, "reprojection_px": px, "body_extent_px": extent,
+                                     "frame_scatter_m": scatter},
+            "ground": ground}  # fmt: skip
+
+
+def rescale_about_camera(data: CameraData, params: dict, scale: float, view: int, num_betas: int | None = None) -> dict:
+    """params with the body scaled by `scale` about the centre of camera `view`: the same
+    image, `scale` times the size and the distance. The larger body is the shape β' whose
+    rest mesh is closest (least squares, up to a shift) to `scale` × the old one; every
+    frame keeps its pose and moves its pelvis along its line of sight."""
+    body = data.body
+    betas = np.asarray(params["betas"], np.float64)
+    B = betas.shape[-1] if num_betas is None else num_betas
+    S = np.asarray(body.shapedirs, np.float64)[:B]  # (B, V, 3)
+    Tm = np.asarray(body.v_template, np.float64)
+    shared = betas if betas.ndim == 1 else np.median(betas, 0)
+    target = scale * (Tm + np.einsum("b,bvc->vc", shared, S))
+    A = np.concatenate([S.reshape(B, -1).T, np.tile(np.eye(3), (len(Tm), 1))], 1)  # β' and a shift
+    new = np.linalg.lstsq(A, (target - Tm).reshape(-1), rcond=None)[0][:B]
+    R, t = (np.asarray(a, np.float64)[view] for a in (data.R, data.t))
+    centre = -R.T @ t
+    _, joints = _full_pose(data, params)
+    moved = {**params, "betas": np.broadcast_to(new, betas.shape).astype(betas.dtype).copy()}
+    _, joints_new = _full_pose(data, moved)
+    pelvis = centre + scale * (joints[:, 0] - centre)
+    moved["trans"] = np.asarray(params["trans"]) + (pelvis - joints_new[:, 0]).astype(np.asarray(params["trans"]).dtype)
+    return moved
+
+
+def place_monocular(data: CameraData, params: dict, floor=None) -> tuple[dict, dict | None]:
+    """(params, depth): with one view, params scaled about the camera by `monocular_depth`'s
+    k (the ground's evidence on the body's size) and that depth record; with several views
+    params unchanged and None. Batched data: per member (depth a list)."""
+    if _batched(data):
+        each = [place_monocular(_member(data, i), {k: v[i] for k, v in params.items()}, floor)
+                for i in range(data.keypoints.shape[0])]  # fmt: skip
+        return {k: np.stack([e[0][k] for e in each]) for k in params}, [e[1] for e in each]
+    view = monocular_view(data)
+    if view is None:
+        return params, None
+    depth = monocular_depth(data, params, floor)
+    if depth["scale"] != 1.0:
+        params = rescale_about_camera(data, params, depth["scale"], view)
+    return params, depth
+
+
 def multiview_smplify(
     data: CameraData,
     weights: MuVSWeights = MuVSWeights(),
@@ -612,20 +783,32 @@ def multiview_smplify(
     temporal_silhouettes: bool = False,
     params0: dict | None = None,
     resolve_swaps: bool = True,
+    floor=None,
+    fps: float | None = None,
 ) -> MuVSResult:
     """MuVS on one sequence: stage 1 (+S if masks are given), then stage 2 (+T, +H).
 
     With `resolve_swaps` (default), views that swapped the legs are flipped back first
     (`resolve_left_right`, our addition, measured in the module docstring); False is MuVS
-    as written."""
+    as written. With one view the result says so (`MuVSResult.monocular`, `.depth`); the
+    body is then scaled about the camera by what `floor` = (up (3,), height), where known,
+    says of its size (`place_monocular`) after stage 1. `fps`: the recording's frame rate,
+    for the DCT windows' duration (`temporal_window`)."""
     data = resolve_left_right(data) if resolve_swaps else data
     p0 = initialise(data, weights.num_betas) if params0 is None else params0
     p1, costs = stage_one(data, p0, weights, silhouettes)
+    p1, depth = place_monocular(data, p1, floor)
     stage1 = {"poses": p1["pose"], "trans": p1["trans"], "betas": p1["betas"]}
     if not temporal:
-        return MuVSResult(p1["pose"], p1["trans"], np.median(p1["betas"], -2), stage1, costs)
-    p2, c2 = stage_two(data, p1, weights, temporal_silhouettes)
-    return MuVSResult(p2["pose"], p2["trans"], p2["betas"], stage1, {**costs, **c2})
+        final = {"pose": p1["pose"], "trans": p1["trans"], "betas": np.median(p1["betas"], -2)}
+    else:
+        final, c2 = stage_two(data, p1, weights, temporal_silhouettes, fps=fps)
+        costs = {**costs, **c2}
+    if depth is not None:  # the record of the final fit; k was applied after stage 1
+        depth = {**monocular_depth(data, final), "scale": depth["scale"], "from": depth["from"],
+                 "relative": depth["relative"], "ground": depth["ground"]}
+        depth["depth_uncertainty_m"] = depth["depth_m"] * depth["relative"]
+    return MuVSResult(final["pose"], final["trans"], final["betas"], stage1, costs, depth is not None, depth)
 
 
 def mask_views(data: CameraData, keep: Sequence[int]) -> CameraData:
