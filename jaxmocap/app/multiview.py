@@ -628,7 +628,7 @@ def fit_recording(
         final = {"pose": p1["pose"], "trans": p1["trans"], "betas": np.median(p1["betas"], 0)}
         if temporal:
             begin("stage 2")
-            p2, c2 = stage_two(data, p1, weights, silhouettes=False, fps=fps)
+            p2, c2 = stage_two(data, p1, weights, silhouettes=False)
             costs.update(c2)
             final = {"pose": p2["pose"], "trans": p2["trans"], "betas": p2["betas"]}
             done("stage 2")

@@ -7,10 +7,9 @@
   SMPLify, whose initialisation MuVS reuses; weights are traced, so every annealing step
   and ablation reuses one compiled solve.
 - **Stage 2, temporal** (§4.3.2): β fixed to the median of the stage-1 shapes; poses and
-  translations of all frames plus per-window DCT coefficients C (30-frame units of
-  HumanEva's 60 Hz, i.e. 0.5 s, first 10 components, §4.3.3; given the recording's fps
-  the windows keep that duration, `temporal_window`) minimise
-  E_2 = Σ_n E_M + λ_T Σ E_T (eq. 4.7-4.8); variant "+H" adds E_S here too.
+  translations of all frames plus per-window DCT coefficients C (30-frame units, first
+  10 components, §4.3.3) minimise E_2 = Σ_n E_M + λ_T Σ E_T (eq. 4.7-4.8); variant "+H"
+  adds E_S here too.
 - **Monocular** (Table 4.5): the same code with one view. The result says so
   (`MuVSResult.monocular`) with the depth along the camera's line of sight and its 1σ
   (`monocular_depth`: the body's size, the frames' depth scatter, and where the feet meet
@@ -76,7 +75,7 @@ from ..solve import Problem, frame, solve, solve_batch, with_weights
 
 __all__ = ["MuVSWeights", "MuVSResult", "camera_data", "compact", "initialise", "resolve_left_right", "stage_one", "stage_two",
            "multiview_smplify", "mask_views", "stack", "monocular_view", "monocular_depth", "place_monocular",
-           "rescale_about_camera", "STATURE_CV", "temporal_window"]
+           "rescale_about_camera", "STATURE_CV", "reprojection_px"]
 
 
 #: Focal length (px) of the cameras MuVSWeights were tuned with: 256 x 192 px, 55° vertical.
@@ -94,7 +93,11 @@ class MuVSWeights:
         on our 256 x 192 images) is then outvoted by the others, which σ₁ = 100 px
         (SMPLify's) never did; with one view nothing outvotes it, and a small σ₁ only
         lets the depth drift (3 CMU clips: MPJPE 1.1 m at 100 px, 290 m at 10 px).
-    pose_prior, shape: λ_θ, λ_β; anneal: λ_θ multipliers of the stage-1 joint fit.
+    pose_prior, shape: λ_θ, λ_β; anneal: λ_θ multipliers of the stage-1 joint fit. On
+        keypoints alone λ_β = 50 keeps β short of the truth: a synthetic walk with
+        β₀ = 1 (3 views, 2 px noise, λ_θ = 1) fitted β₀ = 0.51 and limbs 2-4 % short of
+        the true ones; λ_β = 10: 0.89, 1-2 %; λ_β = 2: 1.06, within 1 % (triangulating
+        the same detections made them 0-8 % long: noise lengthens them).
     silhouette_model, silhouette_mask: the two sums of E_S (eq. 4.5); silhouette_points:
         model points of E_S, a fixed subsample of the mesh (`compact`; None: every
         silhouette_stride-th vertex); silhouette_slack: px within which a mask point
@@ -105,13 +108,17 @@ class MuVSWeights:
         of 20 steps); E_2 falls slowly (10 / 20 / 40 steps: 86k / 73k / 42k on 02_01),
         and 10 steps of stage 2 left its MPJPE above stage 1's.
     temporal: λ_T; temporal_sigma: σ₂ (m); window, num_dct: DCT unit and basis size.
-    window_fps: the frame rate `window` is counted at: Huang's 30-frame units are of
-        HumanEva's 60 Hz video, 0.5 s with 10 vectors (up to 10 Hz). Given the recording's
-        fps, stage 2 keeps that duration (`temporal_window`: 15 frames at 30 fps); None, or
-        no fps given, takes `window` frames as they are. At 30 fps, 30 frames (1 s, 5 Hz)
-        left a synthetic walk's joints 4.5 mm from the basis span, 15 frames 1.5 mm, and E_T
-        (λ_T = 2e5: trusting the span to 1.6 mm) pulled clean data's fit off by the rest:
-        median reprojection 0.074 -> 0.169 px with λ_θ = 1, 0.084 px with 15 frames.
+    temporal_noise: px (at `reference_focal`) of stage 1's median reprojection error at
+        and above which λ_T applies in full; below it λ_T × (error / temporal_noise)²
+        (`_temporal_weight`, ours); None: always in full, as written. E_J's fixed weight
+        stands for detections good to about a pixel and λ_T = 2e5 trusts the DCT span to
+        1.6 mm, while 10 vectors of 30 frames at 30 fps leave a synthetic walk's joints
+        4.5 mm from the span: on noise-free keypoints (stage 1 at 0.074 px, λ_θ = 1)
+        stage 2 pulled the fit off by that, to 0.169 px and MPJPE 4.8 -> 7.3 mm, however
+        many steps (it converged in 19). Noise makes E_J's residuals, not the span, the
+        larger error; weighting E_T by the residual variance is then what a posterior
+        would do (2 px noise: stage 1 at 2.07 px, λ_T in full; with 15-frame windows
+        instead, stage 2 smoothed half as much: MPJPE 21.5 -> 28.7 mm).
     reference_focal: the focal length (px) the pixel quantities above are given for: σ₁,
         the silhouette slack, and the px² scales of E_J and E_S. Each recording converts
         them by s = its mean focal length / reference_focal (`_in_pixels`), so the same
@@ -137,7 +144,7 @@ class MuVSWeights:
     temporal_sigma: float = 0.05
     window: int = 30
     num_dct: int = 10
-    window_fps: float | None = 60.0
+    temporal_noise: float | None = 2.0
     num_betas: int = 10
     reference_focal: float | None = REFERENCE_FOCAL
 
@@ -582,21 +589,9 @@ def stage_one(data: CameraData, params0: dict, weights: MuVSWeights = MuVSWeight
     return {k: np.asarray(v) for k, v in p.items()}, costs
 
 
-def temporal_window(weights: MuVSWeights, fps: float | None) -> int:
-    """Frames per DCT window: `weights.window` at `weights.window_fps`, as many seconds at
-    `fps` (at least `weights.num_dct` frames); `weights.window` when either is None."""
-    if fps is None or weights.window_fps is None:
-        return weights.window
-    if not (isinstance(fps, (int, float, np.integer, np.floating)) and np.isfinite(fps) and fps > 0):
-        raise ValueError(f"fps must be a positive number of frames per second, got {fps!r}.")
-    return max(weights.num_dct, round(weights.window * float(fps) / weights.window_fps))
-
-
 def stage_two(data: CameraData, params1: dict, weights: MuVSWeights = MuVSWeights(), silhouettes: bool = False,
-              max_steps: int | None = None, fps: float | None = None) -> tuple[dict, dict]:
-    """Temporal fit (eq. 4.7-4.8) with β = median of the stage-1 shapes; DCT windows of
-    `temporal_window(weights, fps)` frames (give the recording's fps: Huang's windows last
-    0.5 s).
+              max_steps: int | None = None) -> tuple[dict, dict]:
+    """Temporal fit (eq. 4.7-4.8) with β = median of the stage-1 shapes.
 
     E_T is a basis term (`energies.camera.temporal_term`): the engine eliminates the DCT
     coefficients by their Kronecker structure (`jaxmocap.solve.basis`).
@@ -604,7 +599,6 @@ def stage_two(data: CameraData, params1: dict, weights: MuVSWeights = MuVSWeight
     "temporal_result"}).
     """
     dtype = data.K.dtype
-    weights = weights.replace(window=temporal_window(weights, fps), window_fps=None)
     betas = np.median(np.asarray(params1["betas"]), -2)  # over frames: (B,) or (batch, B)
     data2 = dataclasses_replace(data, betas=jnp.asarray(betas, dtype))
     body = _member(data, 0).body if _batched(data) else data.body
@@ -621,6 +615,7 @@ def stage_two(data: CameraData, params1: dict, weights: MuVSWeights = MuVSWeight
     data2 = compact(data2, weights.silhouette_points if use_sil else 0, weights.silhouette_stride)
     max_steps = weights.steps[2] if max_steps is None else max_steps
     w, delta = _in_pixels(weights, data)
+    w = w.replace(temporal=_temporal_weight(data, params1, weights, delta))
     prob = _stage_two_problem(_sigma(data, w), w.silhouette_stride, w.silhouette_slack, use_sil, w.window,
                               w.num_dct, w.temporal_sigma, delta)  # fmt: skip
     sol = _solve(_weighted(prob, w, dtype), p, data2, max_steps)
@@ -628,6 +623,35 @@ def stage_two(data: CameraData, params1: dict, weights: MuVSWeights = MuVSWeight
     out["betas"] = betas
     return out, {"temporal": np.asarray(sol.cost).tolist(), "temporal_steps": np.asarray(sol.num_steps).tolist(),
                  "temporal_result": np.asarray(sol.result).tolist()}  # fmt: skip
+
+
+def reprojection_px(data: CameraData, params: dict) -> float:
+    """Median distance (px) of the model's keypoints to the detections (confidence > 0)
+    over all frames and views; batched data: the median over members."""
+    if _batched(data):
+        return float(np.median([reprojection_px(_member(data, i), {k: v[i] for k, v in params.items()})
+                                for i in range(data.keypoints.shape[0])]))  # fmt: skip
+    verts, _ = _full_pose(data, params)
+    kp = np.einsum("kn,tnc->tkc", np.asarray(data.regressor, np.float64), verts)
+    K, R, t = (np.asarray(a, np.float64) for a in (data.K, data.R, data.t))
+    cam = np.einsum("vab,tkb->tvka", R, kp) + t[None, :, None]
+    uv = np.einsum("vab,tvkb->tvka", K, cam)
+    uv = uv[..., :2] / uv[..., 2:]
+    seen = np.asarray(data.confidence) > 0
+    err = np.linalg.norm(uv - np.asarray(data.keypoints, np.float64), axis=-1)[seen]
+    return float(np.median(err)) if err.size else float("nan")
+
+
+def _temporal_weight(data: CameraData, params1: dict, weights: MuVSWeights, scale: float) -> float:
+    """λ_T for stage 2: in full when stage 1 leaves `weights.temporal_noise` px or more
+    (at the reference focal length; `scale` converts), less in proportion to the
+    residual variance below that (`MuVSWeights.temporal_noise`)."""
+    if weights.temporal_noise is None:
+        return weights.temporal
+    error = reprojection_px(data, params1) / scale
+    if not np.isfinite(error):
+        return weights.temporal
+    return weights.temporal * min(1.0, (error / weights.temporal_noise) ** 2)
 
 
 def dataclasses_replace(data: CameraData, **changes) -> CameraData:
@@ -784,7 +808,6 @@ def multiview_smplify(
     params0: dict | None = None,
     resolve_swaps: bool = True,
     floor=None,
-    fps: float | None = None,
 ) -> MuVSResult:
     """MuVS on one sequence: stage 1 (+S if masks are given), then stage 2 (+T, +H).
 
@@ -792,8 +815,7 @@ def multiview_smplify(
     (`resolve_left_right`, our addition, measured in the module docstring); False is MuVS
     as written. With one view the result says so (`MuVSResult.monocular`, `.depth`); the
     body is then scaled about the camera by what `floor` = (up (3,), height), where known,
-    says of its size (`place_monocular`) after stage 1. `fps`: the recording's frame rate,
-    for the DCT windows' duration (`temporal_window`)."""
+    says of its size (`place_monocular`) after stage 1."""
     data = resolve_left_right(data) if resolve_swaps else data
     p0 = initialise(data, weights.num_betas) if params0 is None else params0
     p1, costs = stage_one(data, p0, weights, silhouettes)
@@ -802,7 +824,7 @@ def multiview_smplify(
     if not temporal:
         final = {"pose": p1["pose"], "trans": p1["trans"], "betas": np.median(p1["betas"], -2)}
     else:
-        final, c2 = stage_two(data, p1, weights, temporal_silhouettes, fps=fps)
+        final, c2 = stage_two(data, p1, weights, temporal_silhouettes)
         costs = {**costs, **c2}
     if depth is not None:  # the record of the final fit; k was applied after stage 1
         depth = {**monocular_depth(data, final), "scale": depth["scale"], "from": depth["from"],
