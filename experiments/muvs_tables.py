@@ -14,7 +14,7 @@ as one batch: stage 1 on joints (MuVS^n), + silhouettes (^S), stage 2 (^S,T), st
 silhouettes (^S,T,H). MPJPE over SMPL's 24 joints in mm without alignment (Huang §4.4.1);
 monocular also after per-frame similarity alignment ("Sim", Table 4.5); its fits are scaled
 about the camera by where their feet meet the floor after stage 1 (`place_monocular`,
-the library's one-camera depth; 3 clips x 40 frames on CPU: 706 -> 649 mm unaligned,
+the library's one-camera depth; 3 clips x 40 frames on CPU: 706 -> 664 mm unaligned,
 aligned 121 mm either way). Shape error: mean
 vertex distance of the zero-pose meshes (Table 4.2). Leg-swap repair: of the (view, frame)
 pairs whose detected legs were swapped while the true knees and ankles were >= 15 cm apart, the

@@ -330,3 +330,24 @@ def test_one_view_says_it_is_monocular_and_how_uncertain_its_depth_is(scene):
     assert abs(ground.depth["depth_m"] - true_depth) < abs(alone.depth["depth_m"] - true_depth)
     both = mv.multiview_smplify(data, w, silhouettes=False, temporal=False)
     assert not both.monocular and both.depth is None
+
+
+def test_the_floor_puts_a_body_of_the_wrong_size_back_at_its_depth(scene):
+    """A body 10 % too small and too close looks the same to one camera (`rescale_about_camera`);
+    where its feet meet the floor says how far it is (`place_monocular`). No solve."""
+    body = scene["body"]
+    data = mv.camera_data(body, scene["K"], scene["R"], scene["t"], scene["kp"], "body25")
+    one = mv.mask_views(data, [0])
+    truth = {"pose": scene["pose"], "trans": scene["trans"], "betas": np.broadcast_to(scene["betas"], (6, 10))}
+    small = mv.rescale_about_camera(one, truth, 1 / 1.1, 0)
+    assert mv.reprojection_px(one, small) < 0.5 and mv.reprojection_px(one, truth) < 0.05
+    depth = lambda p: np.median((mv._full_pose(one, p)[1][:, 0] @ scene["R"][0].T + scene["t"][0])[:, 2])  # noqa: E731
+    assert depth(small) == pytest.approx(depth(truth) / 1.1, rel=1e-3)
+    verts, _ = mv._full_pose(one, truth)
+    floor = ((0.0, 1.0, 0.0), float(verts[0, :, 1].min()))  # the feet of the first frame stand on it
+    placed, d = mv.place_monocular(one, small, floor)
+    assert d["ground"] is not None and d["scale"] > 1.0
+    assert abs(depth(placed) - depth(truth)) < 0.5 * abs(depth(small) - depth(truth))
+    assert abs(d["depth_m"] - depth(truth)) < 2 * d["depth_uncertainty_m"]
+    same, none = mv.place_monocular(data, small, floor)
+    assert none is None and same is small
