@@ -709,6 +709,9 @@ def monocular_depth(data: CameraData, params: dict, floor=None) -> dict:
       frames, the tables' detector) the fit stood 10-16 % too close at the right body
       size (the pose prior's foreshortening, not the size ambiguity), which the ground
       only partly sees (k 0.99-1.05): unaligned MPJPE 706 -> 664 mm, the truth 1.1-2.4σ away.
+      Stage 1 itself settles there: started at the depths where the detected feet meet the
+      floor (init 958 -> 445 mm), it returned to 4.08-4.25 m (692 mm); a floor term in the
+      fit, not a better start, is what one view still lacks.
     The two are combined by their inverse variances.
     Returns {"view", "depth_m" (median pelvis depth after scaling by k),
     "depth_uncertainty_m" (1σ), "relative", "scale" (k), "from", "size": {...},
