@@ -10,7 +10,10 @@
   translations of all frames plus per-window DCT coefficients C (30-frame units, first
   10 components, §4.3.3) minimise E_2 = Σ_n E_M + λ_T Σ E_T (eq. 4.7-4.8); variant "+H"
   adds E_S here too.
-- **Monocular** (Table 4.5): the same code with one view.
+- **Monocular** (Table 4.5): the same code with one view. The result says so
+  (`MuVSResult.monocular`) with the depth along the camera's line of sight and its 1σ
+  (`monocular_depth`: the body's size, the frames' depth scatter, and where the feet meet
+  a known floor, `place_monocular`).
 
 Left/right swaps (ours, on by default in `multiview_smplify` and the CLI): before stage 1,
 `resolve_left_right` flips back the leg labels of any view that disagrees with the others
@@ -38,6 +41,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import math
 import warnings
 from collections.abc import Sequence
 
@@ -45,6 +49,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+from scipy.ndimage import median_filter
 
 from ..body.compact import compact_body
 from ..body.kinematics import forward, shaped_joints
@@ -68,7 +73,9 @@ from ..sensors.keypoints import KEYPOINT_FORMATS, flip_pairs, keypoint_regressor
 from ..sensors.triangulation import triangulate
 from ..solve import Problem, frame, solve, solve_batch, with_weights
 
-__all__ = ["MuVSWeights", "MuVSResult", "camera_data", "compact", "initialise", "resolve_left_right", "stage_one", "stage_two", "multiview_smplify", "mask_views", "stack"]
+__all__ = ["MuVSWeights", "MuVSResult", "camera_data", "compact", "initialise", "resolve_left_right", "stage_one", "stage_two",
+           "multiview_smplify", "mask_views", "stack", "monocular_view", "monocular_depth", "place_monocular",
+           "rescale_about_camera", "STATURE_CV", "reprojection_px"]
 
 
 #: Focal length (px) of the cameras MuVSWeights were tuned with: 256 x 192 px, 55° vertical.
@@ -86,7 +93,11 @@ class MuVSWeights:
         on our 256 x 192 images) is then outvoted by the others, which σ₁ = 100 px
         (SMPLify's) never did; with one view nothing outvotes it, and a small σ₁ only
         lets the depth drift (3 CMU clips: MPJPE 1.1 m at 100 px, 290 m at 10 px).
-    pose_prior, shape: λ_θ, λ_β; anneal: λ_θ multipliers of the stage-1 joint fit.
+    pose_prior, shape: λ_θ, λ_β; anneal: λ_θ multipliers of the stage-1 joint fit. On
+        keypoints alone λ_β = 50 keeps β short of the truth: a synthetic walk with
+        β₀ = 1 (3 views, 2 px noise, λ_θ = 1) fitted β₀ = 0.51 and limbs 2-4 % short of
+        the true ones; λ_β = 10: 0.89, 1-2 %; λ_β = 2: 1.06, within 1 % (triangulating
+        the same detections made them 0-8 % long: noise lengthens them).
     silhouette_model, silhouette_mask: the two sums of E_S (eq. 4.5); silhouette_points:
         model points of E_S, a fixed subsample of the mesh (`compact`; None: every
         silhouette_stride-th vertex); silhouette_slack: px within which a mask point
@@ -97,6 +108,17 @@ class MuVSWeights:
         of 20 steps); E_2 falls slowly (10 / 20 / 40 steps: 86k / 73k / 42k on 02_01),
         and 10 steps of stage 2 left its MPJPE above stage 1's.
     temporal: λ_T; temporal_sigma: σ₂ (m); window, num_dct: DCT unit and basis size.
+    temporal_noise: px (at `reference_focal`) of stage 1's median reprojection error at
+        and above which λ_T applies in full; below it λ_T × (error / temporal_noise)²
+        (`_temporal_weight`, ours); None: always in full, as written. E_J's fixed weight
+        stands for detections good to about a pixel and λ_T = 2e5 trusts the DCT span to
+        1.6 mm, while 10 vectors of 30 frames at 30 fps leave a synthetic walk's joints
+        4.5 mm from the span: on noise-free keypoints (stage 1 at 0.074 px, λ_θ = 1)
+        stage 2 pulled the fit off by that, to 0.169 px and MPJPE 4.8 -> 7.3 mm, however
+        many steps (it converged in 19). Noise makes E_J's residuals, not the span, the
+        larger error; weighting E_T by the residual variance is then what a posterior
+        would do (2 px noise: stage 1 at 2.07 px, λ_T in full; with 15-frame windows
+        instead, stage 2 smoothed half as much: MPJPE 21.5 -> 28.7 mm).
     reference_focal: the focal length (px) the pixel quantities above are given for: σ₁,
         the silhouette slack, and the px² scales of E_J and E_S. Each recording converts
         them by s = its mean focal length / reference_focal (`_in_pixels`), so the same
@@ -122,6 +144,7 @@ class MuVSWeights:
     temporal_sigma: float = 0.05
     window: int = 30
     num_dct: int = 10
+    temporal_noise: float | None = 2.0
     num_betas: int = 10
     reference_focal: float | None = REFERENCE_FOCAL
 
@@ -132,13 +155,17 @@ class MuVSWeights:
 @dataclasses.dataclass(frozen=True)
 class MuVSResult:
     """Poses (T, 24, 3) axis-angle, trans (T, 3), betas (B,) of the final stage, the
-    stage-1 outcome (`stage1`: poses, trans, per-frame betas (T, B)), and per-stage costs."""
+    stage-1 outcome (`stage1`: poses, trans, per-frame betas (T, B)), and per-stage costs.
+    monocular: one view saw the person, so depth along its line of sight was not measured;
+    depth: then `monocular_depth`'s record (depth, its 1σ uncertainty, what it came from)."""
 
     poses: np.ndarray
     trans: np.ndarray
     betas: np.ndarray
     stage1: dict
     costs: dict
+    monocular: bool = False
+    depth: dict | None = None
 
 
 def camera_data(
@@ -588,6 +615,7 @@ def stage_two(data: CameraData, params1: dict, weights: MuVSWeights = MuVSWeight
     data2 = compact(data2, weights.silhouette_points if use_sil else 0, weights.silhouette_stride)
     max_steps = weights.steps[2] if max_steps is None else max_steps
     w, delta = _in_pixels(weights, data)
+    w = w.replace(temporal=_temporal_weight(data, params1, weights, delta))
     prob = _stage_two_problem(_sigma(data, w), w.silhouette_stride, w.silhouette_slack, use_sil, w.window,
                               w.num_dct, w.temporal_sigma, delta)  # fmt: skip
     sol = _solve(_weighted(prob, w, dtype), p, data2, max_steps)
@@ -597,11 +625,187 @@ def stage_two(data: CameraData, params1: dict, weights: MuVSWeights = MuVSWeight
                  "temporal_result": np.asarray(sol.result).tolist()}  # fmt: skip
 
 
+def reprojection_px(data: CameraData, params: dict) -> float:
+    """Median distance (px) of the model's keypoints to the detections (confidence > 0)
+    over all frames and views; batched data: the median over members."""
+    if _batched(data):
+        return float(np.median([reprojection_px(_member(data, i), {k: v[i] for k, v in params.items()})
+                                for i in range(data.keypoints.shape[0])]))  # fmt: skip
+    verts, _ = _full_pose(data, params)
+    kp = np.einsum("kn,tnc->tkc", np.asarray(data.regressor, np.float64), verts)
+    K, R, t = (np.asarray(a, np.float64) for a in (data.K, data.R, data.t))
+    cam = np.einsum("vab,tkb->tvka", R, kp) + t[None, :, None]
+    uv = np.einsum("vab,tvkb->tvka", K, cam)
+    uv = uv[..., :2] / uv[..., 2:]
+    seen = np.asarray(data.confidence) > 0
+    err = np.linalg.norm(uv - np.asarray(data.keypoints, np.float64), axis=-1)[seen]
+    return float(np.median(err)) if err.size else float("nan")
+
+
+def _temporal_weight(data: CameraData, params1: dict, weights: MuVSWeights, scale: float) -> float:
+    """λ_T for stage 2: in full when stage 1 leaves `weights.temporal_noise` px or more
+    (at the reference focal length; `scale` converts), less in proportion to the
+    residual variance below that (`MuVSWeights.temporal_noise`)."""
+    if weights.temporal_noise is None:
+        return weights.temporal
+    error = reprojection_px(data, params1) / scale
+    if not np.isfinite(error):
+        return weights.temporal
+    return weights.temporal * min(1.0, (error / weights.temporal_noise) ** 2)
+
+
 def dataclasses_replace(data: CameraData, **changes) -> CameraData:
     """`data` with fields replaced (an equinox Module is immutable)."""
     keys = list(changes)
     return eqx.tree_at(lambda d: [getattr(d, k) for k in keys], data, [changes[k] for k in keys],
                        is_leaf=lambda x: x is None)
+
+
+# --- one camera: depth from the body's size and the ground -------------------------------
+
+#: Relative spread (1σ) of body size (adult stature: SD ≈ 9 cm about 1.70 m, sexes pooled).
+#: With one view, depth is the body's size in pixels read against the fitted body's size,
+#: which the shape prior keeps near the mean body: this is that depth's relative error.
+STATURE_CV = 0.055
+#: Feet lift off the floor (a step, a jump): the ground gives the size from the frames whose
+#: lowest point is lowest, this quantile of the per-frame scales (ours).
+GROUND_QUANTILE = 0.25
+
+
+def monocular_view(data: CameraData) -> int | None:
+    """The one view that has detections, or None when there are none or several."""
+    seen = np.flatnonzero(np.asarray(jnp.any(data.confidence > 0, axis=(0, 2))))
+    return int(seen[0]) if len(seen) == 1 else None
+
+
+def _full_pose(data: CameraData, params: dict):
+    """Vertices (T, N, 3) and joints (T, 24, 3) (float64) of params on data's body."""
+    betas = np.asarray(params["betas"], np.float64)
+    T = len(params["pose"])
+    betas = np.broadcast_to(betas if betas.ndim == 2 else betas[None], (T, betas.shape[-1]))
+    out = forward(data.body, jnp.asarray(params["pose"], data.body.dtype), jnp.asarray(betas, data.body.dtype),
+                  jnp.asarray(params["trans"], data.body.dtype))  # fmt: skip
+    return np.asarray(out.vertices, np.float64), np.asarray(out.joints, np.float64)
+
+
+def monocular_depth(data: CameraData, params: dict, floor=None) -> dict:
+    """With one view: how far the body is along that camera's line of sight, how uncertain
+    that is, and the scale `k` (about the camera centre) that the ground asks for.
+
+    One view measures the body's size in pixels, not its depth: a body k times larger k
+    times further away looks the same. Two estimates of the scale (ours; MuVS's monocular
+    variant, Table 4.5, is evaluated after similarity alignment only):
+    - the body's size: the fit's shape, which the shape prior keeps near the mean body:
+      k = 1 ± `STATURE_CV` combined with the detections' scale error (median reprojection
+      over the body's median pixel extent) and the frames' depth scatter (1.4826 MAD about
+      a 9-frame running median, over the depth: the depth each frame's pose allows);
+    - the ground, with `floor` = (up (3,), height) the plane {x: up·x = height} and the
+      camera above it: per frame, the k that puts the body's lowest vertex on the floor
+      (a point at height y below a camera at height h: k = h / (h - y)); the frames whose
+      feet are down are the lower `GROUND_QUANTILE` of those k; error: the spread of k
+      over all frames (1.4826 MAD), the frames' depth scatter (the feet are the fit's) and
+      the angle of the feet under the horizon (δd/d = δα / (sin α cos α), δα the
+      reprojection error over the focal length). On 3 CMU clips (one view of 4, 40
+      frames, the tables' detector) the fit stood 10-16 % too close at the right body
+      size (the pose prior's foreshortening, not the size ambiguity), which the ground
+      only partly sees (k 0.99-1.05): unaligned MPJPE 706 -> 664 mm, the truth 1.1-2.4σ away.
+      Stage 1 itself settles there: started at the depths where the detected feet meet the
+      floor (init 958 -> 445 mm), it returned to 4.08-4.25 m (692 mm); a floor term in the
+      fit, not a better start, is what one view still lacks.
+    The two are combined by their inverse variances.
+    Returns {"view", "depth_m" (median pelvis depth after scaling by k),
+    "depth_uncertainty_m" (1σ), "relative", "scale" (k), "from", "size": {...},
+    "ground": {...} or None}.
+    """
+    view = monocular_view(data)
+    if view is None:
+        raise ValueError("monocular_depth: the data must have detections in exactly one view.")
+    K, R, t = (np.asarray(a, np.float64)[view] for a in (data.K, data.R, data.t))
+    verts, joints = _full_pose(data, params)
+    per_frame = (joints[:, 0] @ R.T + t)[:, 2]
+    depth = float(np.median(per_frame))
+    # frames fitted independently (stage 1) scatter in depth as much as their poses can
+    # trade depth for foreshortening: their spread about a running median is an error too
+    scatter = 1.4826 * float(np.median(np.abs(per_frame - median_filter(per_frame, min(9, len(per_frame)), mode="nearest"))))
+    # the detections' scale error: reprojection over the body's extent in the image
+    reg = np.asarray(data.regressor, np.float64)
+    kp = np.einsum("kn,tnc->tkc", reg, verts) @ R.T + t
+    uv = kp[..., :2] / kp[..., 2:] * np.diag(K)[:2] + K[:2, 2]
+    det = np.asarray(data.keypoints, np.float64)[:, view]
+    seen = np.asarray(data.confidence)[:, view] > 0
+    px = float(np.median(np.linalg.norm(uv - det, axis=-1)[seen])) if seen.any() else 0.0
+    extents = [np.ptp(d[s], 0).max() for d, s in zip(det, seen) if s.sum() >= 2]
+    extent = float(np.median(extents)) if extents else float("nan")
+    size_rel = math.hypot(STATURE_CV, px / extent if extent > 0 else 0.0, scatter / depth)
+    ground = None
+    if floor is not None:
+        up, height = np.asarray(floor[0], np.float64), float(floor[1])
+        up = up / np.linalg.norm(up)
+        centre = -R.T @ t
+        h = float(up @ centre) - height
+        lowest = (verts @ up).min(1) - height  # (T,)
+        if h > 0 and np.any(lowest < h):
+            k_t = h / (h - lowest[lowest < h])
+            down = k_t[k_t <= np.quantile(k_t, GROUND_QUANTILE)]
+            k_g = float(np.median(down))
+            alpha = math.atan2(h, depth)
+            angle = (px / float(np.mean(np.diag(K)[:2]))) / (math.sin(alpha) * math.cos(alpha))
+            spread = 1.4826 * float(np.median(np.abs(k_t - np.median(k_t))))  # over all frames: the fit's feet
+            ground_rel = math.hypot(spread, angle, scatter / depth)
+            ground = {"scale": k_g, "relative": ground_rel, "camera_height_m": h, "frames": int(len(down))}
+    if ground is None:
+        k, rel, source = 1.0, size_rel, "the body's size in the image (shape prior: the mean body)"
+    else:
+        w_s, w_g = size_rel**-2, ground["relative"] ** -2
+        k = (w_s * 1.0 + w_g * ground["scale"]) / (w_s + w_g)
+        rel = (w_s + w_g) ** -0.5
+        source = "the body's size in the image and where its feet meet the floor"
+    return {"view": view, "depth_m": depth * k, "depth_uncertainty_m": depth * k * rel, "relative": rel, "scale": k,
+            "from": source, "size": {"relative": size_rel, "reprojection_px": px, "body_extent_px": extent,
+                                     "frame_scatter_m": scatter},
+            "ground": ground}  # fmt: skip
+
+
+def rescale_about_camera(data: CameraData, params: dict, scale: float, view: int, num_betas: int | None = None) -> dict:
+    """params with the body scaled by `scale` about the centre of camera `view`: the same
+    image, `scale` times the size and the distance. The larger body is the shape β' whose
+    rest mesh is closest (least squares, up to a shift) to `scale` × the old one; every
+    frame keeps its pose and moves its pelvis along its line of sight."""
+    body = data.body
+    betas = np.asarray(params["betas"], np.float64)
+    B = betas.shape[-1] if num_betas is None else num_betas
+    S = np.asarray(body.shapedirs, np.float64)[:B]  # (B, V, 3)
+    Tm = np.asarray(body.v_template, np.float64)
+    shared = betas if betas.ndim == 1 else np.median(betas, 0)
+    target = scale * (Tm + np.einsum("b,bvc->vc", shared, S))
+    A = np.concatenate([S.reshape(B, -1).T, np.tile(np.eye(3), (len(Tm), 1))], 1)  # β' and a shift
+    new = np.linalg.lstsq(A, (target - Tm).reshape(-1), rcond=None)[0][:B]
+    R, t = (np.asarray(a, np.float64)[view] for a in (data.R, data.t))
+    centre = -R.T @ t
+    _, joints = _full_pose(data, params)
+    moved = {**params, "betas": np.broadcast_to(new, betas.shape).astype(betas.dtype).copy()}
+    _, joints_new = _full_pose(data, moved)
+    pelvis = centre + scale * (joints[:, 0] - centre)
+    moved["trans"] = np.asarray(params["trans"]) + (pelvis - joints_new[:, 0]).astype(np.asarray(params["trans"]).dtype)
+    return moved
+
+
+def place_monocular(data: CameraData, params: dict, floor=None) -> tuple[dict, dict | None]:
+    """(params, depth): with one view, params scaled about the camera by `monocular_depth`'s
+    k (the ground's evidence on the body's size) and that depth record; with several views
+    params unchanged and None. Batched data: per member (a list of depths, or None)."""
+    if _batched(data):
+        each = [place_monocular(_member(data, i), {k: v[i] for k, v in params.items()}, floor)
+                for i in range(data.keypoints.shape[0])]  # fmt: skip
+        depths = [e[1] for e in each]
+        return {k: np.stack([e[0][k] for e in each]) for k in params}, None if depths == [None] * len(depths) else depths
+    view = monocular_view(data)
+    if view is None:
+        return params, None
+    depth = monocular_depth(data, params, floor)
+    if depth["scale"] != 1.0:
+        params = rescale_about_camera(data, params, depth["scale"], view)
+    return params, depth
 
 
 def multiview_smplify(
@@ -612,20 +816,30 @@ def multiview_smplify(
     temporal_silhouettes: bool = False,
     params0: dict | None = None,
     resolve_swaps: bool = True,
+    floor=None,
 ) -> MuVSResult:
     """MuVS on one sequence: stage 1 (+S if masks are given), then stage 2 (+T, +H).
 
     With `resolve_swaps` (default), views that swapped the legs are flipped back first
     (`resolve_left_right`, our addition, measured in the module docstring); False is MuVS
-    as written."""
+    as written. With one view the result says so (`MuVSResult.monocular`, `.depth`); the
+    body is then scaled about the camera by what `floor` = (up (3,), height), where known,
+    says of its size (`place_monocular`) after stage 1."""
     data = resolve_left_right(data) if resolve_swaps else data
     p0 = initialise(data, weights.num_betas) if params0 is None else params0
     p1, costs = stage_one(data, p0, weights, silhouettes)
+    p1, depth = place_monocular(data, p1, floor)
     stage1 = {"poses": p1["pose"], "trans": p1["trans"], "betas": p1["betas"]}
     if not temporal:
-        return MuVSResult(p1["pose"], p1["trans"], np.median(p1["betas"], -2), stage1, costs)
-    p2, c2 = stage_two(data, p1, weights, temporal_silhouettes)
-    return MuVSResult(p2["pose"], p2["trans"], p2["betas"], stage1, {**costs, **c2})
+        final = {"pose": p1["pose"], "trans": p1["trans"], "betas": np.median(p1["betas"], -2)}
+    else:
+        final, c2 = stage_two(data, p1, weights, temporal_silhouettes)
+        costs = {**costs, **c2}
+    if isinstance(depth, dict):  # the record of the final fit; k was applied after stage 1
+        depth = {**monocular_depth(data, final), "scale": depth["scale"], "from": depth["from"],
+                 "relative": depth["relative"], "ground": depth["ground"]}
+        depth["depth_uncertainty_m"] = depth["depth_m"] * depth["relative"]
+    return MuVSResult(final["pose"], final["trans"], final["betas"], stage1, costs, depth is not None, depth)
 
 
 def mask_views(data: CameraData, keep: Sequence[int]) -> CameraData:
