@@ -73,16 +73,33 @@ def random_body(smpl_dict):
     )
 
 
+#: A worker drops JAX's compiled programs after a test module once it holds this much memory
+#: (JAXMOCAP_TEST_RELEASE_GB; 0: after every module).
+_RELEASE_ABOVE = float(os.environ.get("JAXMOCAP_TEST_RELEASE_GB", "3")) * 2**30
+
+
+def _resident_bytes() -> float:
+    """This process's resident memory (Linux); elsewhere +inf, so that every module releases."""
+    try:
+        with open("/proc/self/statm") as f:
+            return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
+    except (OSError, ValueError, IndexError):
+        return float("inf")
+
+
 @pytest.fixture(scope="module", autouse=True)
 def _release_compiled_programs():
-    """Drop JAX's compiled programs after each test module: the suite runs in one process
-    and would otherwise keep every module's executables (several GB by the end; a compile
-    late in the run crashed once under that memory pressure)."""
+    """Drop JAX's compiled programs after a test module when the worker holds more than
+    `_RELEASE_ABOVE`: a process that kept every module's executables grew to several GB and
+    a late compile crashed once under that memory pressure; releasing after *every* module
+    made each one trace, lower and load from disk again the programs the modules share
+    (the body, the solves at the test shapes, hundreds of small eager operations)."""
     yield
-    import gc
+    if _resident_bytes() > _RELEASE_ABOVE:
+        import gc
 
-    jax.clear_caches()
-    gc.collect()
+        jax.clear_caches()
+        gc.collect()
 
 
 # `JAXMOCAP_COMPILE_REPORT=FILE make test` appends one JSON line per test: seconds spent
