@@ -21,8 +21,8 @@ Rows (all from one object track and one human-only fit per scene):
 
 Metrics (`jaxmocap.metrics.interaction_metrics`, `object_pose_errors`): in the true contact
 frames, the deepest body vertex inside the object (fraction of frames at most 5 / 7 / 20 mm
-deep, mean; thesis 60 / 80 / 98 %, 7.2 mm), the contact gap (closest grip vertex to the
-object surface), mean vertex-to-point-cloud distance body / object (thesis 20.29 / 18.50
+deep, mean; thesis 60 / 80 / 98 %, 7.2 mm), the contact gap (closest right-hand vertex to the
+object surface, as E_C measures it), mean vertex-to-point-cloud distance body / object (thesis 20.29 / 18.50
 mm), body MPJPE without alignment, object ADD-S, depth below the floor. `contact_f1`: the
 detected contact frames against the true ones.
 
@@ -55,7 +55,6 @@ from jaxmocap.body import default_body, forward
 from jaxmocap.methods.interaction import (
     InterCapWeights,
     InteractionObservations,
-    contact_region,
     detect_contact,
     fit_human,
     fit_joint,
@@ -66,6 +65,7 @@ from jaxmocap.metrics import interaction_metrics, object_pose_errors
 from jaxmocap.motion.corpus import corpus, interleave
 from jaxmocap.motion.splits import DEVELOPMENT, LEAVE_SUBJECT_OUT, Split
 from jaxmocap.priors.build import evaluation_prior
+from jaxmocap.sensors.objects import contact_vertices
 from jaxmocap.sensors.scenario import interaction_config, make_scenario
 
 OBJECTS = ("box", "bottle", "chair")
@@ -121,7 +121,7 @@ def evaluate(body, obs, seq, fit) -> dict:
     m = interaction_metrics(
         out.vertices, out.joints, seq["joints"][0], fit["object_R"], fit["object_t"], object_sdf(obs.obj),
         seq["contact"], obs.body_points, obs.body_valid, obs.object_points, obs.object_valid,
-        contact_region(body, PART), obs.obj.vertices,
+        contact_vertices(body, PART), obs.obj.vertices,
     )  # fmt: skip
     m.update(object_pose_errors(fit["object_R"], fit["object_t"], seq["obj_R"], seq["obj_t"], obs.obj.vertices,
                                  symmetry=obs.obj.symmetry))

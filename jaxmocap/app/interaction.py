@@ -13,7 +13,7 @@ instance-segmenter mask candidates with distractors).
 all frames), with E_C on the contact region of the part `detect_contact` found, so every
 stage's time is printed and the part is reported. The contact frames and heat map are the
 fit's own (no truth); the metrics compare with the truth (penetration and contact gap in
-the true contact frames, on the true part's contact region).
+the true contact frames, the gap from the true part's closest vertex, as E_C measures it).
 
 Outputs (`out_dir`):
     result.npz          poses (T, 24, 3) axis-angle, trans (T, 3), betas (B,), object_R (T, 3, 3),
@@ -209,14 +209,15 @@ def score_fit(body, obs, truth: dict, true_part: str, fit: dict) -> tuple[dict, 
     """`metrics.interaction_metrics` (true contact frames, contact region of the true part)
     and `metrics.object_pose_errors` of a fit (keys of `fit_scene`'s result) against the
     scene's truth (`Scenario.sequence`); returns (metrics, posed vertices (T, N, 3))."""
-    from ..methods.interaction import contact_region, object_sdf
+    from ..methods.interaction import object_sdf
     from ..metrics import interaction_metrics, object_pose_errors
+    from ..sensors.objects import contact_vertices
 
     verts, joints = _posed(body, fit["pose"], fit["betas"], fit["trans"])
     R, t = np.asarray(fit["object_R"], np.float64), np.asarray(fit["object_t"], np.float64)
     m = interaction_metrics(verts, joints, truth["joints"][0], R, t, object_sdf(obs.obj), truth["contact"],
                             obs.body_points, obs.body_valid, obs.object_points, obs.object_valid,
-                            contact_region(body, true_part), obs.obj.vertices)  # fmt: skip
+                            contact_vertices(body, true_part), obs.obj.vertices)  # fmt: skip
     m.update(object_pose_errors(R, t, truth["obj_R"], truth["obj_t"], obs.obj.vertices, symmetry=obs.obj.symmetry))
     return m, verts
 

@@ -90,6 +90,15 @@ class InterCapWeights:
     √6 σ); quadratic, the 1e5 weights pulled a bottle carried at 0.2 m per frame² 0.2 m
     off its observations on average (tables' scene 04, 30 frames: ADD-S 6.0 -> 199 mm)
     because E_O's depth part saturates (Geman-McClure σ = 2 cm) while the prior grows.
+
+    smooth, object_smooth: λ_A, λ_B of eq. 5.6 (ours: the thesis gives none) as Gaussian
+    priors on the accelerations, λ = 1/(2σ²) with σ the RMS per coordinate of true
+    accelerations at 30 fps on the development scenes (subjects 02 and 131: the tables'
+    bottle and box scenes of 30 frames): body vertices σ_A = 38 mm per frame², the
+    object's box corners σ_B = 60 mm per frame². At 1e5 (σ = 2.2 mm per frame², below the
+    fits' own jitter) E_A flattened the real motion (bottle scene: MPJPE 32.0 -> 37.7 mm,
+    wrists 44 -> 82 mm, with the truth's E_A cost above the fit's) and E_B the carried
+    object's; at these weights the bottle scene goes 32.0 -> 27.5 mm, ADD-S 6.0 -> 6.0 mm.
     """
 
     keypoints: float = 1.0
@@ -101,8 +110,8 @@ class InterCapWeights:
     self_penetration: float = 1e4
     object_mask: float = 1.0
     object_depth: float = 1e5
-    smooth: float = 1e5
-    object_smooth: float = 1e5
+    smooth: float = 350.0
+    object_smooth: float = 140.0
     penetration: float = 1e5
     ground: float = 1e5
     object_ground: float = 1e5
@@ -592,7 +601,7 @@ def fit_joint(obs: InteractionObservations, human: dict, obj: dict, contact, bod
     betas = np.asarray(human["betas"]).mean(0) if np.ndim(human["betas"]) == 2 else np.asarray(human["betas"])
     cam = dataclasses_replace(_cameras(obs, body, dtype, prior), betas=jnp.asarray(betas, dtype))
     problem = _weighted(_JOINT_TERMS, weights, dtype, off)
-    ids = np.concatenate([contact_region(body, p) for p in parts])
+    ids = np.concatenate([contact_vertices(body, p) for p in parts])  # E_C: the closest of them touches
     p = {"pose": jnp.asarray(human["pose"], dtype), "trans": jnp.asarray(human["trans"], dtype),
          "object": jnp.asarray(_pose6(obj["R"], obj["t"]), dtype)}  # fmt: skip
     bp, bv = _subsample(obs.body_points, obs.body_valid, weights.body_points, 1)
