@@ -10,7 +10,8 @@ Kinect-like depth noise, 5 % holes), BODY_25 detections through the detector err
 object segmentation candidates with mask errors and two distractors per view
 (`sensors.segmentation`). Each clip is fitted with the pose prior built without its
 subject (`priors.build.evaluation_prior`). The weights (`InterCapWeights`) were set by
-hand on the procedural library walk, never on these clips.
+hand on the procedural library walk, never on these clips; λ_A and λ_B (eq. 5.6) from the
+true accelerations of two scenes of the development subjects 02 and 131 (30 frames).
 
 Rows (all from one object track and one human-only fit per scene):
 - `separate`: the object-only track and the human-only fit, not joined;
@@ -27,6 +28,11 @@ mm), body MPJPE without alignment, object ADD-S, depth below the floor. `contact
 detected contact frames against the true ones.
 
     python experiments/intercap_tables.py --scenes 10 --frames 60 --out experiments/results
+
+The whole table (every row, 10 scenes of 60 frames) was run on one GPU; a reduced run on
+a slow CPU (tens of minutes per scene) fits fewer scenes, frames and rows:
+
+    python experiments/intercap_tables.py --scenes 10 --frames 30 --subset 0,1,2 --variants joint --out experiments/results
 
 Scenes and fits are cached in `--out/cache/intercap/` (atomic pickles): a run that is
 interrupted resumes where it stopped.
