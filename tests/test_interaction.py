@@ -330,6 +330,24 @@ def test_joint_fit_makes_neither_the_tracked_object_nor_the_body_worse(scene, tr
     assert after[2] <= before[2] + 0.1, (before, after)  # rotation (°)
 
 
+def test_accept_object_keeps_the_track_where_the_joint_pose_explains_the_object_worse(scene, tracked):
+    """`accept_object`: frames whose joint pose is 3 cm off the track (its masks and points
+    explain it worse) fall back to the track; frames where the joint pose is the track's
+    are accepted; frames where the track is the one 3 cm off take the joint pose."""
+    obs, T = scene.obs, scene.obs.num_frames
+    moved = np.zeros(T, bool)
+    moved[[1, 4, 7]] = True
+    joint = {"object_R": tracked["R"].copy(), "object_t": tracked["t"] + moved[:, None] * np.array([0.03, 0.0, 0.0])}
+    kept = mi.accept_object(obs, tracked, joint, scene.body)
+    np.testing.assert_array_equal(kept["accepted"], ~moved)
+    np.testing.assert_allclose(kept["object_t"], tracked["t"])
+    assert (kept["cost_joint"][moved] > kept["cost_separate"][moved]).all()
+    worse_track = {**tracked, "t": joint["object_t"]}  # now the track is the one off in those frames
+    back = mi.accept_object(obs, worse_track, {"object_R": tracked["R"], "object_t": tracked["t"]}, scene.body)
+    assert back["accepted"].all()
+    np.testing.assert_allclose(back["object_t"], tracked["t"])
+
+
 # --- contact frames ------------------------------------------------------------------------------
 
 

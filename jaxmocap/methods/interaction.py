@@ -17,6 +17,8 @@
    E_C in the frames flagged Q_t.
 4. **Contact frames** (ours; the thesis annotates them by hand): `detect_contact` flags the
    frames where a hand is within reach of the object and moves with it, with hysteresis.
+5. **Acceptance** (ours): `accept_object` keeps the joint fit's object pose in the frames
+   where it explains the object's observations (E_O) no worse than the track.
 
 Every problem is a `jaxmocap.solve.Problem` of the terms in `energies.interaction` and
 `energies.camera`; weights are traced (ablations reuse one compiled solve).
@@ -73,6 +75,7 @@ __all__ = [
     "fit_human",
     "detect_contact",
     "fit_joint",
+    "accept_object",
     "intercap",
 ]
 
@@ -618,6 +621,41 @@ def fit_joint(obs: InteractionObservations, human: dict, obj: dict, contact, bod
             "object_t": t, "costs": costs}  # fmt: skip
 
 
+def accept_object(obs: InteractionObservations, obj: dict, joint: dict, body: Body | None = None,
+                  weights: InterCapWeights = InterCapWeights()) -> dict:
+    """Acceptance rule after the joint fit (ours; the thesis has none): per frame, the joint
+    fit's object pose is kept only if it explains the object's own observations at least
+    as well as the object-only track, i.e. E_O (eq. 5.1, the tracker's energy: the kept
+    masks and object points, the same weights) is no higher there; otherwise the tracked
+    pose stands. The joint energy (eq. 5.6) may trade the object's evidence for the
+    body's (E_C, the penetration term, E_B); this rule lets the body take the contact and
+    the object keep what its own data say. Frames without object data keep the joint pose.
+
+    Returns {object_R (T, 3, 3), object_t (T, 3), accepted (T,) bool, cost_separate (T,),
+    cost_joint (T,)}.
+    """
+    from ..body.io import default_body
+
+    body = default_body("low") if body is None else body
+    dtype = jnp.float32
+    T = obs.num_frames
+    problem = _weighted(_OBJECT_TERMS, weights, dtype)
+    data = CombinedData((_cameras(obs, body, dtype), _interaction_data(obs, body, obj["masks"], weights, dtype=dtype)))
+    cost = jax.jit(lambda p, d, m: problem.cost(p, d, m))
+    frames = np.eye(T, dtype=bool)
+
+    def per_frame(R, t) -> np.ndarray:
+        p = {"object": jnp.asarray(_pose6(R, t), dtype)}
+        return np.array([float(cost(p, data, jnp.asarray(frames[k]))) for k in range(T)])
+
+    sep = per_frame(obj["R"], obj["t"])
+    jnt = per_frame(joint["object_R"], joint["object_t"])
+    keep = jnt <= sep
+    return {"object_R": np.where(keep[:, None, None], joint["object_R"], obj["R"]),
+            "object_t": np.where(keep[:, None], joint["object_t"], obj["t"]), "accepted": keep,
+            "cost_separate": sep, "cost_joint": jnt}  # fmt: skip
+
+
 def intercap(obs: InteractionObservations, body: Body | None = None, weights: InterCapWeights = InterCapWeights(),
              contact=None, off=(), prior: PosePrior | None = None, progress: bool = False) -> InterCapResult:
     """The whole method: object tracking, human fit, contact frames (detected unless
@@ -634,8 +672,9 @@ def intercap(obs: InteractionObservations, body: Body | None = None, weights: In
             contact, part = detect_contact(body, human, obj, obs.obj, obs.fps)
         parts = (part,)
     joint = fit_joint(obs, human, obj, contact, body, weights, off, parts=parts, prior=prior)
+    kept = accept_object(obs, obj, joint, body, weights)
     return InterCapResult(
-        poses=joint["pose"], trans=joint["trans"], betas=joint["betas"], object_R=joint["object_R"],
-        object_t=joint["object_t"], contact=np.asarray(contact, bool),
-        stages={"object": obj, "human": human, "joint": joint},
+        poses=joint["pose"], trans=joint["trans"], betas=joint["betas"], object_R=kept["object_R"],
+        object_t=kept["object_t"], contact=np.asarray(contact, bool),
+        stages={"object": obj, "human": human, "joint": joint, "accept": kept},
     )  # fmt: skip
