@@ -43,7 +43,8 @@ def observations(obj, R, t):
 def test_object_prior_lets_a_quickly_carried_object_keep_its_points(delta, bound):
     obj, R, t = swung_bottle()
     obs = observations(obj, R, t)
-    weights = InterCapWeights(accel_delta=delta, object_points=256)  # delta None: the quadratic prior before
+    # the prior as strong as before issue 47 (1e5): Huber must hold where quadratic lets go
+    weights = InterCapWeights(accel_delta=delta, object_points=256, object_smooth=1e5)
     names = ("object_depth", "object_smooth")
     problem = mi._weighted(names, weights, jnp.float32)
     data = mi._interaction_data(obs, default_body("low"), None, weights)

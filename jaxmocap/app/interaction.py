@@ -10,10 +10,10 @@ instance-segmenter mask candidates with distractors).
 `simulate_scene` -> `fit_scene` -> `write_outputs`; `run_interaction_demo` chains them.
 `fit_scene` runs the method stage by stage, as `methods.interaction.intercap` chains it
 (object-only tracking, human-only fit, contact frames detected from the two, joint fit over
-all frames), with E_C on the contact region of the part `detect_contact` found, so every
+all frames, its object kept where `accept_object` accepts it), with E_C on the contact region of the part `detect_contact` found, so every
 stage's time is printed and the part is reported. The contact frames and heat map are the
 fit's own (no truth); the metrics compare with the truth (penetration and contact gap in
-the true contact frames, on the true part's contact region).
+the true contact frames, the gap from the true part's closest vertex, as E_C measures it).
 
 Outputs (`out_dir`):
     result.npz          poses (T, 24, 3) axis-angle, trans (T, 3), betas (B,), object_R (T, 3, 3),
@@ -176,7 +176,7 @@ def fit_scene(obs, body, progress: bool = False, log=print) -> dict:
     bool, part, separate: the same keys for the object tracking + human-only fits,
     timings_s}.
     """
-    from ..methods.interaction import detect_contact, fit_human, fit_joint, track_object
+    from ..methods.interaction import accept_object, detect_contact, fit_human, fit_joint, track_object
 
     clock = StageClock(log)
     T = obs.num_frames
@@ -189,7 +189,10 @@ def fit_scene(obs, body, progress: bool = False, log=print) -> dict:
     found = f"frames {_ranges(contact)} held by {part}" if contact.any() else "no contact frame detected"
     clock.done("contact", found)
     joint = fit_joint(obs, human, obj, contact, body, parts=(part,))
-    clock.done("joint", f"all {T} frames together" + (f", E_C on {part}" if contact.any() else ""))
+    kept = accept_object(obs, obj, joint, body)  # as methods.interaction.intercap
+    joint = {**joint, "object_R": kept["object_R"], "object_t": kept["object_t"]}
+    clock.done("joint", f"all {T} frames together" + (f", E_C on {part}" if contact.any() else "")
+               + f"; object accepted in {int(kept['accepted'].sum())} of {T} frames")  # fmt: skip
     separate = {"pose": np.asarray(human["pose"]), "trans": np.asarray(human["trans"]),
                 "betas": np.asarray(human["betas"]).mean(0), "object_R": obj["R"], "object_t": obj["t"]}  # fmt: skip
     return {"pose": np.asarray(joint["pose"]), "trans": np.asarray(joint["trans"]), "betas": np.asarray(joint["betas"]),
@@ -209,14 +212,15 @@ def score_fit(body, obs, truth: dict, true_part: str, fit: dict) -> tuple[dict, 
     """`metrics.interaction_metrics` (true contact frames, contact region of the true part)
     and `metrics.object_pose_errors` of a fit (keys of `fit_scene`'s result) against the
     scene's truth (`Scenario.sequence`); returns (metrics, posed vertices (T, N, 3))."""
-    from ..methods.interaction import contact_region, object_sdf
+    from ..methods.interaction import object_sdf
     from ..metrics import interaction_metrics, object_pose_errors
+    from ..sensors.objects import contact_vertices
 
     verts, joints = _posed(body, fit["pose"], fit["betas"], fit["trans"])
     R, t = np.asarray(fit["object_R"], np.float64), np.asarray(fit["object_t"], np.float64)
     m = interaction_metrics(verts, joints, truth["joints"][0], R, t, object_sdf(obs.obj), truth["contact"],
                             obs.body_points, obs.body_valid, obs.object_points, obs.object_valid,
-                            contact_region(body, true_part), obs.obj.vertices)  # fmt: skip
+                            contact_vertices(body, true_part), obs.obj.vertices)  # fmt: skip
     m.update(object_pose_errors(R, t, truth["obj_R"], truth["obj_t"], obs.obj.vertices, symmetry=obs.obj.symmetry))
     return m, verts
 

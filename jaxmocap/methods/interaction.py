@@ -17,6 +17,8 @@
    E_C in the frames flagged Q_t.
 4. **Contact frames** (ours; the thesis annotates them by hand): `detect_contact` flags the
    frames where a hand is within reach of the object and moves with it, with hysteresis.
+5. **Acceptance** (ours): `accept_object` keeps the joint fit's object pose in the frames
+   where it explains the object's observations (E_O) no worse than the track.
 
 Every problem is a `jaxmocap.solve.Problem` of the terms in `energies.interaction` and
 `energies.camera`; weights are traced (ablations reuse one compiled solve).
@@ -73,6 +75,7 @@ __all__ = [
     "fit_human",
     "detect_contact",
     "fit_joint",
+    "accept_object",
     "intercap",
 ]
 
@@ -90,6 +93,15 @@ class InterCapWeights:
     √6 σ); quadratic, the 1e5 weights pulled a bottle carried at 0.2 m per frame² 0.2 m
     off its observations on average (tables' scene 04, 30 frames: ADD-S 6.0 -> 199 mm)
     because E_O's depth part saturates (Geman-McClure σ = 2 cm) while the prior grows.
+
+    smooth, object_smooth: λ_A, λ_B of eq. 5.6 (ours: the thesis gives none) as Gaussian
+    priors on the accelerations, λ = 1/(2σ²) with σ the RMS per coordinate of true
+    accelerations at 30 fps on the development scenes (subjects 02 and 131: the tables'
+    bottle and box scenes of 30 frames): body vertices σ_A = 38 mm per frame², the
+    object's box corners σ_B = 60 mm per frame². At 1e5 (σ = 2.2 mm per frame², below the
+    fits' own jitter) E_A flattened the real motion (bottle scene: MPJPE 32.0 -> 37.7 mm,
+    wrists 44 -> 82 mm, with the truth's E_A cost above the fit's) and E_B the carried
+    object's; at these weights the bottle scene goes 32.0 -> 27.5 mm, ADD-S 6.0 -> 6.0 mm.
     """
 
     keypoints: float = 1.0
@@ -101,8 +113,8 @@ class InterCapWeights:
     self_penetration: float = 1e4
     object_mask: float = 1.0
     object_depth: float = 1e5
-    smooth: float = 1e5
-    object_smooth: float = 1e5
+    smooth: float = 350.0
+    object_smooth: float = 140.0
     penetration: float = 1e5
     ground: float = 1e5
     object_ground: float = 1e5
@@ -592,7 +604,7 @@ def fit_joint(obs: InteractionObservations, human: dict, obj: dict, contact, bod
     betas = np.asarray(human["betas"]).mean(0) if np.ndim(human["betas"]) == 2 else np.asarray(human["betas"])
     cam = dataclasses_replace(_cameras(obs, body, dtype, prior), betas=jnp.asarray(betas, dtype))
     problem = _weighted(_JOINT_TERMS, weights, dtype, off)
-    ids = np.concatenate([contact_region(body, p) for p in parts])
+    ids = np.concatenate([contact_vertices(body, p) for p in parts])  # E_C: the closest of them touches
     p = {"pose": jnp.asarray(human["pose"], dtype), "trans": jnp.asarray(human["trans"], dtype),
          "object": jnp.asarray(_pose6(obj["R"], obj["t"]), dtype)}  # fmt: skip
     bp, bv = _subsample(obs.body_points, obs.body_valid, weights.body_points, 1)
@@ -607,6 +619,41 @@ def fit_joint(obs: InteractionObservations, human: dict, obj: dict, contact, bod
     R, t = _matrices(np.asarray(p["object"]))
     return {"pose": np.asarray(p["pose"]), "trans": np.asarray(p["trans"]), "betas": betas, "object_R": R,
             "object_t": t, "costs": costs}  # fmt: skip
+
+
+def accept_object(obs: InteractionObservations, obj: dict, joint: dict, body: Body | None = None,
+                  weights: InterCapWeights = InterCapWeights()) -> dict:
+    """Acceptance rule after the joint fit (ours; the thesis has none): per frame, the joint
+    fit's object pose is kept only if it explains the object's own observations at least
+    as well as the object-only track, i.e. E_O (eq. 5.1, the tracker's energy: the kept
+    masks and object points, the same weights) is no higher there; otherwise the tracked
+    pose stands. The joint energy (eq. 5.6) may trade the object's evidence for the
+    body's (E_C, the penetration term, E_B); this rule lets the body take the contact and
+    the object keep what its own data say. Frames without object data keep the joint pose.
+
+    Returns {object_R (T, 3, 3), object_t (T, 3), accepted (T,) bool, cost_separate (T,),
+    cost_joint (T,)}.
+    """
+    from ..body.io import default_body
+
+    body = default_body("low") if body is None else body
+    dtype = jnp.float32
+    T = obs.num_frames
+    problem = _weighted(_OBJECT_TERMS, weights, dtype)
+    data = CombinedData((_cameras(obs, body, dtype), _interaction_data(obs, body, obj["masks"], weights, dtype=dtype)))
+    cost = jax.jit(lambda p, d, m: problem.cost(p, d, m))
+    frames = np.eye(T, dtype=bool)
+
+    def per_frame(R, t) -> np.ndarray:
+        p = {"object": jnp.asarray(_pose6(R, t), dtype)}
+        return np.array([float(cost(p, data, jnp.asarray(frames[k]))) for k in range(T)])
+
+    sep = per_frame(obj["R"], obj["t"])
+    jnt = per_frame(joint["object_R"], joint["object_t"])
+    keep = jnt <= sep
+    return {"object_R": np.where(keep[:, None, None], joint["object_R"], obj["R"]),
+            "object_t": np.where(keep[:, None], joint["object_t"], obj["t"]), "accepted": keep,
+            "cost_separate": sep, "cost_joint": jnt}  # fmt: skip
 
 
 def intercap(obs: InteractionObservations, body: Body | None = None, weights: InterCapWeights = InterCapWeights(),
@@ -625,8 +672,9 @@ def intercap(obs: InteractionObservations, body: Body | None = None, weights: In
             contact, part = detect_contact(body, human, obj, obs.obj, obs.fps)
         parts = (part,)
     joint = fit_joint(obs, human, obj, contact, body, weights, off, parts=parts, prior=prior)
+    kept = accept_object(obs, obj, joint, body, weights)
     return InterCapResult(
-        poses=joint["pose"], trans=joint["trans"], betas=joint["betas"], object_R=joint["object_R"],
-        object_t=joint["object_t"], contact=np.asarray(contact, bool),
-        stages={"object": obj, "human": human, "joint": joint},
+        poses=joint["pose"], trans=joint["trans"], betas=joint["betas"], object_R=kept["object_R"],
+        object_t=kept["object_t"], contact=np.asarray(contact, bool),
+        stages={"object": obj, "human": human, "joint": joint, "accept": kept},
     )  # fmt: skip
