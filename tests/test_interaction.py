@@ -304,18 +304,19 @@ def test_track_object_recovers_the_chair(scene, tracked):
 
 def test_joint_fit_makes_neither_the_tracked_object_nor_the_body_worse(scene, tracked):
     """Issue 47: the joint fit (eq. 5.6-5.7, true contact frames) starts from the object
-    track and a per-frame body (the truth with the jitter of per-frame fits: 0.05 rad on
+    track and a per-frame body (the truth with the jitter of per-frame fits: 0.02 rad on
     every joint, 1 cm on the root, the right hand turned 0.5 rad about its forearm, the
-    orientation keypoints leave open) and must end no worse than either: object ADD-S and
-    rotation modulo the chair's symmetry, body MPJPE. Before the fix, E_C pulled the whole
-    palm region onto the chair and E_A flattened the walk."""
+    orientation keypoints leave open) and must end better than both. Measured: MPJPE
+    27.6 -> 14.0 mm, ADD-S 9.43 -> 8.31 mm (8.41 after `accept_object`); with the former
+    λ_A = λ_B = 1e5, 23.8 mm and 9.51 mm (E_A flattened the walk)."""
     body, truth, obs = scene.body, scene.truth, scene.obs
     T = obs.num_frames
     rng = np.random.default_rng(3)
-    pose = np.array(truth["poses"][0], np.float64) + rng.normal(0.0, 0.05, (T, 24, 3))
+    pose = np.array(truth["poses"][0], np.float64) + rng.normal(0.0, 0.02, (T, 24, 3))
     pose[:, J["right_wrist"], 0] += 0.5
     human = {"pose": pose, "trans": truth["trans"][0] + rng.normal(0.0, 0.01, (T, 3)), "betas": scene.betas}
     joint = fit_joint(obs, human, tracked, truth["contact"], body, parts=("right_grip",), max_steps=20)
+    kept = mi.accept_object(obs, tracked, joint, body)
 
     def errors(pose, trans, R, t):
         out = forward(body, jnp.asarray(pose, F32), jnp.asarray(scene.betas, F32), jnp.asarray(trans, F32))
@@ -325,9 +326,10 @@ def test_joint_fit_makes_neither_the_tracked_object_nor_the_body_worse(scene, tr
 
     before = errors(human["pose"], human["trans"], tracked["R"], tracked["t"])
     after = errors(joint["pose"], joint["trans"], joint["object_R"], joint["object_t"])
-    assert after[0] <= before[0], (before, after)  # MPJPE
-    assert after[1] <= before[1] + 0.1, (before, after)  # ADD-S (mm)
-    assert after[2] <= before[2] + 0.1, (before, after)  # rotation (°)
+    accepted = errors(joint["pose"], joint["trans"], kept["object_R"], kept["object_t"])
+    assert after[0] < 0.7 * before[0], (before, after)  # MPJPE
+    assert after[1] <= before[1] and accepted[1] <= before[1], (before, after, accepted)  # ADD-S
+    assert after[2] <= before[2] + 0.1 and accepted[2] <= before[2] + 0.1, (before, after, accepted)  # rotation (°)
 
 
 def test_accept_object_keeps_the_track_where_the_joint_pose_explains_the_object_worse(scene, tracked):
