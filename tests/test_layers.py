@@ -145,15 +145,9 @@ def test_no_import_circles():
     assert not cycles, "modules that import each other (directly or round a circle):\n" + "\n".join(" <-> ".join(c) for c in cycles)
 
 
-# Underscored names imported from another module, in files other helpers are editing:
-# the owner's public name exists (or must be made there), until the lead switches the import.
-PRIVATE_IMPORTS_ALLOWED = {
-    # until the lead switches the import (to `forward_rotations_unchecked`)
-    ("energies/camera.py", "jaxmocap.body.kinematics._forward_rotations"),
-    # until the lead switches the import (camera.py owns both; no public name yet)
-    ("energies/interaction.py", "jaxmocap.energies.camera._posed"),
-    ("energies/interaction.py", "jaxmocap.energies.camera._views"),
-}
+# Underscored names imported from another module that are allowed (none: the owner makes a
+# public name instead).
+PRIVATE_IMPORTS_ALLOWED: set = set()
 
 
 def _private(name: str) -> bool:

@@ -489,6 +489,3 @@ def forward_rotations_unchecked(
         joint_rotations=unflat(global_rot),
     )
 
-
-# The old private name, kept until `energies/camera.py` imports `forward_rotations_unchecked`.
-_forward_rotations = forward_rotations_unchecked

@@ -39,7 +39,7 @@ import numpy as np
 from jax import Array
 from scipy.ndimage import distance_transform_edt
 
-from ..body.kinematics import _forward_rotations
+from ..body.kinematics import forward_rotations_unchecked
 from ..body.model import Body
 from ..priors.pose_prior import PosePrior
 from ..sensors.camera import project
@@ -140,12 +140,13 @@ class CameraData(eqx.Module):
         return self.keypoints.shape[0]
 
 
-def _posed(params, data: CameraData):
+def posed_in_views(params, data: CameraData):
+    """The posed body of `params` for camera terms (shared between the terms of one step)."""
     betas = params["betas"] if "betas" in params else data.betas
     if getattr(data, "pose_blend", True):
         return posed_body(params, data.body, betas)
-    return shared(params, POSED_BODY, lambda: _forward_rotations(data.body, params["pose"], betas, params.get("trans"),
-                                                                 pose_blend=False))  # fmt: skip
+    return shared(params, POSED_BODY, lambda: forward_rotations_unchecked(
+        data.body, params["pose"], betas, params.get("trans"), pose_blend=False))  # fmt: skip
 
 
 def _model_points(vertices: Array, data: CameraData, stride: int) -> Array:
@@ -154,7 +155,7 @@ def _model_points(vertices: Array, data: CameraData, stride: int) -> Array:
     return vertices[:, ::stride] if points is None else jnp.take(vertices, points, axis=1)
 
 
-def _views(data: CameraData, points: Array) -> tuple[Array, Array]:
+def project_to_views(data: CameraData, points: Array) -> tuple[Array, Array]:
     """Project (T, N, 3) world points into every view: uv (T, V, N, 2), depth (T, V, N)."""
     return project(data.K[None], data.R[None], data.t[None], points[:, None])
 
@@ -164,8 +165,8 @@ def keypoint_term(sigma: float = 100.0, weight: float = 1.0) -> Term:
     loss = GemanMcClure(sigma)
 
     def fn(params, data: CameraData):
-        kp = regress_keypoints(data.regressor, _posed(params, data).vertices)
-        uv, _ = _views(data, kp)
+        kp = regress_keypoints(data.regressor, posed_in_views(params, data).vertices)
+        uv, _ = project_to_views(data, kp)
         scale = jnp.sqrt(data.confidence * data.joint_weights)[..., None]
         return scale * loss(uv - data.keypoints)
 
@@ -237,15 +238,15 @@ def silhouette_terms(w_model: float = 1.0, w_mask: float = 1.0, stride: int = 1,
     loss = Huber(huber)
 
     def model_points(params, data: CameraData):
-        verts = _model_points(_posed(params, data).vertices, data, stride)
-        uv, _ = _views(data, verts)  # (T, V, N, 2)
+        verts = _model_points(posed_in_views(params, data).vertices, data, stride)
+        uv, _ = project_to_views(data, verts)  # (T, V, N, 2)
         dist = jax.vmap(jax.vmap(_bilinear))(data.silhouettes.distance, uv)
         per_point = jnp.sqrt(data.silhouettes.area / uv.shape[-2])[..., None]  # each vertex: area/N px
         return (per_point * dist)[..., None]  # (T, V, N, 1)
 
     def mask_points(params, data: CameraData):
-        verts = _model_points(_posed(params, data).vertices, data, stride)
-        uv, _ = _views(data, verts)  # (T, V, N, 2)
+        verts = _model_points(posed_in_views(params, data).vertices, data, stride)
+        uv, _ = project_to_views(data, verts)  # (T, V, N, 2)
         return mask_to_model(uv, data.silhouettes, slack, loss)
 
     def has_mask(data: CameraData):
@@ -326,7 +327,7 @@ def temporal_term(length: int = 30, num_dct: int = 10, sigma: float = 0.05, weig
     Kronecker structure. Windows of `length` frames, the last one as `DCTBasis` says."""
 
     def joints(params, data: CameraData):
-        j = _posed(params, data).joints
+        j = posed_in_views(params, data).joints
         return j.reshape(j.shape[0], -1)
 
     basis = WindowBasis("coef", joints, DCTBasis(length, num_dct), length)

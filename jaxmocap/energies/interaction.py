@@ -54,7 +54,7 @@ from ..body.kinematics import shaped_joints
 from ..body.model import SMPL_JOINT_NAMES, Body
 from ..objects import ObjectSDF
 from ..solve import GemanMcClure, Huber, Term
-from .camera import Silhouettes, _posed, _views, mask_to_model
+from .camera import Silhouettes, posed_in_views, project_to_views, mask_to_model
 
 __all__ = [
     "InteractionData",
@@ -129,7 +129,7 @@ def object_mask_term(weight: float = 1.0, slack: float = 1.0) -> Term:
     px of the projected object surface samples (mask-to-model, Huber tails), (T, V, M, 2)."""
 
     def fn(params, data):
-        uv, _ = _views(data, object_world(params["object"], data.surface))
+        uv, _ = project_to_views(data, object_world(params["object"], data.surface))
         return mask_to_model(uv, data.object_masks, slack)
 
     return Term("object_mask", fn, weight, mask=lambda d: d.object_masks.valid, reads=(("object", None),))
@@ -155,7 +155,7 @@ def body_depth_term(weight: float = 1.0, delta: float = 0.01) -> Term:
     (`data.body_match`, re-found between solves), Huber δ (m), (T, V, Mb, 3)."""
 
     def fn(params, data):
-        verts = _posed(params, data).vertices  # (T, N, 3)
+        verts = posed_in_views(params, data).vertices  # (T, N, 3)
         T, V, M = data.body_match.shape
         matched = jnp.take_along_axis(verts, data.body_match.reshape(T, V * M)[..., None], axis=1)
         return data.body_points.astype(verts.dtype) - matched.reshape(T, V, M, 3)
@@ -255,7 +255,7 @@ def self_penetration_term(weight: float = 1.0) -> Term:
     centres from the posed joints (`body_spheres`)."""
 
     def fn(params, data):
-        joints = _posed(params, data).joints  # (T, J, 3)
+        joints = posed_in_views(params, data).joints  # (T, J, 3)
         centres = jnp.einsum("sj,tjc->tsc", data.sphere_weights.astype(joints.dtype), joints)
         i, k = data.sphere_pairs[:, 0], data.sphere_pairs[:, 1]
         d2 = jnp.sum((centres[:, i] - centres[:, k]) ** 2, -1)
@@ -281,7 +281,7 @@ def smoothness_term(weight: float = 1.0, stride: int = 8, delta: float | None = 
     Huber δ (m per frame²) when given (see `object_smoothness_term`)."""
 
     def fn(params, data):
-        return _second_difference(_posed(params, data).vertices[:, ::stride])
+        return _second_difference(posed_in_views(params, data).vertices[:, ::stride])
 
     loss = None if delta is None else Huber(delta)
     return Term("smooth", fn, weight, loss=loss, bandwidth=1, reads=(("pose", None), ("trans", None)))
@@ -311,7 +311,7 @@ def penetration_term(weight: float = 1.0, stride: int = 1) -> Term:
     of every `stride`-th posed body vertex in the posed object, (T, N, 1)."""
 
     def fn(params, data):
-        verts = _posed(params, data).vertices[:, ::stride]
+        verts = posed_in_views(params, data).vertices[:, ::stride]
         return jax.nn.relu(-data.sdf(_object_local(params["object"], verts)))[..., None]
 
     return Term("penetration", fn, weight)
@@ -321,7 +321,7 @@ def ground_term(weight: float = 1.0, stride: int = 1) -> Term:
     """E_G (eq. 5.6): max(0, h - y) of every `stride`-th body vertex, (T, N, 1)."""
 
     def fn(params, data):
-        y = _posed(params, data).vertices[:, ::stride, 1]
+        y = posed_in_views(params, data).vertices[:, ::stride, 1]
         return jax.nn.relu(data.floor.astype(y.dtype) - y)[..., None]
 
     return Term("ground", fn, weight, reads=(("pose", None), ("trans", None)))
@@ -354,7 +354,7 @@ def contact_term(weight: float = 1.0) -> Term:
     """
 
     def fn(params, data):
-        verts = _posed(params, data).vertices[:, data.contact_vertices]
+        verts = posed_in_views(params, data).vertices[:, data.contact_vertices]
         d = jnp.min(data.sdf(_object_local(params["object"], verts)), axis=-1, keepdims=True)
         return (jnp.sqrt(data.contact.astype(d.dtype))[:, None] * d)[..., None]
 
