@@ -33,16 +33,20 @@ def _unit(module: str) -> str:
     return module.split(".")[1] if module.count(".") else ""
 
 
+def _absolute(node: ast.ImportFrom, package: str) -> str:
+    """The absolute module a `from ... import` in `package` reads from."""
+    if not node.level:
+        return node.module or ""
+    base = package.rsplit(".", node.level - 1)[0] if node.level > 1 else package
+    return f"{base}.{node.module}" if node.module else base
+
+
 def _imports(path: Path):
     module = "jaxmocap." + ".".join(path.relative_to(PACKAGE).with_suffix("").parts).removesuffix(".__init__")
     package = module if path.name == "__init__.py" else module.rsplit(".", 1)[0]
     for node in ast.walk(ast.parse(path.read_text(), str(path))):
         if isinstance(node, ast.ImportFrom):
-            if node.level:
-                base = package.rsplit(".", node.level - 1)[0] if node.level > 1 else package
-                target = f"{base}.{node.module}" if node.module else base
-            else:
-                target = node.module or ""
+            target = _absolute(node, package)
             names = [target] if node.module else [f"{target}.{a.name}" for a in node.names]
         elif isinstance(node, ast.Import):
             names = [a.name for a in node.names]
@@ -170,11 +174,7 @@ def _private_uses(path: Path, package: Path):
     modules = {}  # local name -> the jaxmocap module it is bound to
     for node in ast.walk(tree):
         if isinstance(node, ast.ImportFrom):
-            if node.level:
-                base = pkg.rsplit(".", node.level - 1)[0] if node.level > 1 else pkg
-                target = f"{base}.{node.module}" if node.module else base
-            else:
-                target = node.module or ""
+            target = _absolute(node, pkg)
             if target != "jaxmocap" and not target.startswith("jaxmocap."):
                 continue
             for a in node.names:
