@@ -17,11 +17,15 @@ def atomic_write(path: Path, text: str) -> None:
     readers (and a resumed run) never see half a file, even with writers in parallel."""
     path = Path(path)
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    with open(tmp, "w") as f:
-        f.write(text)
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
+    try:
+        with open(tmp, "w") as f:
+            f.write(text)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:  # a failed or interrupted write leaves no temporary file behind
+        tmp.unlink(missing_ok=True)
+        raise
 
 
 class _ArrayUnpickler(pickle._Unpickler):
