@@ -65,6 +65,8 @@ import jax  # noqa: E402
 import numpy as np  # noqa: E402
 from sip_tables import DTYPE, THESIS_W_MAHAL, TOL, Fold, item, mean_errors, with_starts  # noqa: E402  (sets jax_enable_x64)
 
+from _provenance import write_json, write_text  # noqa: E402
+
 from jaxmocap import metrics  # noqa: E402
 from jaxmocap.app.sweep import atomic_write  # noqa: E402
 from jaxmocap.app.sweep_methods import InertialItem, InertialMethod  # noqa: E402
@@ -72,19 +74,20 @@ from jaxmocap.body import default_body, forward, scaled_body  # noqa: E402
 from jaxmocap.methods import inertial as I  # noqa: E402
 from jaxmocap.motion.corpus import corpus, interleave  # noqa: E402
 from jaxmocap.motion.io import load_motion  # noqa: E402
+from jaxmocap.motion.splits import DEVELOPMENT, LEAVE_SUBJECT_OUT, Split  # noqa: E402
 from jaxmocap.sensors import IMUErrorModel, ScenarioConfig, make_scenario  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = ROOT / "experiments" / "results"
 #: True subject sizes relative to the model (the default body).
-TRUE_SCALES = (0.9, 1.0, 1.1, 1.2)
-#: Candidate scales of the estimate (relative to the default body); must hold 1.0, 1.1, 1.2
-#: (the Table 3.2 models). Skewed upwards: the estimates lean towards larger bodies.
-CANDIDATES = (0.9, 1.0, 1.1, 1.2, 1.3, 1.4)
+TRUE_SCALES = (0.9, 1.0, 1.1)
+#: Settings (criterion, candidates, refinement) are chosen on the development subjects
+#: (`--role tuning`); the table reports the evaluation subjects, priors leave the subject out.
+SPLIT = Split("sip_body_scale", tuning=DEVELOPMENT, training=LEAVE_SUBJECT_OUT)
 CRITERIA = tuple(I.SCALE_CRITERIA)
 MARGIN = 5  # frames synthesised beyond the window: room for a calibration frame after a dropout
 FPS = 30.0
-CACHE_VERSION = 3  # bump when a per-clip result changes meaning
+CACHE_VERSION = 4  # bump when a per-clip result changes meaning
 
 
 def eligible_clips(frames: int, cache: Path) -> list:
@@ -156,42 +159,48 @@ def run_clip(clip, args, body, folds, true_scales) -> dict:
     with_starts(items, InertialMethod("sop"))  # SOP is size-free: one start per true scale
     t1 = time.perf_counter()
     options = dict(weights=w, max_steps=args.steps, rtol=TOL, atol=TOL)
+    if args.candidates:
+        options["scales"] = args.candidates
+    if args.refine is not None:
+        options["refine"] = args.refine
     ests = []
     for sc, k in scs:
         make = lambda s, sc=sc, k=k: window(I.from_scenario(sc, 0, scaled_body(body, s), start=k, prior=prior, dtype=DTYPE), T)  # noqa: E731
-        ests.append(I.estimate_body_scale(make, items[len(ests)].init, CANDIDATES, criterion=args.criterion, **options))
+        ests.append(I.estimate_body_scale(make, items[len(ests)].init, criterion=args.criterion, **options))
     t2 = time.perf_counter()
-    # SIP refitted from SOP on the estimated bodies, in one batch padded to the candidates'
-    # batch size: the same compiled solve as the estimates.
-    K, n = len(CANDIDATES), len(true_scales)
-    pick = [min(j, n - 1) for j in range(max(K, n))]
-    setups = [window(I.from_scenario(sc, 0, scaled_body(body, e.scale), start=k, prior=prior, dtype=DTYPE), T)
-              for (sc, k), e in zip(scs, ests)]  # fmt: skip
-    final = I.sparse_inertial_poser_batch(I.stack_setups([setups[j] for j in pick]),
-                                          np.stack([items[j].init for j in pick]), **options)  # fmt: skip
+    final = None
+    if args.refit:  # SIP refitted from SOP on the estimated bodies, in one batch
+        setups = [window(I.from_scenario(sc, 0, scaled_body(body, e.scale), start=k, prior=prior, dtype=DTYPE), T)
+                  for (sc, k), e in zip(scs, ests)]  # fmt: skip
+        final = I.sparse_inertial_poser_batch(I.stack_setups(setups), np.stack([it.init for it in items]),
+                                              weights=w, max_steps=args.steps, rtol=TOL, atol=TOL)  # fmt: skip
     t3 = time.perf_counter()
-    one = CANDIDATES.index(1.0)
     rec = {"clip": clip.name, "subject": clip.subject, "activity": clip.activity, "group": clip.group, "frames": T,
-           "seed": seed, "w_mahal": w.mahal, "candidates": list(CANDIDATES), "criterion": args.criterion, "true_scales": {}}  # fmt: skip
+           "seed": seed, "w_mahal": w.mahal, "criterion": args.criterion, "true_scales": {}}  # fmt: skip
+
+    def pose_at(e, m):  # the fitted poses of candidate m, if m was one
+        hit = np.flatnonzero(np.isclose(e.scales, m))
+        return e.solution.value["pose"][hit[0]] if len(hit) else None
+
     for j, (t, it, e) in enumerate(zip(true_scales, items, ests)):
         true_body = scaled_body(body, t)
-        by = {c: e.scale_by(c) for c in CRITERIA}
-        rec["true_scales"][repr(t)] = {
-            "estimate": e.scale, "estimate_by_criterion": by, "at_edge": e.at_edge,
-            "costs": {k: v.tolist() for k, v in e.costs.items()},
+        r = rec["true_scales"][repr(t)] = {
+            "estimate": e.scale, "estimate_by_criterion": {c: e.scale_by(c) for c in CRITERIA}, "at_edge": e.at_edge,
+            "candidates": e.scales.tolist(), "costs": {k: v.tolist() for k, v in e.costs.items()},
             "steps": np.asarray(e.solution.num_steps).tolist(), "result": np.asarray(e.solution.result).tolist(),
-            "final_steps": int(final.num_steps[j]), "final_result": int(final.result[j]),
-            "default_size": errors(body, true_body, e.solution.value["pose"][one], it),
-            "scale_estimated": errors(scaled_body(body, e.scale), true_body, final.value["pose"][j], it),
         }  # fmt: skip
-    if 1.0 in true_scales:  # Table 3.2: the true body is the model; models of 100, 110, 120 %
-        e, it = ests[true_scales.index(1.0)], items[true_scales.index(1.0)]
-        est = rec["true_scales"][repr(1.0)]["scale_estimated"]
-        rec["table_3_2"] = {
-            name: {"model_size_known": errors(scaled_body(body, m), body, e.solution.value["pose"][CANDIDATES.index(m)], it),
-                   "scale_estimated": est}
-            for name, m in (("SIP", 1.0), ("SIP-110", 1.1), ("SIP-120", 1.2))
-        }  # fmt: skip
+        if pose_at(e, 1.0) is not None:
+            r["default_size"] = errors(body, true_body, pose_at(e, 1.0), it)
+        if final is not None:
+            r["final_steps"], r["final_result"] = int(final.num_steps[j]), int(final.result[j])
+            r["scale_estimated"] = errors(scaled_body(body, e.scale), true_body, final.value["pose"][j], it)
+    e = ests[true_scales.index(1.0)] if 1.0 in true_scales else None
+    models = (("SIP", 1.0), ("SIP-110", 1.1), ("SIP-120", 1.2))
+    if e is not None and final is not None and all(pose_at(e, m) is not None for _, m in models):
+        # Table 3.2: the true body is the model; models of 100, 110, 120 %
+        it, est = items[true_scales.index(1.0)], rec["true_scales"][repr(1.0)]["scale_estimated"]
+        rec["table_3_2"] = {name: {"model_size_known": errors(scaled_body(body, m), body, pose_at(e, m), it), "scale_estimated": est}
+                            for name, m in models}  # fmt: skip
     rec["seconds"] = {"synthesis_and_sop": t1 - t0, "estimates": t2 - t1, "refits": t3 - t2, "total": time.perf_counter() - t0}
     scales = "  ".join(f"{t}→{v['estimate']:.3f}" for t, v in rec["true_scales"].items())
     print(f"{clip.name:11s} {clip.subject:>3s} true→estimated: {scales}  ({rec['seconds']['total']:.0f} s)", flush=True)
@@ -203,25 +212,35 @@ def summary(per_clip: list[dict], args) -> dict:
     f = np.asarray([r["frames"] for r in ok], float)
     avg = lambda xs: float(np.average(xs, weights=f))  # noqa: E731
     keys = ("mpjpe_rigid", "mpjpe_scaled_procrustes", "mpjpe_pose_on_true_body", "mpjae")
-    est, by_scale = {}, {}
+    est, by_scale, abs_err = {}, {}, []
     for t in map(repr, TRUE_SCALES):
         v = np.asarray([r["true_scales"][t]["estimate"] for r in ok])
-        est[t] = {"mean": float(v.mean()), "std": float(v.std()), "relative_error_mean": float(np.mean(v / float(t) - 1)),
+        rel = v / float(t) - 1
+        abs_err += list(np.abs(rel))
+        est[t] = {"mean": float(v.mean()), "std": float(v.std()), "relative_error_mean": float(rel.mean()),
+                  "abs_error_mean_percent": float(100 * np.abs(rel).mean()),
+                  "abs_error_max_percent": float(100 * np.abs(rel).max()),
                   "at_edge": sum(r["true_scales"][t]["at_edge"] for r in ok),
                   "per_clip": {r["clip"]: r["true_scales"][t]["estimate"] for r in ok},
                   "by_criterion": {c: {"mean": float(np.mean([r["true_scales"][t]["estimate_by_criterion"][c] for r in ok])),
                                        "std": float(np.std([r["true_scales"][t]["estimate_by_criterion"][c] for r in ok]))}
                                    for c in CRITERIA}}  # fmt: skip
-        by_scale[t] = {m: {k: avg([r["true_scales"][t][m][k] for r in ok]) for k in keys} for m in ("default_size", "scale_estimated")}
-    t32 = {name: {m: {k: avg([r["table_3_2"][name][m][k] for r in ok]) for k in keys} for m in ("model_size_known", "scale_estimated")}
-           for name in ("SIP", "SIP-110", "SIP-120")}  # fmt: skip
+        by_scale[t] = {m: {k: avg([r["true_scales"][t][m][k] for r in ok]) for k in keys}
+                       for m in ("default_size", "scale_estimated") if all(m in r["true_scales"][t] for r in ok)}  # fmt: skip
+    t32 = None
+    if ok and all("table_3_2" in r for r in ok):
+        t32 = {name: {m: {k: avg([r["table_3_2"][name][m][k] for r in ok]) for k in keys} for m in ("model_size_known", "scale_estimated")}
+               for name in ("SIP", "SIP-110", "SIP-120")}  # fmt: skip
     return {
+        # Over every (clip, true scale) of this run's role: the number issue 46 asks for.
+        "body_scale_mean_abs_error_percent": float(100 * np.mean(abs_err)) if args.role == "evaluation" else None,
+        "body_scale_at_edge": int(sum(v["at_edge"] for v in est.values())),
+        "role": args.role,
         "scale_estimate": est,
         "errors_by_true_scale": by_scale,
         "table_3_2_with_scale_estimate": t32,
-        "table_3_2_sip_tables": json.loads((RESULTS / "sip_tables.json").read_text())["table_3_2"]
-        if (RESULTS / "sip_tables.json").is_file() else None,
-        "protocol": {"true_scales": list(TRUE_SCALES), "candidates": list(CANDIDATES), "criterion": args.criterion,
+        "protocol": {"true_scales": list(TRUE_SCALES), "candidates": list(args.candidates or I.SCALE_CANDIDATES),
+                     "refine": args.refine, "criterion": args.criterion,
                      "frames_per_window": args.frames, "clips": len(ok), "subjects": sorted({r["subject"] for r in ok}),
                      "skipped": [r["clip"] for r in per_clip if "skipped" in r], "imu": "sip6, IMUErrorModel.xsens(), 30 fps",
                      "prior": "held_out_prior(exclude=[subject]) with sip_tables' chosen w_mahal",
@@ -232,21 +251,32 @@ def summary(per_clip: list[dict], args) -> dict:
 
 def markdown(res: dict) -> str:
     p = res["protocol"]
-    L = ["# SIP with a body scale estimated from the accelerations (issue 12, item 4)", "",
-         f"Generated by `experiments/sip_body_scale.py`: {p['clips']} held-out windows of {p['frames_per_window']} frames "
-         f"(subjects {', '.join(p['subjects'])}), {p['imu']}, criterion `{p['criterion']}`, candidates {p['candidates']}.", "",
-         "## Estimated scale (subject = true scale × the model)", "",
-         "| true scale | mean | std over clips | mean relative error | at a candidate edge | " + " | ".join(f"{c} (mean ± std)" for c in CRITERIA) + " |",
-         "| --- | --- | --- | --- | --- |" + " --- |" * len(CRITERIA)]  # fmt: skip
+    mae = res["body_scale_mean_abs_error_percent"]
+    L = ["# SIP with a body scale estimated from the accelerations (issues 12 and 46)", "",
+         f"Generated by `experiments/sip_body_scale.py`: {p['clips']} windows of {p['frames_per_window']} frames "
+         f"of the {res['role']} subjects ({', '.join(p['subjects'])}; split `{res['split']['name']}`: settings chosen on "
+         f"{', '.join(res['split']['tuning'])}), {p['imu']}, criterion `{p['criterion']}`, candidates {p['candidates']}, "
+         f"refinement `{p['refine']}`.", ""]  # fmt: skip
+    if mae is not None:
+        L += [f"**Mean absolute error of the estimate: {mae:.2f} %** over {p['clips']} clips × {len(p['true_scales'])} "
+              f"true scales; estimates at a search bound: {res['body_scale_at_edge']}.", ""]
+    L += ["## Estimated scale (subject = true scale × the model)", "",
+          "| true scale | mean | std over clips | mean relative error | mean abs error | max abs error | at a search bound | "
+          + " | ".join(f"{c} (mean ± std)" for c in CRITERIA) + " |",
+          "| --- | --- | --- | --- | --- | --- | --- |" + " --- |" * len(CRITERIA)]  # fmt: skip
     for t, v in res["scale_estimate"].items():
-        L.append(f"| {t} | {v['mean']:.3f} | {v['std']:.3f} | {100 * v['relative_error_mean']:+.1f} % | {v['at_edge']} | "
-                 + " | ".join(f"{b['mean']:.3f} ± {b['std']:.3f}" for b in v["by_criterion"].values()) + " |")
-    L += _paired_table("Errors by true scale: default-size model / estimated scale", "true scale",
-                       res["errors_by_true_scale"], "default_size", "scale_estimated")
-    L += _paired_table("Table 3.2 with the scale estimate (true body = model at 100 %): model size as given / estimated", "",
-                       res["table_3_2_with_scale_estimate"], "model_size_known", "scale_estimated")
-    L += ["", "The estimate does not depend on the size the user assumed (the candidates are the same bodies), "
-          "so the three rows share one estimate.", ""]
+        L.append(f"| {t} | {v['mean']:.3f} | {v['std']:.3f} | {100 * v['relative_error_mean']:+.1f} % | "
+                 f"{v['abs_error_mean_percent']:.1f} % | {v['abs_error_max_percent']:.1f} % | {v['at_edge']} | "
+                 + " | ".join(f"{b['mean']:.3f} ± {b['std']:.3f}" for b in v["by_criterion"].values()) + " |")  # fmt: skip
+    if all(len(v) == 2 for v in res["errors_by_true_scale"].values()):
+        L += _paired_table("Errors by true scale: default-size model / estimated scale", "true scale",
+                           res["errors_by_true_scale"], "default_size", "scale_estimated")
+    if res["table_3_2_with_scale_estimate"] is not None:
+        L += _paired_table("Table 3.2 with the scale estimate (true body = model at 100 %): model size as given / estimated", "",
+                           res["table_3_2_with_scale_estimate"], "model_size_known", "scale_estimated")
+        L += ["", "The estimate does not depend on the size the user assumed (the candidates are the same bodies), "
+              "so the three rows share one estimate.", ""]
+    L.append("")
     return "\n".join(L)
 
 
@@ -260,14 +290,20 @@ def _paired_table(title: str, first: str, rows: dict, a: str, b: str) -> list[st
 
 
 def cache_key(args) -> str:
-    what = [CACHE_VERSION, args.frames, args.seed, args.steps, args.criterion, TRUE_SCALES, CANDIDATES]
+    what = [CACHE_VERSION, args.frames, args.seed, args.steps, args.criterion, args.candidates, args.refine, args.refit]
     return hashlib.sha1(json.dumps(what).encode()).hexdigest()[:10]
 
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--frames", type=int, default=300, help="window length in frames at 30 fps (default 300)")
+    p.add_argument("--role", default="evaluation", choices=("tuning", "evaluation"),
+                   help="the split's subjects: tuning (development, to choose settings) or evaluation (the table)")
+    p.add_argument("--frames", type=int, default=90, help="window length in frames at 30 fps (default 90)")
     p.add_argument("--clips", type=int, help="only N of the eligible clips, spread over the subjects")
+    p.add_argument("--candidates", type=lambda x: tuple(float(v) for v in x.split(",")),
+                   help="comma-separated candidate scales (default inertial.SCALE_CANDIDATES)")
+    p.add_argument("--refine", type=int, help="bisection rounds of the estimate (default inertial.estimate_body_scale's)")
+    p.add_argument("--no-refit", dest="refit", action="store_false", help="skip SIP refitted on the estimated body")
     p.add_argument("--only", help="comma-separated clip indices (see --list): compute and cache those, no summary")
     p.add_argument("--true-scales", help="comma-separated true scales of TRUE_SCALES to compute (default all; no summary)")
     p.add_argument("--list", action="store_true", help="print the clips and their indices")
@@ -279,7 +315,7 @@ def main(argv=None) -> int:
     args = p.parse_args(argv)
     out, cache = Path(args.out), Path(args.cache)
     cache.mkdir(parents=True, exist_ok=True)
-    clips = eligible_clips(args.frames, cache)
+    clips = [c for c in eligible_clips(args.frames, cache) if c.subject in getattr(SPLIT, args.role)]
     if args.clips:
         clips = interleave(clips, args.clips)
     if not clips:
@@ -325,8 +361,10 @@ def main(argv=None) -> int:
     res = summary(per_clip, args)
     res["config"] = {"device": str(jax.devices()[0]), "jax": jax.__version__, "body": "default_body('low'), mean shape"}
     out.mkdir(parents=True, exist_ok=True)
-    atomic_write(out / "sip_body_scale.json", json.dumps(res, indent=1) + "\n")
-    (out / "sip_body_scale.md").write_text(markdown(res))
+    data = {"clips": [c.name for c in clips], "role": args.role}
+    res["split"] = SPLIT.record()
+    write_json(out / "sip_body_scale.json", res, split=SPLIT, data=data, argv=argv)
+    write_text(out / "sip_body_scale.md", markdown(res), split=SPLIT, data=data, argv=argv)
     print(markdown(res))
     return 0
 

@@ -586,8 +586,9 @@ def sparse_inertial_poser_batch(
     return eqx.tree_at(lambda s: s.result, sol, _unless_observed(setups.data, sol.result, frame_mask))
 
 
-#: Default candidate scales of `estimate_body_scale`, relative to the model: ±30 % in 10 % steps.
-SCALE_CANDIDATES = (0.7, 0.8, 0.9, 1.0, 1.1, 1.2, 1.3)
+#: Default candidate scales of `estimate_body_scale`, relative to the model: -30 % to +40 % in 10 % steps
+#: (estimates lean large; 1.0, 1.1, 1.2 are Table 3.2's models).
+SCALE_CANDIDATES = (0.7, 0.8, 0.9, 1.0, 1.1, 1.2, 1.3, 1.4)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -639,6 +640,7 @@ def estimate_body_scale(
     max_steps: int = 100,
     rtol: float = 1e-4,
     atol: float = 1e-4,
+    refine: int = 1,
 ) -> BodyScaleEstimate:
     """One uniform body scale s from the IMU data, by profiling SIP's cost over candidates.
 
@@ -690,34 +692,53 @@ def estimate_body_scale(
         raise ValueError(f"scales must be finite and > 0 (a body scale), got {s.tolist()}.")
     if len(np.unique(s)) != len(s):
         raise ValueError(f"scales must be distinct, got {s.tolist()}.")
+    if not (isinstance(refine, int) and refine >= 0):
+        raise ValueError(f"refine must be an int >= 0 (rounds of bisection around the best candidate), got {refine!r}.")
     s = np.sort(s)
     setups = [make_setup(float(x)) for x in s]
     bad = [type(x).__name__ for x in setups if not isinstance(x, InertialSetup)]
     if bad:
         raise ValueError(f"make_setup must return InertialSetup objects (from calibrate), got {bad[0]}.")
     T = setups[0].num_frames
-    stacked = stack_setups(setups)  # checks equal frames, sensors and rate
+    stack_setups(setups)  # checks equal frames, sensors and rate before any solve
     if init is None:
         # E_ori and the prior are size-free, so SOP is the same on every candidate body.
         init, _ = sparse_orientation_poser(setups[0], weights)
     init = jnp.asarray(init, setups[0].pose0.dtype)
     if init.shape != (T, 24, 3):
         raise ValueError(f"init has shape {init.shape}; expected (T, 24, 3) = ({T}, 24, 3).")
-    K = len(s)
-    if init_trans is not None:
-        if jnp.shape(init_trans) != (T, 3):
-            raise ValueError(f"init_trans has shape {jnp.shape(init_trans)}; expected (T, 3) = ({T}, 3).")
-        init_trans = jnp.broadcast_to(jnp.asarray(init_trans), (K, T, 3))
-    sol = sparse_inertial_poser_batch(
-        stacked, jnp.broadcast_to(init, (K,) + init.shape), init_trans, weights, max_steps=max_steps, rtol=rtol, atol=atol
-    )  # fmt: skip
-    costs = {k: np.asarray(v, float) for k, v in sol.costs.items()}
-    profile = _profile(costs, criterion)
+    if init_trans is not None and jnp.shape(init_trans) != (T, 3):
+        raise ValueError(f"init_trans has shape {jnp.shape(init_trans)}; expected (T, 3) = ({T}, 3).")
+
+    def fits(setups):  # every candidate from the same start: their costs compare
+        K = len(setups)
+        trans = None if init_trans is None else jnp.broadcast_to(jnp.asarray(init_trans), (K, T, 3))
+        return sparse_inertial_poser_batch(
+            stack_setups(setups), jnp.broadcast_to(init, (K,) + init.shape), trans, weights,
+            max_steps=max_steps, rtol=rtol, atol=atol,
+        )  # fmt: skip
+
+    sol = fits(setups)
+    profile = _profile({k: np.asarray(v, float) for k, v in sol.costs.items()}, criterion)
     if not np.isfinite(profile).any():
         raise ValueError("estimate_body_scale: no candidate fit ended with a finite cost (non-finite readings or start?).")
+    lo, hi = s[0], s[-1]
+    at_edge = s[int(np.argmin(profile))] in (lo, hi)
+    for _ in range(refine if not at_edge else 0):
+        # Bisect towards the best candidate's neighbours: the vertex is then fitted through
+        # points half as far apart, where the profile is closer to a parabola.
+        best = int(np.argmin(profile))
+        new = np.asarray([(s[best - 1] + s[best]) / 2, (s[best] + s[best + 1]) / 2])
+        more = fits([make_setup(float(x)) for x in new])
+        s = np.concatenate([s, new])
+        sol = jax.tree_util.tree_map(lambda a, b: jnp.concatenate([a, b]), sol, more)
+        order = np.argsort(s)
+        s, sol = s[order], jax.tree_util.tree_map(lambda a, o=order: a[o], sol)
+        profile = _profile({k: np.asarray(v, float) for k, v in sol.costs.items()}, criterion)
+    costs = {k: np.asarray(v, float) for k, v in sol.costs.items()}
     best = int(np.argmin(profile))
     scale = _parabola_vertex(s, profile, best)
-    return BodyScaleEstimate(scale, s, profile, costs, criterion, best, best in (0, K - 1), sol)
+    return BodyScaleEstimate(scale, s, profile, costs, criterion, best, at_edge, sol)
 
 
 def _parabola_vertex(s: np.ndarray, c: np.ndarray, best: int) -> float:
