@@ -1,6 +1,7 @@
 """Body scale from the accelerations (issues 12 and 46): SIP with an estimated body size, on held-out motion.
 
-    python experiments/sip_body_scale.py --role tuning --clips 4 --candidates 0.70,0.75,...,1.40 --refine 0 --no-refit
+    python experiments/sip_body_scale.py --role tuning --clips 3 --candidates 0.70,0.75,...,1.40 --refine 0 --no-refit \\
+        --criterion data --out experiments/results          # the choice: sip_body_scale_tuning.json/.md
     python experiments/sip_body_scale.py --clips 6 --no-refit --out experiments/results   # the table (evaluation subjects)
     python experiments/sip_body_scale.py --list                   # the clips and their indices
     python experiments/sip_body_scale.py --only 0,1               # one process per clip group (cached)
@@ -45,7 +46,8 @@ pose put on the true body (size error removed); MPJAE on the TotalCapture joints
 Results are cached in `--cache` as one JSON per (clip, true scale), written to a temporary
 file and renamed, so parallel processes can split the work (`--only`, `--true-scales`); a
 run without them computes whatever is still missing, then writes `sip_body_scale.json` and
-`.md` to `--out`.
+`.md` (`sip_body_scale_tuning.*` for the tuning role, with every criterion and search read
+off its grid by `replay`) to `--out`.
 """
 
 from __future__ import annotations
@@ -225,7 +227,7 @@ def summary(per_clip: list[dict], args) -> dict:
                   "per_clip": {r["clip"]: r["true_scales"][t]["estimate"] for r in ok},
                   "by_criterion": {c: {"mean": float(np.mean([r["true_scales"][t]["estimate_by_criterion"][c] for r in ok])),
                                        "std": float(np.std([r["true_scales"][t]["estimate_by_criterion"][c] for r in ok]))}
-                                   for c in CRITERIA}}  # fmt: skip
+                                   for c in CRITERIA if all(c in r["true_scales"][t]["estimate_by_criterion"] for r in ok)}}  # fmt: skip
         by_scale[t] = {m: {k: avg([r["true_scales"][t][m][k] for r in ok]) for k in keys}
                        for m in ("default_size", "scale_estimated") if all(m in r["true_scales"][t] for r in ok)}  # fmt: skip
     t32 = None
@@ -237,6 +239,7 @@ def summary(per_clip: list[dict], args) -> dict:
         "body_scale_mean_abs_error_percent": float(100 * np.mean(abs_err)) if args.role == "evaluation" else None,
         "body_scale_at_edge": int(sum(v["at_edge"] for v in est.values())),
         "role": args.role,
+        "tuning": tuning_table(ok) if args.role == "tuning" else None,
         "scale_estimate": est,
         "errors_by_true_scale": by_scale,
         "table_3_2_with_scale_estimate": t32,
@@ -250,21 +253,67 @@ def summary(per_clip: list[dict], args) -> dict:
     }  # fmt: skip
 
 
+#: The searches the tuning role compares, read off its 0.05 grid: (name, grid step, bisection rounds).
+SEARCHES = (("grid 0.05", 0.05, 0), ("grid 0.1", 0.1, 0), ("grid 0.1 + 1 bisection", 0.1, 1))
+
+
+def replay(fine: np.ndarray, profile: np.ndarray, step: float, refine: int):
+    """`estimate_body_scale`'s search (grid over the fine grid's range, bisection rounds,
+    parabola) on costs already fitted on a finer grid that holds every point it visits."""
+    lo, hi = fine[0], fine[-1]
+    at = lambda xs: [int(np.argmin(np.abs(fine - x))) for x in xs]  # noqa: E731
+    idx = at(np.arange(lo, hi + step / 2, step))
+    s, c = fine[idx], profile[idx]
+    edge = int(np.argmin(c)) in (0, len(s) - 1)
+    for _ in range(0 if edge else refine):
+        b = int(np.argmin(c))
+        j = at([(s[b - 1] + s[b]) / 2, (s[b] + s[b + 1]) / 2])
+        s, c = np.concatenate([s, fine[j]]), np.concatenate([c, profile[j]])
+        o = np.argsort(s)
+        s, c = s[o], c[o]
+    return I._parabola_vertex(s, c, int(np.argmin(c))), edge
+
+
+def tuning_table(ok: list[dict]) -> dict:
+    """Mean absolute error, bias and bound hits of every criterion and search on the tuning clips."""
+    out = {}
+    for crit in CRITERIA:
+        for name, step, refine in SEARCHES:
+            rel, edges = [], 0
+            for r in ok:
+                for t, v in r["true_scales"].items():
+                    fine = np.asarray(v["candidates"])
+                    e, edge = replay(fine, I._profile({k: np.asarray(x) for k, x in v["costs"].items()}, crit), step, refine)
+                    rel.append(e / float(t) - 1)
+                    edges += edge
+            rel = np.asarray(rel)
+            out[f"{crit}, {name}"] = {"mean_abs_error_percent": float(100 * np.abs(rel).mean()), "bias_percent": float(100 * rel.mean()),
+                                      "max_abs_error_percent": float(100 * np.abs(rel).max()), "at_edge": edges, "cases": len(rel)}  # fmt: skip
+    return out
+
+
 def markdown(res: dict) -> str:
     p = res["protocol"]
     mae = res["body_scale_mean_abs_error_percent"]
+    crits = list(next(iter(res["scale_estimate"].values()))["by_criterion"])
     L = ["# SIP with a body scale estimated from the accelerations (issues 12 and 46)", "",
          f"Generated by `experiments/sip_body_scale.py`: {p['clips']} windows of {p['frames_per_window']} frames "
          f"of the {res['role']} subjects ({', '.join(p['subjects'])}; split `{res['split']['name']}`: settings chosen on "
          f"{', '.join(res['split']['tuning'])}), {p['imu']}, criterion `{p['criterion']}`, candidates {p['candidates']}, "
          f"refinement `{p['refine']}`.", ""]  # fmt: skip
+    if res.get("tuning") is not None:
+        L += ["## Criteria and searches on the development subjects (read off the 0.05 grid)", "",
+              "| criterion, search | mean abs error | bias | max abs error | at a bound |", "| --- | --- | --- | --- | --- |"]
+        L += [f"| {k} | {v['mean_abs_error_percent']:.2f} % | {v['bias_percent']:+.2f} % | {v['max_abs_error_percent']:.1f} % | "
+              f"{v['at_edge']} of {v['cases']} |" for k, v in res["tuning"].items()]  # fmt: skip
+        L.append("")
     if mae is not None:
         L += [f"**Mean absolute error of the estimate: {mae:.2f} %** over {p['clips']} clips × {len(p['true_scales'])} "
               f"true scales; estimates at a search bound: {res['body_scale_at_edge']}.", ""]
     L += ["## Estimated scale (subject = true scale × the model)", "",
           "| true scale | mean | std over clips | mean relative error | mean abs error | max abs error | at a search bound | "
-          + " | ".join(f"{c} (mean ± std)" for c in CRITERIA) + " |",
-          "| --- | --- | --- | --- | --- | --- | --- |" + " --- |" * len(CRITERIA)]  # fmt: skip
+          + " | ".join(f"{c} (mean ± std)" for c in crits) + " |",
+          "| --- | --- | --- | --- | --- | --- | --- |" + " --- |" * len(crits)]  # fmt: skip
     for t, v in res["scale_estimate"].items():
         L.append(f"| {t} | {v['mean']:.3f} | {v['std']:.3f} | {100 * v['relative_error_mean']:+.1f} % | "
                  f"{v['abs_error_mean_percent']:.1f} % | {v['abs_error_max_percent']:.1f} % | {v['at_edge']} | "
@@ -364,8 +413,9 @@ def main(argv=None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     data = {"clips": [c.name for c in clips], "role": args.role}
     res["split"] = SPLIT.record()
-    write_json(out / "sip_body_scale.json", res, split=SPLIT, data=data, argv=argv)
-    write_text(out / "sip_body_scale.md", markdown(res), split=SPLIT, data=data, argv=argv)
+    name = "sip_body_scale" if args.role == "evaluation" else "sip_body_scale_tuning"
+    write_json(out / f"{name}.json", res, split=SPLIT, data=data, argv=argv)
+    write_text(out / f"{name}.md", markdown(res), split=SPLIT, data=data, argv=argv)
     print(markdown(res))
     return 0
 
