@@ -406,7 +406,8 @@ def main(argv=None) -> int:
         else:
             rec["true_scales"] = {k: v for p in parts for k, v in p["true_scales"].items()}
             rec["seconds"] = {repr(t): p["seconds"] for t, p in zip(TRUE_SCALES, parts)}
-            rec["table_3_2"] = parts[TRUE_SCALES.index(1.0)]["table_3_2"]
+            if "table_3_2" in parts[TRUE_SCALES.index(1.0)]:  # only with the refits
+                rec["table_3_2"] = parts[TRUE_SCALES.index(1.0)]["table_3_2"]
         per_clip.append(rec)
     res = summary(per_clip, args)
     res["config"] = {"device": str(jax.devices()[0]), "jax": jax.__version__, "body": "default_body('low'), mean shape"}
