@@ -53,6 +53,7 @@ off its grid by `replay`) to `--out`.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import fcntl
 import hashlib
 import json
@@ -145,7 +146,10 @@ def run_clip(clip, args, body, folds, true_scales) -> dict:
     T = args.frames
     prior = held_out_prior(folds, clip.subject)
     w = I.SIPWeights(mahal=chosen_w_mahal(clip.subject))
-    cfg = ScenarioConfig(fps=FPS, max_frames=T + MARGIN, imu_set="sip6", imu_errors=IMUErrorModel.xsens(), betas_std=0.0)
+    errs = IMUErrorModel.xsens()
+    if not args.placement_error:  # a diagnosis: how much of the scale error the 2 cm placement error makes
+        errs = dataclasses.replace(errs, placement_offset=0.0)
+    cfg = ScenarioConfig(fps=FPS, max_frames=T + MARGIN, imu_set="sip6", imu_errors=errs, betas_std=0.0)
     # Each clip is its own scenario: a seed per clip gives each its own sensor errors (one
     # seed for all would repeat one draw of placement offsets, biases, ...), the same
     # for every true scale (paired).
@@ -246,7 +250,8 @@ def summary(per_clip: list[dict], args) -> dict:
         "protocol": {"true_scales": list(TRUE_SCALES), "candidates": list(args.candidates or I.SCALE_CANDIDATES),
                      "refine": args.refine, "criterion": args.criterion,
                      "frames_per_window": args.frames, "clips": len(ok), "subjects": sorted({r["subject"] for r in ok}),
-                     "skipped": [r["clip"] for r in per_clip if "skipped" in r], "imu": "sip6, IMUErrorModel.xsens(), 30 fps",
+                     "skipped": [r["clip"] for r in per_clip if "skipped" in r],
+                     "imu": "sip6, IMUErrorModel.xsens()" + ("" if args.placement_error else " without placement error") + ", 30 fps",
                      "prior": "held_out_prior(exclude=[subject]) with sip_tables' chosen w_mahal",
                      "solves": f"float64, rtol = atol = {TOL}, at most {args.steps} LM steps, SOP start", "seed": args.seed},
         "per_clip": per_clip,
@@ -341,6 +346,8 @@ def _paired_table(title: str, first: str, rows: dict, a: str, b: str) -> list[st
 
 def cache_key(args) -> str:
     what = [CACHE_VERSION, args.frames, args.seed, args.steps, args.criterion, args.candidates, args.refine, args.refit]
+    if not args.placement_error:  # keeps the keys of the runs made before this option
+        what.append("no placement error")
     return hashlib.sha1(json.dumps(what).encode()).hexdigest()[:10]
 
 
@@ -354,6 +361,8 @@ def main(argv=None) -> int:
                    help="comma-separated candidate scales (default inertial.SCALE_CANDIDATES)")
     p.add_argument("--refine", type=int, help="bisection rounds of the estimate (default inertial.estimate_body_scale's)")
     p.add_argument("--no-refit", dest="refit", action="store_false", help="skip SIP refitted on the estimated body")
+    p.add_argument("--no-placement-error", dest="placement_error", action="store_false",
+                   help="sensors exactly where the model puts them (IMUErrorModel.xsens() with placement_offset=0)")
     p.add_argument("--only", help="comma-separated clip indices (see --list): compute and cache those, no summary")
     p.add_argument("--true-scales", help="comma-separated true scales of TRUE_SCALES to compute (default all; no summary)")
     p.add_argument("--list", action="store_true", help="print the clips and their indices")
@@ -414,7 +423,7 @@ def main(argv=None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     data = {"clips": [c.name for c in clips], "role": args.role}
     res["split"] = SPLIT.record()
-    name = "sip_body_scale" if args.role == "evaluation" else "sip_body_scale_tuning"
+    name = "sip_body_scale" + ("" if args.role == "evaluation" else "_tuning") + ("" if args.placement_error else "_no_placement_error")
     write_json(out / f"{name}.json", res, split=SPLIT, data=data, argv=argv)
     write_text(out / f"{name}.md", markdown(res), split=SPLIT, data=data, argv=argv)
     print(markdown(res))
