@@ -680,9 +680,9 @@ def estimate_body_scale(
     evaluation subjects (6 clips × true scales 0.9, 1.0, 1.1; none at a bound), against
     1.35 % on the development subjects. The error is one factor per clip, the same for every
     true scale (-10 % to +8 %): the sensors' 2 cm placement error moves the lever arms the
-    estimate measures. Without it (`--no-placement-error`) 005_01 comes out at 1.014 for
-    1.0, with it at 0.906. So the estimate helps when the size is unknown or off by 10 % or
-    more; a known size is better given.
+    estimate measures. Without it (experiments/results/sip_body_scale_no_placement_error.md)
+    the first 3 of those clips err by 1.07 % on average, with it by 8.9 %. So the estimate
+    helps when the size is unknown or off by 10 % or more; a known size is better given.
 
     Args:
         make_setup: s -> the `InertialSetup` calibrated with the body scaled by s
