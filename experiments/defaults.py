@@ -243,6 +243,9 @@ def write(out: dict, folder: Path) -> None:
                      f"{mean('sip_best'):.1f} | {mean('sop_validated'):.1f} |")  # fmt: skip
     n_worse = sum(rows["sip_validated"][i]["mpjpe_mm"] > rows["sip_thesis"][i]["mpjpe_mm"] for i in range(len(names)))
     lines += ["", f"The default is worse than the thesis preset on {n_worse} of {len(names)} clips."]
+    copied = [f"- `{k}`: {out[k]:.4g} (from {src})" for k, src in out.get("copied_from", {}).items() if out.get(k) is not None]
+    if copied:
+        lines += ["", "Measured by other experiments on the evaluation subjects, copied here:", "", *copied]
     data = {"tuning_clips": out["tuning"]["clips"], "evaluation_clips": out["evaluation"]["clips"]}
     write_text(folder / "defaults.md", "\n".join(lines) + "\n", split=SPLIT, data=data)
     write_json(folder / "defaults.json", out, split=SPLIT, data=data)

@@ -32,7 +32,6 @@ PREDATE_SPLITS = {
     "intercap_scene06/metrics.json": "one scene's metrics of intercap_tables.py (GPU)",
     "learn_weights_gradcheck.json": "gradient check on one training clip; learn_weights.py --gradcheck-only",
     "sip_ablation/summary.json": "the sweep's summary (jaxmocap sweep experiments/sweeps/sip_ablation.toml, GPU)",
-    "sip_body_scale.json": "experiments/sip_body_scale.py, edited by another change this wave",
     "sip_tables.json": "nested tuning let the locked subject 07 tune; sip_tables.py on the GPU",
     "sip_tables_engine_v2_check.json": "compares two sip_tables.json runs (compare_tables.py); no data of its own",
     "vip_association.json": "development seeds drew evaluated subjects' clips; vip_association.py --fusion on the GPU",
@@ -185,7 +184,6 @@ def test_tuning_inside_the_folds_never_reads_the_locked_subject():
 
 # Experiments that write no result file through experiments/_provenance.py: why.
 WITHOUT_PROVENANCE = {
-    "sip_body_scale.py": "edited by another change this wave; its results are listed in PREDATE_SPLITS",
     "make_datasets.py": "writes benchmark datasets into a cache folder, no result",
     "vip_association_unseen.py": "adds its blocks, each with its own split record, into vip_association.json "
     "(and retrains the shipped weights file); not yet recorded in provenance.json",
