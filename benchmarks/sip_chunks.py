@@ -12,7 +12,7 @@ chunk_size=CHUNK)` with rtol = atol = 0; "default" is the backend's choice and "
 (issue 20, goal 5): the frame-order factorisations ("rows"; "twisted", since removed) are latency-bound
 on a GPU, so larger chunks should help them where cyclic reduction is throughput-bound.
 
-`--step` times one LM step's factorisation and solve alone, per chunk (`structured.factor`
+`--step` times one LM step's factorisation and solve alone, per chunk (`factorise.factor`
 and `solve_factored`, vmapped over the chunk, on SIP normal equations of 125 sequences
 linearised once and repeated), so that a chunk's memory is only the step's. It asks
 whether the scans ever catch up with cyclic reduction once memory allows bigger chunks.
@@ -70,7 +70,7 @@ def _one(spec: str, sequences: int, frames: int, iters: int) -> dict:
 def _one_step(spec: str, frames: int) -> dict:
     """One LM step's factor + solve for a chunk of `spec`'s size (see `--step`)."""
     from jaxmocap.methods import inertial
-    from jaxmocap.solve import solver, structured
+    from jaxmocap.solve import factorise, linearisation, solver
 
     method, chunk = spec.split(":")
     chunk, base = int(chunk), min(int(chunk), 125)
@@ -79,17 +79,17 @@ def _one_step(spec: str, frames: int) -> dict:
     params = {"pose": jnp.broadcast_to(setup.pose0, (frames, 24, 3)) + 0.01,
               "trans": jnp.broadcast_to(setup.trans0, (frames, 3))}  # fmt: skip
     layout, params, _, dtype = solver.check_inputs(problem, params, setup.data, None, None)
-    st = solver.Args(problem, setup.data, None, layout).structure()
+    st = linearisation.Args(problem, setup.data, None, layout).structure()
     method = None if method == "default" else method
     stack = lambda tree, k: jax.tree.map(lambda x: jnp.array(jnp.broadcast_to(x, (k,) + jnp.shape(x))), tree)  # noqa: E731
 
     @jax.vmap
     def linearise(y, data):
-        return solver.linearise(y, solver.Args(problem, data, None, layout), st, dtype, dtype, method)[:2]
+        return linearisation.linearise(y, linearisation.Args(problem, data, None, layout), st, dtype, dtype, method)[:2]
 
     @jax.vmap
     def step(normal, grad):
-        return structured.solve_factored(structured.factor(normal, st, jnp.float32(10.0), False, method), *grad)
+        return factorise.solve_factored(factorise.factor(normal, st, jnp.float32(10.0), False, method), *grad)
 
     row = {"method": spec.split(":")[0], "chunk": chunk}
     with jax.default_matmul_precision("highest"):

@@ -377,8 +377,8 @@ def dense_check(kind: str, T: int, lams, chunk: int, max_n: int, backend: str = 
     import scipy.sparse as sp
 
     from jaxmocap.solve import Args
-    from jaxmocap.solve.solver import linearise
-    from jaxmocap.solve.structured import factor, solve_factored
+    from jaxmocap.solve.linearisation import linearise
+    from jaxmocap.solve.factorise import factor, solve_factored
     from jaxmocap.solve.unknowns import retract, to_manifold
 
     f64 = jnp.float64

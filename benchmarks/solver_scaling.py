@@ -167,7 +167,7 @@ def step_agreement(T: int = 40) -> dict:
 
     from jaxmocap._compat import damped_operator
     from jaxmocap.solve import Args, linear_solver
-    from jaxmocap.solve.solver import residuals
+    from jaxmocap.solve.linearisation import residuals
 
     body = jaxmocap.default_body("low")
     out = {"T": T, "lambda": 1.0}

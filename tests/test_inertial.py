@@ -59,13 +59,13 @@ def _exp(w):
 def _lm_step(problem, params, data, lam=0.1):
     """Cost and damped LM step of the engine's linearisation (float64), layout order."""
     from jaxmocap.solve import Args
-    from jaxmocap.solve import solver as S
-    from jaxmocap.solve.structured import factor, solve_factored
+    from jaxmocap.solve.linearisation import linearise
+    from jaxmocap.solve.factorise import factor, solve_factored
 
     layout = problem.layout(params)
     args = Args(problem, data, None, layout)
     st = args.structure()
-    normal, (gF, _, _), cost = S.linearise(params, args, st, jnp.float64, jnp.float64)
+    normal, (gF, _, _), cost = linearise(params, args, st, jnp.float64, jnp.float64)
     step = solve_factored(factor(normal, st, lam), gF)[0]
     return st, cost, st.from_solver_order(gF), st.from_solver_order(step)
 

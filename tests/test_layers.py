@@ -95,16 +95,24 @@ def test_import_jaxmocap_stays_light(heavy):
 
 
 def _module_graph() -> dict[str, set[str]]:
-    """module -> the package modules it imports (lazy imports included), packages' own
-    __init__ re-exports left out (they import their submodules by design)."""
-    files = {p: "jaxmocap." + ".".join(p.relative_to(PACKAGE).with_suffix("").parts) for p in PACKAGE.rglob("*.py")}
-    modules = {m for p, m in files.items() if p.name != "__init__.py"}
+    """module -> the package modules it imports.
+
+    Every import counts, at module level or inside a function: a lazy import only
+    postpones the circle to the first call, and two modules that import each other can
+    be neither read nor moved apart. A package is a module too (its __init__): `from
+    ..solve import Term` is an edge to `jaxmocap.solve`, whose re-exports are edges to
+    its submodules, so a circle through a package's front door is found. Left out is the
+    implicit import of a module's parent packages (importing jaxmocap.solve.batch runs
+    jaxmocap/solve/__init__.py first): every package that re-exports its submodules
+    would close a harmless circle with each of them.
+    """
+    files = {p: ".".join(("jaxmocap",) + p.relative_to(PACKAGE).with_suffix("").parts).removesuffix(".__init__")
+             for p in PACKAGE.rglob("*.py")}  # fmt: skip
+    modules = set(files.values())
     graph: dict[str, set[str]] = {m: set() for m in modules}
-    for path in files:
-        if path.name == "__init__.py":
-            continue
-        for module, target, _ in _imports(path):
-            while target and target not in modules and "." in target:
+    for path, module in files.items():
+        for _, target, _ in _imports(path):
+            while target not in modules and "." in target:
                 target = target.rsplit(".", 1)[0]  # `from .sweep import atomic_write` -> the module
             if target in modules and target != module:
                 graph[module].add(target)
@@ -147,6 +155,22 @@ def test_no_import_circles():
     assert _cycles({"a": {"b"}, "b": {"a"}, "c": {"a"}}) == [["a", "b"]]  # the checker sees one
     cycles = _cycles(_module_graph())
     assert not cycles, "modules that import each other (directly or round a circle):\n" + "\n".join(" <-> ".join(c) for c in cycles)
+
+
+def test_the_checker_sees_a_circle_through_a_package(tmp_path):
+    # a/x.py imports b's front door in a function; b/y.py imports a's: a circle that only
+    # counting packages (and lazy imports) as modules finds.
+    files = {"__init__.py": "", "a/__init__.py": "from .x import f\n", "a/x.py": "def f():\n    from ..b import g\n",
+             "b/__init__.py": "from .y import g\n", "b/y.py": "from ..a import f\ng = f\n"}  # fmt: skip
+    for name, text in files.items():
+        (tmp_path / "jaxmocap" / name).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / "jaxmocap" / name).write_text(text)
+    global PACKAGE
+    saved, PACKAGE = PACKAGE, tmp_path / "jaxmocap"
+    try:
+        assert _cycles(_module_graph()) == [["jaxmocap.a", "jaxmocap.a.x", "jaxmocap.b", "jaxmocap.b.y"]]
+    finally:
+        PACKAGE = saved
 
 
 # Underscored names imported from another module that are allowed (none: the owner makes a

@@ -31,7 +31,7 @@ from jaxmocap.solve import (
     solve_batch,
 )
 from jaxmocap.solve import frame, linear_solver, sequence, window
-from jaxmocap.solve.solver import residuals
+from jaxmocap.solve.linearisation import residuals
 from jaxmocap.solve.unknowns import to_manifold
 from solve_chain import (
     e_ori,
@@ -89,8 +89,8 @@ def test_structured_step_equals_dense_step(variant, tridiagonal):
     Every factorisation of the frame band: sequential scan and cyclic reduction of the
     band, and both in the coupling rows' space (used where the rows are fewer than the coupled unknowns:
     the narrow variants; the band's elsewhere)."""
-    from jaxmocap.solve.solver import linearise
-    from jaxmocap.solve.structured import factor, solve_factored
+    from jaxmocap.solve.linearisation import linearise
+    from jaxmocap.solve.factorise import factor, solve_factored
 
     problems, data = _variants(9)
     problem, params = problems[variant]
@@ -217,7 +217,7 @@ def test_block_jacobian_normal_equations_match_dense(W):
     frame, W = I; a permuted solver order (a coupled term reads items 1 and 3), a padded
     frame, and a masked term that must use the dense form."""
     from jaxmocap.solve import BlockJacobian
-    from jaxmocap.solve.solver import linearise
+    from jaxmocap.solve.linearisation import linearise
 
     T, J, k, index = 6, 3, 3, (0, 2, 3)
     rng = np.random.default_rng(len(W))
@@ -281,7 +281,7 @@ def test_inverse_cholesky_matches_numpy(n):
 
 def test_solves_use_full_float32_products():
     """Every matrix product of a solve and of its adjoint is traced at HIGHEST precision:
-    GPUs' default TF32 products left SIP at 2.5x the cost (structured.full_precision)."""
+    GPUs' default TF32 products left SIP at 2.5x the cost (structure.full_precision)."""
     import re
 
     problems, data = _variants(5)
@@ -651,7 +651,7 @@ _BASIS_TERM = basis_term("smooth", WindowBasis("coef", _chain_features, _poly_ba
                          weight=30.0, loss=GemanMcClure(0.2))  # fmt: skip
 _PER_FRAME = [t for t in CHAIN.terms if t.bandwidth == 0]  # orientations and the translation pin
 _BASIS = Problem([*_PER_FRAME, _BASIS_TERM], {"rot": frame("so3"), "coef": window(5)})
-# The same energy as an ordinary window term: the generic elimination of structured.py.
+# The same energy as an ordinary window term: the generic elimination of factorise.py.
 _GENERIC = Problem([*_PER_FRAME, Term("smooth", _BASIS_TERM.fn, 30.0, loss=GemanMcClure(0.2), reads=_BASIS_TERM.reads)],
                    {"rot": frame("so3"), "coef": window(5)})  # fmt: skip
 

@@ -17,6 +17,8 @@ from .batch import pad_sequences as pad_sequences
 from .batch import plan_batch as plan_batch
 from .batch import solve_batch as solve_batch
 from .batch import with_weights as with_weights
+from .linearisation import Args as Args
+from .linearisation import linearise as linearise
 from .residuals import BlockJacobian as BlockJacobian
 from .residuals import Cauchy as Cauchy
 from .residuals import GemanMcClure as GemanMcClure
@@ -30,11 +32,9 @@ from .solver import METHODS as METHODS
 from .solver import NO_OBSERVATIONS as NO_OBSERVATIONS
 from .solver import check_bandwidths as check_bandwidths
 from .solver import measure_bandwidths as measure_bandwidths
-from .solver import Args as Args
 from .solver import Solution as Solution
 from .solver import VonMarcardLM as VonMarcardLM
 from .solver import linear_solver as linear_solver
-from .solver import linearise as linearise
 from .solver import result_message as result_message
 from .solver import solve as solve
 from .structured import StructuredCholesky as StructuredCholesky

@@ -4,7 +4,7 @@ A basis term pulls per-frame features f(x_t) ∈ R^Q (MuVS: the 72 joint coordin
 towards their reconstruction from a small basis per window of L frames (Huang eq. 4.8:
 the first K DCT vectors, coefficients c_w ∈ R^{K×Q}). Every frame of a window is then
 tied to every other through the K·Q coefficients. The generic window elimination
-(`structured.py`) would take those columns by K·Q Jacobian-vector products and fill the
+(`factorise.py`) would take those columns by K·Q Jacobian-vector products and fill the
 window block with dense n × K·Q products per frame. The structure is Kronecker: row
 (t, q) reads x_t and only the K coefficients of coordinate q of t's window, with
 ∂r_tq/∂c_wkq = −g_tq b_tk (g the slope of the weighted robust loss, b_t the basis row of
@@ -38,6 +38,7 @@ import numpy as np
 from jax import Array
 
 from .residuals import Term
+from .structure import Factorisation, NormalEquations, Structure
 
 __all__ = ["WindowBasis", "basis_term", "BasisNormal", "BasisFactor", "basis_normal", "basis_factor", "basis_solve"]
 
@@ -88,7 +89,7 @@ class WindowBasis(eqx.Module):
         return (f - self.fit(params[self.key], f.shape[0]))[:, None, :, None]
 
 
-class BasisNormal(eqx.Module):
+class BasisNormal(NormalEquations):
     """A basis problem linearised: H (T, n, n) per frame (every term), U (T, n, Q),
     Hcc (W, Q, K, K), the basis rows (T, K) and the pinned coefficients (W, Q, K)."""
 
@@ -99,8 +100,12 @@ class BasisNormal(eqx.Module):
     unused: Array
     length: int = eqx.field(static=True)
 
+    def factor(self, st: Structure, damping, marquardt: bool = False, tridiagonal: str | None = None) -> BasisFactor:
+        del st, tridiagonal  # its own structure: no frame band
+        return basis_factor(self, damping, marquardt)
 
-class BasisFactor(eqx.Module):
+
+class BasisFactor(Factorisation):
     """`BasisNormal` + damping factorised: per-frame Cholesky factors A (T, n, n),
     Y = A⁻¹ U, the windows' Schur complements' factors (W, QK, QK)."""
 
@@ -110,6 +115,9 @@ class BasisFactor(eqx.Module):
     S: Array
     rows: Array
     length: int = eqx.field(static=True)
+
+    def solve(self, bF: Array, bW: Array | None = None, bG: Array | None = None):
+        return basis_solve(self, bF, bW, bG)
 
 
 def _by_window(x: Array, L: int) -> Array:
@@ -156,7 +164,7 @@ def basis_factor(normal: BasisNormal, lam, marquardt: bool = False) -> BasisFact
     lam = jnp.asarray(lam, dtype)
     dH = jnp.diagonal(H, axis1=-2, axis2=-1)
     dC = jnp.diagonal(Hcc, axis1=-2, axis2=-1)  # (W, Q, K)
-    if marquardt:  # floored as in `structured._damp_scale`
+    if marquardt:  # floored as in `factorise._damp_scale`
         dH = jnp.maximum(dH, 1e-12 * jnp.maximum(jnp.max(dH), 1.0))
         dC = jnp.maximum(dC, 1e-12 * jnp.maximum(jnp.max(dC), 1.0))
     else:

@@ -40,7 +40,8 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from .._checks import check_weight
 from .._checks import check_max_steps
-from .solver import METHODS, Args, Solution, check_inputs, check_tridiagonal, solve_unjitted
+from .linearisation import Args
+from .solver import METHODS, Solution, check_inputs, check_tridiagonal, solve_unjitted
 
 __all__ = [
     "pad_sequences",

@@ -39,7 +39,8 @@ from jax import Array
 
 from ..timeseries import shift_frames
 from .tridiagonal import (
-    CYCLIC_BASE, CYCLIC_RECURSIVE_BLOCKS, SCAN_BASE, interleave_blocks, inverse_cholesky, pad_blocks, shift_blocks_down,
+    CYCLIC_BASE, CYCLIC_RECURSIVE_BLOCKS, SCAN_BASE, CoupledFactor, interleave_blocks, inverse_cholesky, pad_blocks,
+    shift_blocks_down,
 )  # fmt: skip
 
 __all__ = [
@@ -47,7 +48,18 @@ __all__ = [
 ]  # fmt: skip
 
 
-class RowsFactor(eqx.Module):
+class _FrameOrder(CoupledFactor):
+    """A factor in the coupling rows' space: right-hand sides per frame as they are
+    (T, n, ...), no windows (`uses_rows` excludes them)."""
+
+    def pack(self, xF: Array | None, xW: Array | None) -> Array:
+        return xF
+
+    def unpack(self, x: Array):
+        return x, None
+
+
+class RowsFactor(_FrameOrder):
     """L (T, n, n) inverse pivot factors, K (T, n, (2B+1)R), E_o (T, 2BR, n) and
     F (T, (2B+1)R, 2B, n): the rows of groups s-B .. s+B on frames s+1 .. s+2B."""
 
@@ -55,6 +67,10 @@ class RowsFactor(eqx.Module):
     K: Array
     Eo: Array
     F: Array
+
+    def solve(self, b: Array) -> Array:
+        """H⁻¹ b for b (T, n, k)."""
+        return rows_solve(self, b)
 
 
 def _on_frame(C: Array, k: int) -> Array:
@@ -150,12 +166,16 @@ class RowsCyclicLevel(eqx.Module):
     Z: Array  # (Ko, r, N) of the even block after it
 
 
-class RowsCyclicFactor(eqx.Module):
+class RowsCyclicFactor(_FrameOrder):
     """Block cyclic reduction of the 2B-frame super-blocks with off-diagonal blocks kept as
     U_k = Y_kᵀ M_k Z_k (rank r = 2BR); `last` the final block's inverse factor."""
 
     levels: tuple[RowsCyclicLevel, ...]
     last: Array  # (1, N, N)
+
+    def solve(self, b: Array) -> Array:
+        """H⁻¹ b for b (T, n, k)."""
+        return rows_cyclic_solve(self, b)
 
 
 def _band_from_rows(C: Array, e: int) -> Array:

@@ -1,14 +1,15 @@
 """Symmetric positive definite block-tridiagonal solves, sequential or parallel in time.
 
 A has diagonal blocks D_k and super-diagonal blocks U_k = A_{k,k+1} (k = 0..K-1, U_{K-1}
-unused). Two factorisations with one interface (`tridiagonal_factor`, `tridiagonal_solve`):
+unused). Two factorisations with one interface (`tridiagonal_factor`, then the factor's
+`solve`):
 
 - **"scan"**: block Cholesky along the sequence, one `lax.scan` step per block. Fewest
   flops (≈ 3 N³ per block) but K dependent steps: on a GPU each step is a handful of
   tiny kernels, so a 500-block sequence is launch-bound (issue 20: 1.1 s for SIP's 20
   steps on one H200).
 - **"rows"**: the scan's factorisation in frame order with the fill kept in the
-  coupling terms' row space (`rows.py`), used by `structured.py` where the coupling terms
+  coupling terms' row space (`rows.py`), used by `factorise.py` where the coupling terms
   have fewer rows per frame than coupled unknowns and there are no windows; a band given
   to `tridiagonal_factor` with "rows" is factorised by "scan".
 - **"cyclic"**: block cyclic reduction (with coupling rows as for "rows", `rows.py`'s
@@ -28,9 +29,15 @@ z_o = L_o⁻¹ b_o, and after solving it x_o = L_o⁻ᵀ (z_o - P_o x_{o-1} - Q_
 
 Both keep inverse Cholesky factors so that every substitution is a matrix product, which
 XLA runs several times faster than triangular solves on CPU and GPU alike.
+
+`CoupledFactor` is the interface through which `factorise.py` uses any factorisation of
+the coupled unknowns: `superblocks.BandFactor` (this module's, on super-blocks of frames
+and windows) and `rows.py`'s two (frames as they are).
 """
 
 from __future__ import annotations
+
+import abc
 
 import equinox as eqx
 import jax
@@ -38,7 +45,10 @@ import jax.numpy as jnp
 import jax.scipy.linalg as jsl
 from jax import Array
 
-__all__ = ["TRIDIAGONAL_METHODS", "tridiagonal_factor", "tridiagonal_solve", "default_tridiagonal_method", "inverse_cholesky"]
+__all__ = [
+    "TRIDIAGONAL_METHODS", "CoupledFactor", "tridiagonal_factor", "tridiagonal_solve", "default_tridiagonal_method",
+    "inverse_cholesky",
+]  # fmt: skip
 
 TRIDIAGONAL_METHODS = ("rows", "scan", "cyclic")
 
@@ -85,11 +95,33 @@ def inverse_cholesky(S: Array, base: int = CYCLIC_BASE) -> Array:
     return jnp.concatenate([top, jnp.concatenate([-(L2_inv @ (L21 @ L1_inv)), L2_inv], -1)], -2)
 
 
+class CoupledFactor(eqx.Module):
+    """A factorised SPD matrix A of the coupled unknowns (the frames a frame-coupling term
+    reads, and the windows), as `factorise.py` uses it: a right-hand side's frame and
+    window parts packed into the factor's own blocks, solved, unpacked."""
+
+    @abc.abstractmethod
+    def pack(self, xF: Array | None, xW: Array | None) -> Array:
+        """Frame (T, nc, ...) and window (W, m, ...) parts -> the factor's vector (K, N, ...)."""
+
+    @abc.abstractmethod
+    def unpack(self, x: Array) -> tuple[Array | None, Array | None]:
+        """`pack`'s inverse: (frame part, window part or None)."""
+
+    @abc.abstractmethod
+    def solve(self, b: Array) -> Array:
+        """A⁻¹ b for packed b (K, N, k)."""
+
+
 class ScanFactor(eqx.Module):
     """Sequential block Cholesky: L (K, N, N) inverse factors, W (K, N, N) = L_k⁻¹ U_k."""
 
     L: Array
     W: Array
+
+    def solve(self, b: Array) -> Array:
+        """A⁻¹ b for b (K, N, k)."""
+        return _scan_solve(self, b)
 
 
 class CyclicLevel(eqx.Module):
@@ -105,6 +137,10 @@ class CyclicFactor(eqx.Module):
 
     levels: tuple[CyclicLevel, ...]
     last: Array  # (1, N, N)
+
+    def solve(self, b: Array) -> Array:
+        """A⁻¹ b for b (K, N, k)."""
+        return _cyclic_solve(self, b)
 
 
 def _scan_factor(D: Array, U: Array) -> ScanFactor:
@@ -205,4 +241,4 @@ def tridiagonal_factor(D: Array, U: Array, method: str | None = None) -> ScanFac
 
 def tridiagonal_solve(f: ScanFactor | CyclicFactor, b: Array) -> Array:
     """A⁻¹ b for b (K, N, k), with the factor of `tridiagonal_factor`."""
-    return _scan_solve(f, b) if isinstance(f, ScanFactor) else _cyclic_solve(f, b)
+    return f.solve(b)
