@@ -41,9 +41,9 @@ from scipy.ndimage import distance_transform_edt
 
 from ..body.kinematics import forward_rotations_unchecked
 from ..body.model import Body
+from ..geometry.camera import project
+from ..geometry.keypoints import regress_keypoints
 from ..priors.pose_prior import PosePrior
-from ..sensors.camera import project
-from ..sensors.keypoints import regress_keypoints
 from ..solve import GemanMcClure, Huber, Term, WindowBasis, basis_term, window
 from .imu import mahalanobis_term
 from .posed import POSED_BODY, posed_body, shared

@@ -43,10 +43,10 @@ from jax import Array
 
 from ..body.kinematics import ancestors, chain_transforms, mat3_apply, mat3_mul
 from ..body.model import SMPL_PARENTS, Body
+from ..geometry.camera import project
+from ..geometry.keypoints import regress_keypoints
 from ..priors.pose_prior import PosePrior
 from ..rotation import matrix_to_axis_angle, rotation_y
-from ..sensors.camera import project
-from ..sensors.keypoints import regress_keypoints
 from ..solve import GemanMcClure, Term, nan_mask
 from ..timeseries import second_difference
 from .posed import posed_body

@@ -15,6 +15,10 @@ when `floor=True`.
 Label image: -1 background, -2 floor, otherwise the label of the winning triangle
 (people 0 .. P-1, objects after them). A silhouette is `label == person`.
 Resolution is the caller's choice; cost is O(F · window²) per view and frame.
+
+`visible_vertices` marks mesh vertices whose depth agrees with the z-buffer (within a
+tolerance), which is what a point-to-body term over visible vertices needs (InterCap
+E_D, Huang eq. 5.2-5.5).
 """
 
 from __future__ import annotations
@@ -28,7 +32,7 @@ from jax import Array
 
 from .camera import project
 
-__all__ = ["rasterize", "rasterize_views", "window_for", "BACKGROUND", "FLOOR"]
+__all__ = ["rasterize", "rasterize_views", "window_for", "visible_vertices", "BACKGROUND", "FLOOR"]
 
 BACKGROUND = -1
 FLOOR = -2
@@ -173,3 +177,14 @@ def rasterize_views(
         jnp.asarray(face_labels, jnp.int32), key, int(width), int(height), int(window), bool(floor),
         float(floor_height), int(batch_size),
     )  # fmt: skip
+
+
+def visible_vertices(K: Array, R: Array, t: Array, vertices: Array, depth: Array, tolerance: float = 0.02) -> Array:
+    """(N,) bool: the vertex projects inside the image and is within `tolerance` of the z-buffer."""
+    H, W = depth.shape
+    uv, z = project(K, R, t, vertices)
+    col = jnp.floor(uv[..., 0]).astype(jnp.int32)
+    row = jnp.floor(uv[..., 1]).astype(jnp.int32)
+    inside = (col >= 0) & (col < W) & (row >= 0) & (row < H) & (z > 0)
+    zbuf = depth[jnp.clip(row, 0, H - 1), jnp.clip(col, 0, W - 1)]
+    return inside & (z <= zbuf + tolerance)

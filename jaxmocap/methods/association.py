@@ -94,8 +94,8 @@ import numpy as np
 import scipy.optimize
 import scipy.sparse
 
+from ..geometry.keypoints import COCO18_NAMES, flip_pairs
 from ..rotation import axis_angle_to_matrix, matrix_to_axis_angle
-from ..sensors.keypoints import COCO18_NAMES, flip_pairs
 from ..solve import Problem, Term, frame, solve
 
 __all__ = ["AssociationModel", "Association", "AssociationGraph", "HypothesisFeatures", "load_model", "associate",
