@@ -7,7 +7,7 @@
 
 Pixel convention: `select_person` returns undistorted pixels with OpenCV's centres at
 integers, while the camera energies project with jaxmocap's centres at integer + 0.5
-(`sensors.camera.project`). We follow `sensors.camera.pinhole_camera`: the principal
+(`geometry.camera.project`). We follow `geometry.camera.pinhole_camera`: the principal
 point of every K is moved by +0.5 and the detections by +0.5, so residuals are the
 same and masks (`read_masks`, pixel centres at +0.5) line up too. Overlays
 are drawn back in the video's own (distorted, integer-centred) pixels.

@@ -754,7 +754,7 @@ def associate(joints3d, K, cam_orientation, detections, model: AssociationModel 
 
     Args:
         joints3d: (P, T, 18, 3) world COCO-18 keypoints of each wearer's hypothesis pose
-            (e.g. the Inertial Tracker's through `sensors.keypoints.regress_keypoints`).
+            (e.g. the Inertial Tracker's through `geometry.keypoints.regress_keypoints`).
         K: (3, 3) intrinsics; cam_orientation: (T, 3, 3) camera-to-world rotation from the
             camera IMU, or None (each hypothesis camera then starts from a DLT).
         detections: (T, D, 18, 3) rows (u, v, confidence) in pixels; padded or missing rows

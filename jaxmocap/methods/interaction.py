@@ -2,7 +2,7 @@
 
 1. **Object-only tracking** (§5.2.2, eq. 5.1): frame by frame, each view keeps the
    segmentation candidate overlapping the rendering of the previous frame's fit most
-   (`sensors.segmentation.select_candidate`), then the object's 6-DoF pose is fitted to
+   (`geometry.masks.select_candidate`), then the object's 6-DoF pose is fitted to
    the kept masks and the object-labelled depth points (`object_mask`, `object_depth`),
    starting from the previous frame. The first frame starts at the centroid of its object
    points under each of the 24 axis-aligned rotations (coarse, then fine); the lowest
