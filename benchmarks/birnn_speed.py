@@ -24,6 +24,7 @@ import numpy as np
 from _common import machine, time_call, write_json
 
 from jaxmocap import default_body
+from jaxmocap.app.scenarios import inertial_setup
 from jaxmocap.learned.dip import NUM_INPUTS, DIPConfig, DIPNetwork, load_dip_model, DEFAULT_MODEL_PATH
 from jaxmocap.methods import inertial as I
 from jaxmocap.sensors import ScenarioConfig, make_scenario
@@ -40,7 +41,7 @@ def main():
 
     body = default_body("low")
     sc = make_scenario(["walk"], ScenarioConfig(fps=30.0, max_frames=300, betas_std=0.0), seed=0, body=body)
-    setup = I.from_scenario(sc, 0, body)
+    setup = inertial_setup(sc, 0, body)
     sop = lambda s: I.sparse_orientation_poser(s)[0]  # noqa: E731  (jitted inside)
     r = time_call(sop, setup, min_seconds=2.0, max_repeats=20)
     sop_fps = setup.num_frames / r["median_s"]

@@ -50,13 +50,14 @@ def _inputs(name: str, frames: int, batch: int = 8):
 
     body = default_body("low")
     if name in ("sip", "sop", "sop_batched"):
+        from jaxmocap.app.scenarios import inertial_setup
         from jaxmocap.methods import inertial
         from jaxmocap.motion import library
         from jaxmocap.sensors import IMUErrorModel, ScenarioConfig, make_scenario
 
         motion = library.walk(num_frames=frames, fps=30.0, body=body)  # procedural: no data folder needed
         cfg = ScenarioConfig(fps=30.0, max_frames=frames, imu_set="sip6", imu_errors=IMUErrorModel.xsens())
-        setup = inertial.from_scenario(make_scenario([motion], cfg, seed=0, body=body), 0, body)
+        setup = inertial_setup(make_scenario([motion], cfg, seed=0, body=body), 0, body)
         if name == "sop":
             return lambda: inertial.sparse_orientation_poser(setup)[0]
         if name == "sop_batched":  # every frame from x0, all at once (experiments/sop_start.py)
@@ -70,12 +71,13 @@ def _inputs(name: str, frames: int, batch: int = 8):
         stacked, init = _tile(pool, batch), _tile(pool_init, batch)
         return lambda: _solve(stacked, init, 20).value["pose"]
     if name == "vip":
+        from jaxmocap.app.scenarios import vip_sequence
         from jaxmocap.methods import visual_inertial as vip
         from jaxmocap.sensors import DetectorErrorModel, IMUErrorModel, make_scenario
         from jaxmocap.sensors.scenario import vip_config
 
         cfg = vip_config(max_frames=frames, imu_errors=IMUErrorModel.off(), detector=DetectorErrorModel.off())
-        data, _, bones = vip.from_scenario(make_scenario(["walk"], cfg, seed=3, body=body), 0, body)
+        data, _, bones = vip_sequence(make_scenario(["walk"], cfg, seed=3, body=body), 0, body)
         tracked = jax.block_until_ready(vip.inertial_tracker(data, bones))
         return lambda: vip.video_inertial_poser(data, bones, init=tracked, max_steps=30).poses
     if name == "multiview":
@@ -86,13 +88,14 @@ def _inputs(name: str, frames: int, batch: int = 8):
         data = clip_data(body, frames)
         return lambda: mv.multiview_smplify(data).poses
     if name == "interaction":
-        from jaxmocap.methods.interaction import InteractionObservations, fit_human, fit_joint, track_object
+        from jaxmocap.app.scenarios import interaction_observations
+        from jaxmocap.methods.interaction import fit_human, fit_joint, track_object
         from jaxmocap.sensors import make_scenario
         from jaxmocap.sensors.scenario import interaction_config
 
         cfg = interaction_config(object="box", num_views=2, max_frames=frames, width=128, height=96, depth_points=256)
         scenario = make_scenario(["walk"], cfg, seed=0, body=body)
-        obs = InteractionObservations.from_scenario(scenario, 0)
+        obs = interaction_observations(scenario, 0)
         obj = track_object(obs, body=body)
         human = fit_human(obs, body)
         contact = np.asarray(scenario.sequence(0)["contact"], np.float64)

@@ -48,6 +48,7 @@ def _cases(frames: int, steps: int) -> dict:
     import jax.numpy as jnp
     from sip_speed import _setup
 
+    from jaxmocap.app.scenarios import vip_sequence
     from jaxmocap.body.io import default_body
     from jaxmocap.methods import inertial
     from jaxmocap.methods import visual_inertial as vip
@@ -67,7 +68,7 @@ def _cases(frames: int, steps: int) -> dict:
     grad = jax.jit(jax.grad(cost))
     body = default_body("low")
     cfg = vip_config(max_frames=24, imu_errors=IMUErrorModel.off(), detector=DetectorErrorModel.off())
-    vdata, _, bones = vip.from_scenario(make_scenario(["walk"], cfg, seed=3, body=body), 0, body)
+    vdata, _, bones = vip_sequence(make_scenario(["walk"], cfg, seed=3, body=body), 0, body)
     tracked = vip.inertial_tracker(vdata, bones)
     return {
         "sip": lambda: solve(problem, params, setup.data, **it).value["pose"],

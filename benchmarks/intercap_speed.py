@@ -28,8 +28,9 @@ import jax
 import numpy as np
 from _common import machine, peak_memory_bytes, write_json
 
+from jaxmocap.app.scenarios import interaction_observations
 from jaxmocap.body import default_body
-from jaxmocap.methods.interaction import InteractionObservations, fit_human, fit_joint, track_object
+from jaxmocap.methods.interaction import fit_human, fit_joint, track_object
 from jaxmocap.sensors.scenario import interaction_config, make_scenario
 
 
@@ -78,7 +79,7 @@ def main(argv=None):
     t0 = time.perf_counter()
     scenario = make_scenario(["walk"], cfg, seed=0, body=body)
     truth = scenario.sequence(0)
-    obs = InteractionObservations.from_scenario(scenario, 0)
+    obs = interaction_observations(scenario, 0)
     T = obs.num_frames
     print(f"scene: {T} frames, {args.views} views of {W} x {H} px, {args.object} ({time.perf_counter() - t0:.1f} s)")
     t0 = time.perf_counter()

@@ -39,10 +39,11 @@ from jaxmocap.body import default_body
 from jaxmocap.body.kinematics import forward
 from jaxmocap.energies import camera as ec
 from jaxmocap.energies.camera import _views
+from jaxmocap.geometry.keypoints import regress_keypoints
+from jaxmocap.geometry.raster import rasterize_views
 from jaxmocap.methods import multiview as mv
 from jaxmocap.sensors import CameraConfig, DetectorErrorModel, ScenarioConfig, make_scenario
-from jaxmocap.sensors.keypoints import person_track, regress_keypoints
-from jaxmocap.sensors.silhouette import rasterize_views
+from jaxmocap.sensors.detector import person_track
 
 CLIP = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "cmu" / "02_01.amc"
 

@@ -79,8 +79,8 @@ from _v1 import V1_COMMIT, v1_path  # noqa: E402
 
 
 def _setup(frames: int, seed: int = 0):
+    from jaxmocap.app.scenarios import inertial_setup
     from jaxmocap.body import default_body
-    from jaxmocap.methods import inertial
     from jaxmocap.motion import library
     from jaxmocap.sensors import IMUErrorModel, ScenarioConfig, make_scenario
 
@@ -88,7 +88,7 @@ def _setup(frames: int, seed: int = 0):
     motion = library.jumping_jacks(num_frames=frames, fps=30.0, body=body)
     cfg = ScenarioConfig(fps=30.0, max_frames=frames, imu_set="sip6", imu_errors=IMUErrorModel.xsens(), betas_std=0.0)
     sc = make_scenario([motion], cfg, seed=seed, body=body)
-    return inertial.from_scenario(sc, 0, body)
+    return inertial_setup(sc, 0, body)
 
 
 def _time_sip(setup, init, iters: int, min_seconds: float, tridiagonal: str | None = None):

@@ -58,6 +58,7 @@ ROOT = Path(__file__).resolve().parent.parent
 
 def _pool(frames: int, count: int, seed: int = 0):
     """`count` calibrated SIP sequences of `frames` frames and their SOP starts."""
+    from jaxmocap.app.scenarios import inertial_setup
     from jaxmocap.app.sweep_methods import _sop_batch
     from jaxmocap.body import default_body
     from jaxmocap.methods import inertial as I
@@ -69,7 +70,7 @@ def _pool(frames: int, count: int, seed: int = 0):
     motions = [library.MOTIONS[names[i % len(names)]](num_frames=frames, fps=30.0, body=body) for i in range(count)]
     cfg = ScenarioConfig(fps=30.0, max_frames=frames, imu_set="sip6", imu_errors=IMUErrorModel.xsens(), betas_std=1.0)
     sc = make_scenario(motions, cfg, seed=seed, body=body)
-    setups = [I.from_scenario(sc, i, body) for i in range(sc.num_sequences)]
+    setups = [inertial_setup(sc, i, body) for i in range(sc.num_sequences)]
     stacked = I.stack_setups(setups)
     init = _sop_batch(stacked)
     return stacked, jnp.asarray(init)

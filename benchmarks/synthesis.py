@@ -19,8 +19,9 @@ import numpy as np
 from _common import machine, time_call, write_json
 
 import jaxmocap
+from jaxmocap.geometry import camera, keypoints, raster
 from jaxmocap.motion import library
-from jaxmocap.sensors import camera, imu, keypoints, silhouette
+from jaxmocap.sensors import imu
 
 
 def main():
@@ -46,9 +47,9 @@ def main():
     Rb = jnp.repeat(R[None], T, 0).reshape(-1, 3, 3)
     tb = jnp.repeat(t[None], T, 0).reshape(-1, 3)
     Vb = jnp.repeat(jnp.asarray(verts)[:, None], C, 1).reshape(-1, *verts.shape[1:])
-    window = silhouette.window_for(np.asarray(K), np.asarray(Rb), np.asarray(tb), np.asarray(Vb), body.faces)
+    window = raster.window_for(np.asarray(K), np.asarray(Rb), np.asarray(tb), np.asarray(Vb), body.faces)
     labels = np.zeros(len(body.faces), int)
-    sil_fn = lambda: silhouette.rasterize_views(K, Rb, tb, Vb, body.faces, labels, W, H, window=window)  # noqa: E731
+    sil_fn = lambda: raster.rasterize_views(K, Rb, tb, Vb, body.faces, labels, W, H, window=window)  # noqa: E731
 
     results = {}
     for name, fn, args in (("imu", imu_fn, (poses, trans)), ("keypoints", kp_fn, (poses, trans)), ("silhouette", sil_fn, ())):

@@ -38,6 +38,7 @@ import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 from _common import machine, peak_memory_bytes, write_json  # noqa: E402
 
+from jaxmocap.app.scenarios import vip_sequence  # noqa: E402
 from jaxmocap.body import default_body  # noqa: E402
 from jaxmocap.methods import visual_inertial as vip  # noqa: E402
 from jaxmocap.methods.association import load_model  # noqa: E402
@@ -56,7 +57,7 @@ def scene(body, frames, wearers, bystanders, seed):
                        num_sequences=1)  # fmt: skip
     datas = []
     for p in range(wearers):
-        data, _, bones = vip.from_scenario(sc, 0, body, person=p)
+        data, _, bones = vip_sequence(sc, 0, body, person=p)
         datas.append(data)
     return datas, bones, np.asarray(sc.sequence(0)["det_keypoints"][0])
 

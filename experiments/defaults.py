@@ -49,6 +49,7 @@ import numpy as np  # noqa: E402
 import jaxmocap  # noqa: E402,F401  (thread pool, compilation cache)
 from _provenance import record, write_json, write_text  # noqa: E402
 from jaxmocap._files import atomic_write  # noqa: E402
+from jaxmocap.app.scenarios import inertial_setup  # noqa: E402
 from jaxmocap.body import default_body  # noqa: E402
 from jaxmocap.methods import inertial as I  # noqa: E402
 from jaxmocap.metrics import pose_errors  # noqa: E402
@@ -87,7 +88,7 @@ class Clip:
         key = (jnp.dtype(dtype).name, imus)
         if key not in self._setups:
             prior = evaluation_prior(self.name, dtype=dtype)
-            self._setups[key] = I.from_scenario(self._sc[imus], 0, self.body, prior=prior, dtype=dtype)
+            self._setups[key] = inertial_setup(self._sc[imus], 0, self.body, prior=prior, dtype=dtype)
         return self._setups[key]
 
     def errors(self, poses) -> tuple[float, float]:
@@ -278,7 +279,7 @@ def reproduction_check(body) -> dict:
     cfg = ScenarioConfig(fps=FPS, max_frames=CHECK["frames"], imu_set=CHECK["imu_set"],
                          imu_errors=IMUErrorModel.xsens(), betas_std=0.0)  # fmt: skip
     sc = make_scenario([find_cmu_dir() / CHECK["clip"]], cfg, seed=CHECK["seed"], body=body)
-    setup = I.from_scenario(sc, 0, body)
+    setup = inertial_setup(sc, 0, body)
     truth = sc.sequence(0)["poses"][0]
     out = dict(CHECK)
     for name in I.PRESETS:

@@ -60,10 +60,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxmocap.app.scenarios import interaction_observations
 from jaxmocap.body import default_body, forward
 from jaxmocap.methods.interaction import (
     InterCapWeights,
-    InteractionObservations,
     accept_object,
     detect_contact,
     fit_human,
@@ -143,7 +143,7 @@ def run_scene(i, clip, args, body, cache: Path) -> dict:
     tag = f"{i:02d}_{clip.name.rsplit('.', 1)[0]}_{obj_name}_{args.frames}"
     config = interaction_config(object=obj_name, num_views=args.views, max_frames=args.frames)
     scene = cached(cache / f"{tag}_scene.pkl", lambda: make_scenario([clip.path], config, seed=args.seed + i))
-    obs = InteractionObservations.from_scenario(scene, 0, seed=args.seed + i)
+    obs = interaction_observations(scene, 0, seed=args.seed + i)
     seq = scene.sequence(0)
     prior = cached(cache / f"prior_{clip.subject}.pkl", lambda: evaluation_prior(clip.path))  # a fold takes minutes
     t0 = time.perf_counter()

@@ -65,6 +65,7 @@ from _provenance import commit, subjects_of  # noqa: E402
 from _provenance import write_json as _write_json  # noqa: E402
 
 from jaxmocap import metrics  # noqa: E402
+from jaxmocap.app.scenarios import inertial_setup  # noqa: E402
 from jaxmocap.body import default_body, forward  # noqa: E402
 from jaxmocap.methods import inertial as I  # noqa: E402
 from jaxmocap.sensors import IMUErrorModel, ScenarioConfig, make_scenario  # noqa: E402
@@ -141,7 +142,7 @@ def load_clips(frames: int, seed: int, names=None):
         if name not in names:
             continue
         t1 = time.perf_counter()
-        setup = I.from_scenario(sc, i, body, dtype=F64, prior=prior)
+        setup = inertial_setup(sc, i, body, dtype=F64, prior=prior)
         sop, _ = I.sparse_orientation_poser(setup, "thesis")  # thesis weights, 20 LM steps per frame (as the tables)
         T = setup.num_frames
         truth = jnp.asarray(sc.sequence(i)["poses"][0], F64)

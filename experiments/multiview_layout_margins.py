@@ -26,9 +26,9 @@ import numpy as np
 from jaxmocap.app.layout import layout_scores
 from jaxmocap.body import posed_vertices
 from jaxmocap.body.io import default_body
+from jaxmocap.geometry.camera import ring_cameras
+from jaxmocap.geometry.keypoints import KEYPOINT_FORMATS, keypoint_regressor
 from jaxmocap.motion.library import walk
-from jaxmocap.sensors.camera import ring_cameras
-from jaxmocap.sensors.keypoints import KEYPOINT_FORMATS, keypoint_regressor
 
 
 def _swap(names):

@@ -88,9 +88,9 @@ def analyse(report, fit_dir: Path, calib: Path, window: int) -> dict:
     from jaxmocap.body import posed_vertices
     from jaxmocap.body.io import default_body
     from jaxmocap.formats import align_views, load_calibration, read_openpose
+    from jaxmocap.geometry.keypoints import KEYPOINT_FORMATS, keypoint_regressor
+    from jaxmocap.geometry.triangulation import projection_matrices, select_person, triangulate
     from jaxmocap.motion.amass import load_amass
-    from jaxmocap.sensors.keypoints import KEYPOINT_FORMATS, keypoint_regressor
-    from jaxmocap.sensors.triangulation import projection_matrices, select_person, triangulate
 
     names = KEYPOINT_FORMATS["mediapipe33"]
     recording = read_openpose(fit_dir / "keypoints", "mediapipe33")

@@ -53,13 +53,14 @@ import numpy as np
 from _provenance import subjects_of, write_json, write_text
 
 from jaxmocap.body import default_body, forward
+from jaxmocap.geometry.keypoints import KEYPOINT_FORMATS
 from jaxmocap.methods import multiview as mv
 from jaxmocap.metrics import procrustes_align
 from jaxmocap.motion.corpus import find_cmu_cc_dir, interleave, subject_of
 from jaxmocap.motion.splits import DEVELOPMENT, Split
 from jaxmocap.priors.build import evaluation_prior
-from jaxmocap.sensors.keypoints import KEYPOINT_FORMATS, person_track
 from jaxmocap.sensors import CameraConfig, DetectorErrorModel, ScenarioConfig, make_scenario
+from jaxmocap.sensors.detector import person_track
 
 CC = find_cmu_cc_dir() or Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "cmu_cc"
 THESIS = {  # Table 4.1 means (HumanEva, mm) and Table 4.2 shape errors

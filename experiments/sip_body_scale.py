@@ -73,6 +73,7 @@ from sip_tables import DTYPE, THESIS_W_MAHAL, TOL, Fold, item, mean_errors, with
 from _provenance import write_json, write_text  # noqa: E402
 
 from jaxmocap import metrics  # noqa: E402
+from jaxmocap.app.scenarios import inertial_setup  # noqa: E402
 from jaxmocap.app.sweep import atomic_write  # noqa: E402
 from jaxmocap.app.sweep_methods import InertialItem, InertialMethod  # noqa: E402
 from jaxmocap.body import default_body, forward, scaled_body  # noqa: E402
@@ -173,12 +174,12 @@ def run_clip(clip, args, body, folds, true_scales) -> dict:
         options["refine"] = args.refine
     ests = []
     for sc, k in scs:
-        make = lambda s, sc=sc, k=k: window(I.from_scenario(sc, 0, scaled_body(body, s), start=k, prior=prior, dtype=DTYPE), T)  # noqa: E731
+        make = lambda s, sc=sc, k=k: window(inertial_setup(sc, 0, scaled_body(body, s), start=k, prior=prior, dtype=DTYPE), T)  # noqa: E731
         ests.append(I.estimate_body_scale(make, items[len(ests)].init, criterion=args.criterion, **options))
     t2 = time.perf_counter()
     final = None
     if args.refit:  # SIP refitted from SOP on the estimated bodies, in one batch
-        setups = [window(I.from_scenario(sc, 0, scaled_body(body, e.scale), start=k, prior=prior, dtype=DTYPE), T)
+        setups = [window(inertial_setup(sc, 0, scaled_body(body, e.scale), start=k, prior=prior, dtype=DTYPE), T)
                   for (sc, k), e in zip(scs, ests)]  # fmt: skip
         final = I.sparse_inertial_poser_batch(I.stack_setups(setups), np.stack([it.init for it in items]),
                                               weights=w, max_steps=args.steps, rtol=TOL, atol=TOL)  # fmt: skip

@@ -56,6 +56,7 @@ import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
 from jaxmocap import metrics  # noqa: E402
+from jaxmocap.app.scenarios import inertial_setup  # noqa: E402
 from jaxmocap.app.sweep_methods import InertialItem, InertialMethod  # noqa: E402
 from jaxmocap.body import default_body, forward, scaled_body  # noqa: E402
 from jaxmocap.methods import inertial as I  # noqa: E402
@@ -156,7 +157,7 @@ def scenarios(clips, frames: int, seed: int, body, cache: Path, fps: float = 30.
 
 def item(sc, i, start, body, prior, name) -> InertialItem:
     seq = sc.sequence(i)
-    setup = I.from_scenario(sc, i, body, start=start, prior=prior, dtype=DTYPE)
+    setup = inertial_setup(sc, i, body, start=start, prior=prior, dtype=DTYPE)
     return InertialItem(setup, np.asarray(seq["poses"][0][start:]), np.asarray(seq["betas"][0]), None, name)
 
 

@@ -23,6 +23,7 @@ import jax
 import numpy as np
 
 import jaxmocap  # noqa: F401  (thread pool, compilation cache)
+from jaxmocap.app.scenarios import inertial_setup
 from jaxmocap.body import default_body
 from jaxmocap.methods import inertial as I
 from jaxmocap.metrics import pose_errors
@@ -72,7 +73,7 @@ def main(argv=None) -> int:
     rows = []
     for k, clip in enumerate(clips):
         scenario = make_scenario([clip], cfg, seed=args.seed + k, body=body)
-        setup = I.from_scenario(scenario, 0, body, prior=evaluation_prior(clip.name))
+        setup = inertial_setup(scenario, 0, body, prior=evaluation_prior(clip.name))
         truth = scenario.sequence(0)["poses"][0]
         row = {"clip": clip.name, "frames": int(setup.num_frames)}
         for name in STARTS:

@@ -47,9 +47,9 @@ import numpy as np  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from jaxmocap.app.scenarios import tracker_keypoints, vip_sequence  # noqa: E402
 from jaxmocap.body.io import default_body  # noqa: E402
 from jaxmocap.methods import association as A  # noqa: E402
-from jaxmocap.methods import visual_inertial as vip  # noqa: E402
 from jaxmocap.motion.corpus import subject_of  # noqa: E402
 from jaxmocap.motion.splits import DEVELOPMENT, EVALUATION, Split  # noqa: E402
 from jaxmocap.priors.build import held_out_prior  # noqa: E402
@@ -109,7 +109,7 @@ def scene_inputs(motions, bystanders: int, frames: int, seed: int, body, priors=
     """One crowded scene: IT keypoints of the wearers, detections, labels, camera."""
     sc, x0s = _scene(motions, bystanders, frames, seed, body)
     seq = sc.sequence(0)
-    J = [vip.tracker_keypoints(sc, 0, body, (p,), x0s=[x0s[k]], prior=None if priors is None else priors[k])[0]
+    J = [tracker_keypoints(sc, 0, body, (p,), x0s=[x0s[k]], prior=None if priors is None else priors[k])[0]
          for k, p in enumerate(WEARERS)]  # fmt: skip
     return {"joints3d": np.stack(J), "K": seq["cam_K"][0], "cam_orientation": seq["cam_imu_ori"],
             "detections": seq["det_keypoints"][0], "labels": seq["det_person"][0],
@@ -120,7 +120,7 @@ def scene_vip_data(motions, bystanders: int, frames: int, seed: int, body, prior
     """The same scene as `scene_inputs` as the whole method's inputs: (datas, bones), one
     `VIPData` per wearer with the same x₀ and prior."""
     sc, x0s = _scene(motions, bystanders, frames, seed, body)
-    out = [vip.from_scenario(sc, 0, body, person=p, x0=x0s[k], prior=None if priors is None else priors[k])
+    out = [vip_sequence(sc, 0, body, person=p, x0=x0s[k], prior=None if priors is None else priors[k])
            for k, p in enumerate(WEARERS)]  # fmt: skip
     return [d for d, _, _ in out], out[0][2]
 

@@ -47,6 +47,7 @@ sys.path.insert(0, str(ROOT / "experiments"))
 
 from train_association import noisy_x0, wearer_prior  # noqa: E402
 
+from jaxmocap.app.scenarios import vip_sequence  # noqa: E402
 from jaxmocap.body.io import default_body  # noqa: E402
 from jaxmocap.methods import association as A  # noqa: E402
 from jaxmocap.methods import visual_inertial as vip  # noqa: E402
@@ -96,7 +97,7 @@ def build_scene(sc: dict, frames: int, seed: int, body):
         seq = scen.sequence(0)
         x0 = noisy_x0(np.random.default_rng([seed, k, j]), seq["poses"][0][0])
         try:
-            data, _, bones = vip.from_scenario(scen, 0, body, x0=x0, prior=wearer_prior(sc["clips"][0]))
+            data, _, bones = vip_sequence(scen, 0, body, x0=x0, prior=wearer_prior(sc["clips"][0]))
         except ValueError as e:
             if "dropped samples" not in str(e):
                 raise

@@ -39,6 +39,7 @@ import numpy as np  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from jaxmocap.app.scenarios import vip_sequence  # noqa: E402
 from jaxmocap.body.io import default_body  # noqa: E402
 from jaxmocap.methods import inertial  # noqa: E402
 from jaxmocap.methods.association import load_model  # noqa: E402
@@ -85,7 +86,7 @@ def run_clip(scenario, i: int, body, rng, steps: int, prior=None) -> dict:
     x0_true = seq["poses"][0][0]
     noise = matrix_to_axis_angle(random_rotations(rng, np.radians(10.0), (24,)) @ _R(x0_true))
     x0 = np.asarray(noise)
-    data, truth, bones = vip.from_scenario(scenario, i, body, x0=x0, prior=prior)
+    data, truth, bones = vip_sequence(scenario, i, body, x0=x0, prior=prior)
     out, clock = {}, time.time()
 
     def row(name, poses):  # one table row, with progress: a clip takes minutes
@@ -110,14 +111,14 @@ def run_clip(scenario, i: int, body, rng, steps: int, prior=None) -> dict:
     true_uv = seq["kp_true"][0, 0]  # (T, 18, 2)
     kp = np.concatenate([true_uv, np.ones(true_uv.shape[:-1] + (1,))], -1)
     kp = np.where((seq["kp_depth"][0, 0] > 0)[..., None], kp, 0.0)
-    data2, _, _ = vip.from_scenario(scenario, i, body, x0=x0, keypoints=kp, prior=prior)
+    data2, _, _ = vip_sequence(scenario, i, body, x0=x0, keypoints=kp, prior=prior)
     row("VIP-2D", vip.video_inertial_poser(data2, bones, init=it, max_steps=steps).poses)
     Rc = np.swapaxes(truth["cam_R"], -1, -2)
     centre = -np.einsum("tab,tb->ta", Rc, truth["cam_t"])
     cam = np.concatenate([np.asarray(matrix_to_axis_angle(Rc)), centre], -1)
     r = vip.video_inertial_poser(data, bones, camera=cam, free_camera=False, init=it, max_steps=steps)
     row("VIP-Cam", r.poses)
-    data6, _, bones6 = vip.from_scenario(scenario, i, body, x0=x0, sensors=six, prior=prior,
+    data6, _, bones6 = vip_sequence(scenario, i, body, x0=x0, sensors=six, prior=prior,
                                          keypoints=scene.associations[-1].keypoints[0])
     row("VIP-6IMU", vip.video_inertial_poser(data6, bones6, max_steps=steps).poses)
     setup = inertial.calibrate(

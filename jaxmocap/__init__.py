@@ -24,6 +24,7 @@ __version__ = "0.1.0"
 _LAZY = (
     "energies",
     "formats",
+    "geometry",
     "learned",
     "methods",
     "metrics",

@@ -210,8 +210,8 @@ def test_a_time_limited_program_warns():
 
 
 def test_crowded_scene_one_wearer_one_bystander():
+    from jaxmocap.app.scenarios import associated_keypoints
     from jaxmocap.body.io import default_body
-    from jaxmocap.methods import visual_inertial as vip
     from jaxmocap.sensors import make_scenario
     from jaxmocap.sensors.scenario import vip_config
 
@@ -224,7 +224,7 @@ def test_crowded_scene_one_wearer_one_bystander():
     body = default_body("low")
     sc = make_scenario([str(c) for c in clips], vip_config(bystanders=1, max_frames=40), seed=5, body=body,
                        num_sequences=1)  # fmt: skip
-    res = vip.associated_keypoints(sc, 0, body, people=(0,))
+    res = associated_keypoints(sc, 0, body, people=(0,))
     labels = sc.sequence(0)["det_person"][0]
     truth = (labels == 0).any(1)
     who = labels[np.arange(len(labels)), np.maximum(res.index[0], 0)]

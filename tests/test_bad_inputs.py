@@ -28,8 +28,9 @@ import jaxmocap.priors
 import jaxmocap.rotation
 import jaxmocap.viz.mesh
 import jaxmocap.viz.plot
-from jaxmocap import formats, metrics, sensors
+from jaxmocap import formats, geometry, metrics, sensors
 from jaxmocap.app import SweepConfigError
+from jaxmocap.app.scenarios import inertial_setup
 from jaxmocap.body.io import BodyFileError
 from jaxmocap.methods import inertial as I
 from jaxmocap.motion import Motion, MotionFileError, load_motion
@@ -287,8 +288,8 @@ CASES = [
     ("scenario-keypoints-no-camera", lambda c: sensors.make_scenario([c.motion], sensors.ScenarioConfig(keypoints="coco18"), body=c.body), ValueError, r"cameras"),
     ("imu-errors-dropout", lambda c: sensors.IMUErrorModel(dropout_rate=2.0), ValueError, r"dropout_rate"),
     ("imu-errors-negative", lambda c: sensors.IMUErrorModel(gyro_noise=-1.0), ValueError, r"gyro_noise"),
-    ("keypoint-layout", lambda c: sensors.keypoint_regressor(c.body, "coco99"), ValueError, r"coco99"),
-    ("look-at-parallel", lambda c: sensors.look_at((0, 0, 0), (0, 1, 0)), ValueError, r"up"),
+    ("keypoint-layout", lambda c: geometry.keypoint_regressor(c.body, "coco99"), ValueError, r"coco99"),
+    ("look-at-parallel", lambda c: geometry.look_at((0, 0, 0), (0, 1, 0)), ValueError, r"up"),
     # --- methods -------------------------------------------------------------------------
     ("sip-weight-negative", lambda c: I.SIPWeights(acc=-1.0), ValueError, r"SIPWeights\.acc"),
     ("sip-weight-nan", lambda c: I.SIPWeights(ori=float("nan")), ValueError, r"SIPWeights\.ori"),
@@ -430,11 +431,11 @@ CASES = [
     ("depth-noise-negative", lambda c: sensors.DepthNoiseModel(lateral=-0.01), ValueError, r"DepthNoiseModel\.lateral"),
     ("imu-errors-nan", lambda c: sensors.IMUErrorModel(acc_noise=float("nan")), ValueError, r"IMUErrorModel\.acc_noise"),
     ("imu-placement-not-body", lambda c: sensors.imu_placement(np.zeros(3), "sip6"), ValueError, r"imu_placement: body must be a jaxmocap Body"),
-    ("keypoint-regressor-not-body", lambda c: sensors.keypoint_regressor(None, "coco18"), ValueError, r"keypoint_regressor: body must be a jaxmocap Body"),
-    ("look-at-nan", lambda c: sensors.look_at((np.nan, 0, 0), (0, 0, 0)), ValueError, r"look_at: eye and target must be finite"),
-    ("look-at-same-point", lambda c: sensors.look_at((1, 1, 1), (1, 1, 1)), ValueError, r"look_at: eye and target are the same point"),
-    ("intrinsics-fov", lambda c: sensors.camera.intrinsics(640, 480, 0.0), ValueError, r"fov_y_degrees must lie in \(0, 180\)"),
-    ("intrinsics-size", lambda c: sensors.camera.intrinsics(0, 480, 50.0), ValueError, r"width and height must be > 0"),
+    ("keypoint-regressor-not-body", lambda c: geometry.keypoint_regressor(None, "coco18"), ValueError, r"keypoint_regressor: body must be a jaxmocap Body"),
+    ("look-at-nan", lambda c: geometry.look_at((np.nan, 0, 0), (0, 0, 0)), ValueError, r"look_at: eye and target must be finite"),
+    ("look-at-same-point", lambda c: geometry.look_at((1, 1, 1), (1, 1, 1)), ValueError, r"look_at: eye and target are the same point"),
+    ("intrinsics-fov", lambda c: geometry.camera.intrinsics(640, 480, 0.0), ValueError, r"fov_y_degrees must lie in \(0, 180\)"),
+    ("intrinsics-size", lambda c: geometry.camera.intrinsics(0, 480, 50.0), ValueError, r"width and height must be > 0"),
     ("save-body-folder", lambda c: jaxmocap.save_body(c.body, c.dir), ValueError, r"save_body: path .* is a folder; give a file name, e\.g\. .*body\.npz"),
     ("save-body-not-body", lambda c: jaxmocap.save_body(c.motion, c.dir / "b.npz"), ValueError, r"save_body: body must be a jaxmocap Body, got Motion"),
     ("calibration-format", lambda c: formats.load_calibration(c.dir, format="opencv"), formats.CalibrationError, r"unknown calibration format 'opencv'"),
@@ -636,7 +637,7 @@ def test_scenario_with_as_many_sequences_as_sensors_and_frames(ctx):
             k: v.shape for k, v in five.sequence(min(i, 4)).items() if k != "length"
         }
         assert seq["imu_bones"].tolist() == list(ctx.placement.bones)
-    setup = I.from_scenario(six, 5, ctx.body)  # raised a TypeError on scalar bones
+    setup = inertial_setup(six, 5, ctx.body)  # raised a TypeError on scalar bones
     assert setup.bones == tuple(ctx.placement.bones)
 
 

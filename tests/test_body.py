@@ -270,7 +270,7 @@ def test_sparse_skinning_derivatives_match_dense(smpl_dict):
 def test_compact_body_poses_exactly_like_the_mesh():
     """`compact_body`: joints, joint rotations, keypoints and kept vertices of the full body."""
     from jaxmocap.body.compact import compact_body
-    from jaxmocap.sensors.keypoints import keypoint_regressor, regress_keypoints
+    from jaxmocap.geometry.keypoints import keypoint_regressor, regress_keypoints
 
     body = jaxmocap.default_body("low").astype(jnp.float64)
     reg = keypoint_regressor(body, "coco18")

@@ -9,6 +9,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from jaxmocap.app.scenarios import inertial_setup
 from jaxmocap.body import default_body, scaled_body, shaped_joints
 from jaxmocap.methods import inertial as I
 from jaxmocap.sensors import IMUErrorModel, ScenarioConfig, make_scenario
@@ -26,7 +27,7 @@ def body():
 def make_setup(body):
     cfg = ScenarioConfig(fps=30.0, max_frames=45, imu_set="sip6", imu_errors=IMUErrorModel.off(), betas_std=0.0)
     sc = make_scenario(["walk"], cfg, seed=0, body=scaled_body(body, TRUE_SCALE))
-    return lambda s: I.from_scenario(sc, 0, scaled_body(body, s), dtype=jnp.float64)
+    return lambda s: inertial_setup(sc, 0, scaled_body(body, s), dtype=jnp.float64)
 
 
 def test_scaled_body_scales_the_joints_and_keeps_the_dtype(body):

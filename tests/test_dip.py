@@ -9,6 +9,7 @@ from scipy.spatial.transform import Rotation
 from scipy.stats import norm
 
 from jaxmocap import default_body
+from jaxmocap.app.scenarios import inertial_setup
 from jaxmocap.learned import dip
 from jaxmocap.learned import dip_training as dt
 from jaxmocap.methods import inertial as I
@@ -25,7 +26,7 @@ def body():
 @pytest.fixture(scope="module")
 def setup6(body):
     sc = make_scenario(["walk"], ScenarioConfig(fps=30.0, max_frames=24, betas_std=0.0), seed=0, body=body)
-    return sc, I.from_scenario(sc, 0, body)
+    return sc, inertial_setup(sc, 0, body)
 
 
 def _numpy_inputs(ori, acc, s2b):

@@ -22,8 +22,8 @@ from jaxmocap.formats import (
     write_openpose,
 )
 from jaxmocap.formats.openpose import KEYPOINT_COUNTS
-from jaxmocap.sensors.camera import distort_points, project_points, ring_cameras, undistort_pixels
-from jaxmocap.sensors.triangulation import projection_matrices, select_person, triangulate
+from jaxmocap.geometry.camera import distort_points, project_points, ring_cameras, undistort_pixels
+from jaxmocap.geometry.triangulation import projection_matrices, select_person, triangulate
 
 FORMATS = ("pose2sim", "qualisys", "easymocap", "npz")
 POINT = np.array([0.5, 0.25, 0.0])
@@ -254,7 +254,7 @@ def test_hand_written_fixtures_survive_every_writer(tmp_path):
 
 
 def test_pinhole_camera_moves_opencv_pixels_to_jaxmocap_pixel_centres():
-    from jaxmocap.sensors.camera import pinhole_camera, project
+    from jaxmocap.geometry.camera import pinhole_camera, project
 
     cam = _rig(1)[0]
     pin = pinhole_camera(cam)
@@ -344,7 +344,7 @@ def test_openpose_round_trip_with_several_people_empty_frames_and_a_missing_file
 
 
 def test_layout_counts_and_body25b_order_match_the_sensor_layouts():
-    from jaxmocap.sensors.keypoints import BODY25B_NAMES, KEYPOINT_FORMATS
+    from jaxmocap.geometry.keypoints import BODY25B_NAMES, KEYPOINT_FORMATS
 
     assert {k: len(v) for k, v in KEYPOINT_FORMATS.items()} == KEYPOINT_COUNTS
     assert BODY25B_NAMES[:5] == ("nose", "left_eye", "right_eye", "left_ear", "right_ear")
@@ -353,7 +353,7 @@ def test_layout_counts_and_body25b_order_match_the_sensor_layouts():
 
 def test_body25b_extra_joints_sit_where_the_names_say():
     import jaxmocap
-    from jaxmocap.sensors.keypoints import BODY25B_NAMES, keypoint_regressor
+    from jaxmocap.geometry.keypoints import BODY25B_NAMES, keypoint_regressor
 
     body = jaxmocap.default_body("low")
     rest = np.asarray(body.v_template, np.float64)

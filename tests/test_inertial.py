@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from jaxmocap import metrics
+from jaxmocap.app.scenarios import inertial_setup
 from jaxmocap.body import default_body
 from jaxmocap.energies import imu as E
 from jaxmocap.methods import inertial as I
@@ -41,7 +42,7 @@ def _scenario(body, imu_set, errors, frames):
 @pytest.fixture(scope="module")
 def clean13(body):
     sc = _scenario(body, "totalcapture13", IMUErrorModel.off(), 30)
-    setup = I.from_scenario(sc, 0, body, dtype=jnp.float64)
+    setup = inertial_setup(sc, 0, body, dtype=jnp.float64)
     return sc.sequence(0), setup
 
 
@@ -79,7 +80,7 @@ def test_analytic_jacobians_and_local_elimination_match_autodiff(body, robust):
     from jaxmocap.solve import Cauchy, Huber, Problem, Term
 
     sc = _scenario(body, "sip6", IMUErrorModel.xsens(), 10)
-    setup = I.from_scenario(sc, 0, body, dtype=jnp.float64)
+    setup = inertial_setup(sc, 0, body, dtype=jnp.float64)
     data = eqx_set(setup.data, setup.data.acceleration.at[4, 2].set(jnp.nan))
     terms = [
         E.orientation_term(setup.bones, 6, 1.0, loss=Huber(0.05) if robust else None),
@@ -196,7 +197,7 @@ def test_it_recovers_noise_free_poses(body):
     sensed bone by ~3° (reported in experiments/).
     """
     sc = _scenario(body, "totalcapture13", IMUErrorModel.off(), 30)
-    setup = I.from_scenario(sc, 0, body)
+    setup = inertial_setup(sc, 0, body)
     poses, results = I.inertial_tracker(setup, I.SIPWeights(mahal=1e-5), sequential=False)
     assert poses.shape == (30, 24, 3)
     observed = tuple("head" if n == "neck" else n for n in metrics.JOINT_SETS["totalcapture_mpjae"])
@@ -211,7 +212,7 @@ def test_sip_beats_sop_on_noisy_dynamic_imu6(body, capfd):
     SOP's progress report (on by default from 2000 frames) leaves its poses unchanged."""
     sc = _scenario(body, "sip6", IMUErrorModel.xsens(), 45)
     seq = sc.sequence(0)
-    setup = I.from_scenario(sc, 0, body)
+    setup = inertial_setup(sc, 0, body)
     sop, _ = I.sparse_orientation_poser(setup)
     assert capfd.readouterr().err == ""
     loud, _ = I.sparse_orientation_poser(setup, progress=True)
@@ -285,7 +286,7 @@ def test_padded_batch_equals_separate_fits(body):
     """SIP on a padded batch (9 and 12 frames, analytic Jacobians, per-frame elimination,
     masks) gives the padded sequence its separate fit on its real frames."""
     sc = _scenario(body, "sip6", IMUErrorModel.xsens(), 12)
-    long = I.from_scenario(sc, 0, body)
+    long = inertial_setup(sc, 0, body)
     short = eqx_set_frames(long, 9)
     sops = [I.sparse_orientation_poser(s)[0] for s in (short, long)]
     stacked, mask = I.pad_setups([short, long])

@@ -17,6 +17,7 @@ import pytest
 import trimesh
 from scipy.spatial.transform import Rotation
 
+from jaxmocap.app.scenarios import interaction_observations
 from jaxmocap.body.io import default_body
 from jaxmocap.body.kinematics import forward
 from jaxmocap.body.model import SMPL_JOINT_NAMES
@@ -33,7 +34,6 @@ from jaxmocap.energies.posed import CombinedData
 from jaxmocap.methods import interaction as mi
 from jaxmocap.methods.interaction import (
     InterCapWeights,
-    InteractionObservations,
     contact_region,
     detect_contact,
     fit_joint,
@@ -59,7 +59,7 @@ def scene():
     cfg = interaction_config(num_views=3, max_frames=10, width=96, height=72, depth_points=256, object="chair")
     sc = make_scenario(["walk"], cfg, seed=0, body=body)
     truth = sc.sequence(0)
-    obs = InteractionObservations.from_scenario(sc, 0)
+    obs = interaction_observations(sc, 0)
     assert truth["contact"].any() and sc.config.contact_part == "right_grip"
     return SimpleNamespace(body=body, scenario=sc, truth=truth, obs=obs, betas=truth["betas"][0][: body.num_betas])
 
@@ -284,7 +284,7 @@ def tracked(scene):
 
 def test_track_object_keeps_the_true_candidate_and_the_chair_s_orientation(scene, tracked):
     truth, obs = scene.truth, scene.obs
-    _, true_index = object_candidates(truth["labels"], 1, np.random.default_rng(0), 2)  # as from_scenario
+    _, true_index = object_candidates(truth["labels"], 1, np.random.default_rng(0), 2)  # as interaction_observations
     seen = true_index >= 0
     assert (tracked["chosen"][seen] == true_index[seen]).mean() >= 0.9
     assert tracked["observed"].all()

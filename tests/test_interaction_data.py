@@ -12,10 +12,11 @@ import numpy as np
 import pytest
 import trimesh
 
+from jaxmocap.geometry.masks import select_candidate
 from jaxmocap.objects import RigidObject
 from jaxmocap.sensors import DepthNoiseModel, make_scenario
 from jaxmocap.sensors.scenario import interaction_config
-from jaxmocap.sensors.segmentation import object_candidates, select_candidate
+from jaxmocap.sensors.segmentation import object_candidates
 
 V, T, W, H = 2, 12, 96, 72
 

@@ -11,12 +11,13 @@ from scipy.ndimage import distance_transform_edt, map_coordinates
 
 from jaxmocap.body import default_body, forward
 from jaxmocap.energies import camera as ec
+from jaxmocap.geometry.camera import intrinsics, project, ring_cameras
+from jaxmocap.geometry.keypoints import KEYPOINT_FORMATS, flip_pairs, keypoint_regressor, regress_keypoints
+from jaxmocap.geometry.raster import rasterize_views
 from jaxmocap.methods import multiview as mv
 from jaxmocap.motion.library import walk
 from jaxmocap.rotation import axis_angle_to_matrix
-from jaxmocap.sensors.camera import intrinsics, project, ring_cameras
-from jaxmocap.sensors.keypoints import KEYPOINT_FORMATS, flip_pairs, keypoint_regressor, person_track, regress_keypoints
-from jaxmocap.sensors.silhouette import rasterize_views
+from jaxmocap.sensors.detector import person_track
 
 
 def test_dct_basis_is_orthonormal_and_coefficients_reconstruct_its_span():

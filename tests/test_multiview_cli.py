@@ -18,10 +18,10 @@ import trimesh
 from jaxmocap.body.io import default_body
 from jaxmocap.cli import main
 from jaxmocap.formats import CalibratedCamera, save_calibration, write_openpose
+from jaxmocap.geometry.camera import project_points, ring_cameras
+from jaxmocap.geometry.keypoints import keypoint_regressor
 from jaxmocap.motion.amass import Z_UP_TO_Y_UP, load_amass
 from jaxmocap.motion.library import walk
-from jaxmocap.sensors.camera import project_points, ring_cameras
-from jaxmocap.sensors.keypoints import keypoint_regressor
 from jaxmocap.body import posed_vertices
 
 W, H, T, FPS = 1280, 720, 9, 30.0
@@ -166,7 +166,7 @@ def test_masks_are_undistorted_onto_the_fit_pixels_and_bad_ones_are_named(tmp_pa
     from PIL import Image
 
     from jaxmocap.app.multiview import read_masks
-    from jaxmocap.sensors.camera import undistort_pixels
+    from jaxmocap.geometry.camera import undistort_pixels
 
     cam = _cameras()[0]
     centre, radius = np.array([150.0, 120.0]), 40.0  # near a corner: the lens moves it ~10 px

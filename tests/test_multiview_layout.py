@@ -13,9 +13,9 @@ from jaxmocap.app import layout as layout_module
 from jaxmocap.app.layout import check_layout, layout_scores
 from jaxmocap.body import posed_vertices
 from jaxmocap.body.io import default_body
+from jaxmocap.geometry.camera import ring_cameras
+from jaxmocap.geometry.keypoints import keypoint_regressor
 from jaxmocap.motion.library import walk
-from jaxmocap.sensors.camera import ring_cameras
-from jaxmocap.sensors.keypoints import keypoint_regressor
 
 
 @pytest.fixture(scope="module")

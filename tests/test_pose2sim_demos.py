@@ -26,8 +26,8 @@ from jaxmocap.formats import (
     read_openpose,
     read_project,
 )
-from jaxmocap.sensors.keypoints import BODY25_NAMES, BODY25B_NAMES, HALPE26_NAMES
-from jaxmocap.sensors.triangulation import projection_matrices, select_person
+from jaxmocap.geometry.keypoints import BODY25_NAMES, BODY25B_NAMES, HALPE26_NAMES
+from jaxmocap.geometry.triangulation import projection_matrices, select_person
 
 DATA = Path(__file__).parent / "data" / "pose2sim"
 SINGLE = DATA / "S01_Demo_SingleTrial"

@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from jaxmocap import metrics
+from jaxmocap.app.scenarios import inertial_setup
 from jaxmocap.body import default_body
 from jaxmocap.methods import inertial as I
 from jaxmocap.sensors import IMUErrorModel, ScenarioConfig, make_scenario
@@ -59,7 +60,7 @@ def jump(recorded):
     cfg = ScenarioConfig(fps=30.0, max_frames=check["frames"], imu_set=check["imu_set"],
                          imu_errors=IMUErrorModel.xsens(), betas_std=0.0)  # fmt: skip
     sc = make_scenario([CMU / check["clip"]], cfg, seed=check["seed"], body=body)
-    return body, I.from_scenario(sc, 0, body), sc.sequence(0)["poses"][0], check
+    return body, inertial_setup(sc, 0, body), sc.sequence(0)["poses"][0], check
 
 
 @pytest.mark.parametrize("name", ["thesis", "validated"])

@@ -14,8 +14,9 @@ import jax.numpy as jnp
 import jaxmocap
 from jaxmocap.body.model import SMPL_PARENTS
 from jaxmocap.formats.dip import load_dip
+from jaxmocap.geometry import camera, imu_calibration, keypoints, raster
 from jaxmocap.objects import RigidObject
-from jaxmocap.sensors import calibration, camera, depth, errors, imu, keypoints, objects, silhouette
+from jaxmocap.sensors import depth, detector, errors, imu, objects
 from jaxmocap.sensors import scenario as sc
 
 G = imu.GRAVITY
@@ -148,10 +149,10 @@ def test_heading_drift_rotates_orientations_by_exactly_gamma(body, sip6):
     meas = errors.apply_imu_errors(read, draw, errors.IMUErrorModel(), 60.0, np.random.default_rng(0))
     delta = meas.orientation @ np.swapaxes(np.asarray(read.orientation), -1, -2)
     np.testing.assert_allclose(delta, np.asarray(imu.rotation_y(jnp.asarray(gamma))), atol=1e-12)
-    np.testing.assert_allclose(calibration.heading_angle(jnp.asarray(delta)), gamma, atol=1e-9)
+    np.testing.assert_allclose(imu_calibration.heading_angle(jnp.asarray(delta)), gamma, atol=1e-9)
     np.testing.assert_allclose(meas.acceleration, read.acceleration, atol=1e-12)  # a frame error only
     # Heading reset (eq. 2.71) undoes it.
-    np.testing.assert_allclose(calibration.remove_heading(jnp.asarray(meas.orientation), gamma), read.orientation, atol=1e-12)
+    np.testing.assert_allclose(imu_calibration.remove_heading(jnp.asarray(meas.orientation), gamma), read.orientation, atol=1e-12)
 
 
 def test_error_switches_are_independent_and_deterministic(body, sip6):
@@ -176,18 +177,18 @@ def test_calibration_recovers_planted_misalignment(body):
     model = errors.IMUErrorModel(misalignment=0.3)
     ideal, meas, err = errors.simulate_imu(body, p, poses, None, None, 60.0, model, rng)
     R_bone0 = _fk_numpy(poses[:1])[0][list(p.bones)]  # the known initial pose x₀
-    recovered = calibration.sensor_to_bone_offsets(jnp.asarray(R_bone0), jnp.asarray(meas.orientation[0]))
+    recovered = imu_calibration.sensor_to_bone_offsets(jnp.asarray(R_bone0), jnp.asarray(meas.orientation[0]))
     np.testing.assert_allclose(recovered, err.misalignment, atol=1e-9)
-    bones = calibration.virtual_bone_orientations(jnp.asarray(meas.orientation), recovered)
+    bones = imu_calibration.virtual_bone_orientations(jnp.asarray(meas.orientation), recovered)
     np.testing.assert_allclose(bones, _fk_numpy(poses)[:, list(p.bones)], atol=1e-9)
     # DIP eq. 6.4: a head sensor aligned with the model frame gives R^TI = R_head⁻¹.
-    R_ti = calibration.inertial_to_model_from_head(jnp.asarray(ideal.orientation[0, 0]))
+    R_ti = imu_calibration.inertial_to_model_from_head(jnp.asarray(ideal.orientation[0, 0]))
     np.testing.assert_allclose(R_ti @ ideal.orientation[0, 0], np.eye(3), atol=1e-12)
     # Heading reset: sensors in one known orientation read R_y(γ_s) R_ref.
     gamma = np.array([0.1, -0.7, 2.0])
     R_ref = Rotation.from_rotvec([0.2, 0.1, -0.3]).as_matrix()
     readings = np.asarray(imu.rotation_y(jnp.asarray(gamma))) @ R_ref
-    np.testing.assert_allclose(calibration.heading_reset(jnp.asarray(readings), R_ref), gamma, atol=1e-12)
+    np.testing.assert_allclose(imu_calibration.heading_reset(jnp.asarray(readings), R_ref), gamma, atol=1e-12)
 
 
 # --- cameras, keypoints, rasteriser, depth, objects -----------------------------------
@@ -211,18 +212,18 @@ def test_rasterised_square_and_depth_points():
     R, t = camera.look_at([0.0, 1.0, 4.0], [0.0, 1.0, 0.0])
     v = np.array([[-0.5, 0.5, 0.0], [0.5, 0.5, 0.0], [0.5, 1.5, 0.0], [-0.5, 1.5, 0.0]])
     faces = np.array([[0, 1, 2], [0, 2, 3]])
-    d, lab = silhouette.rasterize_views(K, R[None], t[None], v[None], faces, np.array([0, 0]), W, H, floor=True)
+    d, lab = raster.rasterize_views(K, R[None], t[None], v[None], faces, np.array([0, 0]), W, H, floor=True)
     d, lab = np.asarray(d[0]), np.asarray(lab[0])
     side = f / 4.0
     assert abs((lab == 0).sum() - side**2) <= 4 * side + 4
     np.testing.assert_allclose(d[lab == 0], 4.0, atol=1e-9)
-    assert (lab == silhouette.FLOOR).any() and (lab == silhouette.BACKGROUND).any()
+    assert (lab == raster.FLOOR).any() and (lab == raster.BACKGROUND).any()
     pts, labels, valid = depth.depth_point_cloud(K, R, t, d, lab, 100, np.random.default_rng(0), depth.DepthNoiseModel.off())
     assert valid.all() and (labels == 0).all()
     np.testing.assert_allclose(pts[:, 2], 0.0, atol=1e-9)
     assert np.abs(pts[:, :2] - [0.0, 1.0]).max() <= 0.5 + 1e-9
     probe = jnp.asarray([[0.0, 1.0, 0.0], [0.0, 1.0, -1.0]])  # on the square; behind it
-    vis = depth.visible_vertices(jnp.asarray(K), jnp.asarray(R), jnp.asarray(t), probe, jnp.asarray(d))
+    vis = raster.visible_vertices(jnp.asarray(K), jnp.asarray(R), jnp.asarray(t), probe, jnp.asarray(d))
     assert list(np.asarray(vis)) == [True, False]
 
 
@@ -238,12 +239,12 @@ def test_keypoint_regressors_and_detector(body):
         assert kp[names.index("nose"), 2] > kp[names.index("left_ear"), 2]
     uv = np.random.default_rng(0).uniform(10, 50, size=(2, 30, 18, 2))
     z = np.ones((2, 30, 18))
-    clean = keypoints.detect(uv, z, 64, 64, keypoints.COCO18_NAMES, keypoints.DetectorErrorModel.off(), np.random.default_rng(1))
+    clean = detector.detect(uv, z, 64, 64, keypoints.COCO18_NAMES, detector.DetectorErrorModel.off(), np.random.default_rng(1))
     for p in range(2):
         slot = np.argmax(clean.person == p, axis=1)
         np.testing.assert_allclose(clean.keypoints[np.arange(30), slot, :, :2], uv[p])
-    swap = keypoints.DetectorErrorModel(swap_rate=1.0, swap_length=100.0, confidence_mean=1.0, max_distractors=0)
-    det = keypoints.detect(uv[:1], z[:1], 64, 64, keypoints.COCO18_NAMES, swap, np.random.default_rng(2))
+    swap = detector.DetectorErrorModel(swap_rate=1.0, swap_length=100.0, confidence_mean=1.0, max_distractors=0)
+    det = detector.detect(uv[:1], z[:1], 64, 64, keypoints.COCO18_NAMES, swap, np.random.default_rng(2))
     i, j = keypoints.COCO18_NAMES.index("left_wrist"), keypoints.COCO18_NAMES.index("right_wrist")
     np.testing.assert_allclose(det.keypoints[:, 0, i, :2], uv[0, :, j])
     assert det.swapped[:, 0, i].all()
@@ -286,7 +287,7 @@ def scene(body):
         fps=30.0, max_frames=16, people=2, imu_set="xsens17",
         imu_errors=errors.IMUErrorModel.xsens(),
         cameras=sc.CameraConfig(num_views=2, width=64, height=48, distance=3.0),
-        keypoints="coco18", detector=keypoints.DetectorErrorModel.openpose(),
+        keypoints="coco18", detector=detector.DetectorErrorModel.openpose(),
         silhouettes=True, depth_points=64, object="box",
     )  # fmt: skip
     short = jaxmocap.motion.library.static_hold(num_frames=12, body=body)

@@ -13,11 +13,11 @@ from scipy.spatial.transform import Rotation
 from jaxmocap.body.io import default_body
 from jaxmocap.body.kinematics import shaped_joints
 from jaxmocap.formats.threedpw import load_threedpw, valid_span
+from jaxmocap.geometry.camera import project
 from jaxmocap.methods.visual_inertial import vip_data
 from jaxmocap.motion.amass import Z_UP_TO_Y_UP
 from jaxmocap.motion.skeleton import MotionFileError
 from jaxmocap.rotation import axis_angle_to_matrix
-from jaxmocap.sensors.camera import project
 from jaxmocap.sensors.threedpw import vip_inputs
 from threedpw_file import joints_and_keypoints, threedpw_dict, write_threedpw
 

@@ -20,7 +20,7 @@ from jaxmocap.body.io import default_body
 from jaxmocap.cli import main
 from jaxmocap.formats import CalibratedCamera, read_config, read_openpose, save_calibration
 from jaxmocap.formats.video import DETECTOR_ENV, DetectorMissing, detect_video, detector_python, find_videos
-from jaxmocap.sensors.keypoints import BODY25_NAMES, KEYPOINT_FORMATS, flip_pairs, keypoint_regressor
+from jaxmocap.geometry.keypoints import BODY25_NAMES, KEYPOINT_FORMATS, flip_pairs, keypoint_regressor
 
 # mediapipe's PoseLandmark enum, in order (its MOUTH_LEFT / MOUTH_RIGHT are our left_mouth / right_mouth)
 POSE_LANDMARK = (
@@ -147,7 +147,7 @@ def test_real_detections_agree_with_the_recordings_calibration(detected):
     skeleton has a person's proportions (metres), which holds only if the layout's points,
     the pixel convention and the calibration belong together."""
     from jaxmocap.formats import KeypointRecording, align_views, load_calibration
-    from jaxmocap.sensors.triangulation import projection_matrices, triangulate, undistort_recording
+    from jaxmocap.geometry.triangulation import projection_matrices, triangulate, undistort_recording
 
     demo, dets = detected
     views = tuple(f"{c}_json" for c in dets)

@@ -10,6 +10,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from jaxmocap.app.scenarios import vip_sequence
 from jaxmocap.body.io import default_body
 from jaxmocap.methods import visual_inertial as vip
 from jaxmocap.metrics import pose_errors
@@ -30,7 +31,7 @@ def scene():
     S = sc.arrays["imu_ori"].shape[3]
     heading = HEADING * np.where(np.arange(S) % 2 == 0, 1.0, -1.0)  # measured = R_y(h) R
     sc.arrays["imu_ori"][0, 0] = np.asarray(rotation_y(heading))[None] @ sc.arrays["imu_ori_true"][0, 0]
-    data, truth, bones = vip.from_scenario(sc, 0, body)
+    data, truth, bones = vip_sequence(sc, 0, body)
     it = vip.inertial_tracker(data, bones)
     # Noise-free data need little prior; at the thesis's w_prior the prior's pull on the
     # poses leaves a few degrees of heading bias on some limbs (measured: up to 4°).

@@ -10,9 +10,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxmocap.body import forward
+from jaxmocap.geometry.camera import intrinsics, look_at, project
+from jaxmocap.geometry.keypoints import keypoint_regressor, regress_keypoints
 from jaxmocap.motion import library
-from jaxmocap.sensors.camera import intrinsics, look_at, project
-from jaxmocap.sensors.keypoints import keypoint_regressor, regress_keypoints
 
 
 def joints_and_keypoints(body, poses, trans, betas):

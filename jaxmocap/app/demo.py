@@ -160,6 +160,7 @@ def _fit_demo(motion, body: Body, out_dir: Path, every: int, seed: int):
     import numpy as np
 
     from ..methods import inertial
+    from .scenarios import inertial_setup
     from ..metrics import JOINT_SETS, pose_errors
     from ..viz.plot import plot_error_curves, plot_per_joint
     from ..motion.sequence import Motion
@@ -173,7 +174,7 @@ def _fit_demo(motion, body: Body, out_dir: Path, every: int, seed: int):
     scenario = make_scenario([motion], config, seed=seed, body=body)
     seq = scenario.sequence(0)
     truth, trans = seq["poses"][0], seq["trans"][0]
-    setup = inertial.from_scenario(scenario, 0, body)
+    setup = inertial_setup(scenario, 0, body)
     timings = {}
     t0 = time.perf_counter()
     sop, _ = inertial.sparse_orientation_poser(setup)

@@ -150,10 +150,10 @@ def _penetration_figure(depth_mm: np.ndarray, path: Path, title: str) -> Path:
 def simulate_scene(frames: int = 30, object: str = "box", views: int = 3, width: int = 160, height: int = 120,
                    depth_points: int = 512, seed: int = 0, body="default-low"):
     """The demo's scene: (body, scenario, observations) of the library walk carrying `object`
-    (`sensors.scenario.interaction_config`; `InteractionObservations.from_scenario`)."""
+    (`sensors.scenario.interaction_config`; `scenarios.interaction_observations`)."""
     from ..body.io import resolve_body
-    from ..methods.interaction import InteractionObservations
     from ..sensors.scenario import interaction_config, make_scenario
+    from .scenarios import interaction_observations
 
     if object not in DEMO_OBJECTS:
         raise ValueError(f"unknown object {object!r}; choose from {list(DEMO_OBJECTS)}.")
@@ -164,7 +164,7 @@ def simulate_scene(frames: int = 30, object: str = "box", views: int = 3, width:
     config = interaction_config(object=object, num_views=views, max_frames=frames, width=width, height=height,
                                 depth_points=depth_points)  # fmt: skip
     scenario = make_scenario(["walk"], config, seed=seed, body=body_model)
-    return body_model, scenario, InteractionObservations.from_scenario(scenario, 0, seed=seed)
+    return body_model, scenario, interaction_observations(scenario, 0, seed=seed)
 
 
 def fit_scene(obs, body, progress: bool = False, log=print) -> dict:
@@ -214,7 +214,7 @@ def score_fit(body, obs, truth: dict, true_part: str, fit: dict) -> tuple[dict, 
     scene's truth (`Scenario.sequence`); returns (metrics, posed vertices (T, N, 3))."""
     from ..methods.interaction import object_sdf
     from ..metrics import interaction_metrics, object_pose_errors
-    from ..sensors.objects import contact_vertices
+    from ..motion.reach import contact_vertices
 
     verts, joints = _posed(body, fit["pose"], fit["betas"], fit["trans"])
     R, t = np.asarray(fit["object_R"], np.float64), np.asarray(fit["object_t"], np.float64)

@@ -47,7 +47,7 @@ WARN_RATIO = 1.5
 
 
 def _template(body, layout: str) -> np.ndarray:
-    from ..sensors.keypoints import keypoint_regressor
+    from ..geometry.keypoints import keypoint_regressor
 
     return keypoint_regressor(body, layout) @ np.asarray(body.v_template, np.float64)
 
@@ -61,8 +61,8 @@ def layout_scores(subject, P, body, candidates) -> dict[str, float | None]:
         body: the body model giving the segment lengths; candidates: layout names, all
             with K points.
     """
-    from ..sensors.keypoints import KEYPOINT_FORMATS
-    from ..sensors.triangulation import triangulate
+    from ..geometry.keypoints import KEYPOINT_FORMATS
+    from ..geometry.triangulation import triangulate
 
     subject = np.asarray(subject, np.float64)
     V = subject.shape[0]

@@ -7,7 +7,7 @@
 
 Pixel convention: `select_person` returns undistorted pixels with OpenCV's centres at
 integers, while the camera energies project with jaxmocap's centres at integer + 0.5
-(`sensors.camera.project`). We follow `sensors.camera.pinhole_camera`: the principal
+(`geometry.camera.project`). We follow `geometry.camera.pinhole_camera`: the principal
 point of every K is moved by +0.5 and the detections by +0.5, so residuals are the
 same and masks (`read_masks`, pixel centres at +0.5) line up too. Overlays
 are drawn back in the video's own (distorted, integer-centred) pixels.
@@ -140,7 +140,7 @@ def read_masks(masks_dir, views, frame_numbers, cameras) -> np.ndarray:
             f"masks of {T} frames x {V} views at {W} x {H} need {T * V * H * W * 4 / 2**30:.1f} GiB of distance "
             f"transforms (limit {MAX_MASK_BYTES / 2**30:.0f} GiB); fit fewer frames at a time (frames=/--frames)."
         )
-    from ..sensors.camera import to_pixels, distort_points
+    from ..geometry.camera import to_pixels, distort_points
 
     out = np.zeros((T, V, H, W), bool)
     index = {f: i for i, f in enumerate(frame_numbers)}
@@ -399,7 +399,7 @@ def _posed(body, poses, betas, trans, chunk: int = 256):
 
 def _distorted_pixels(cam, uv_undistorted):
     """Undistorted OpenCV pixels (..., 2) → the video's distorted pixels (same K)."""
-    from ..sensors.camera import to_pixels, distort_points
+    from ..geometry.camera import to_pixels, distort_points
 
     K = cam.K
     y = (uv_undistorted[..., 1] - K[1, 2]) / K[1, 1]
@@ -417,7 +417,7 @@ def _overlay(path, cam, view, frame_numbers, picks, detections, model_kp, vertic
     from matplotlib.patches import Rectangle
     from PIL import Image, ImageDraw
 
-    from ..sensors.camera import project_points
+    from ..geometry.camera import project_points
     from ..viz.plot import save_figure
 
     W, H = (cam.width, cam.height) if cam.width > 0 else (int(2 * cam.K[0, 2]) + 1, int(2 * cam.K[1, 2]) + 1)
@@ -526,8 +526,8 @@ def fit_recording(
     """
     from ..formats import align_views, load_calibration, read_config, read_openpose
     from ..methods.multiview import MuVSWeights, camera_data, initialise, resolve_left_right, stage_one, stage_two
-    from ..sensors.keypoints import KEYPOINT_FORMATS, keypoint_regressor
-    from ..sensors.triangulation import projection_matrices, select_person
+    from ..geometry.keypoints import KEYPOINT_FORMATS, keypoint_regressor
+    from ..geometry.triangulation import projection_matrices, select_person
     from ..body.io import resolve_body
     from .layout import check_layout
 
@@ -708,7 +708,7 @@ def _write_outputs(out_dir, sources, recording, cameras, body, layout, keypoints
                    regressor, names, temporal, weights, silhouettes) -> dict:
     from ..motion.amass import rotate_world, pelvis_rest, save_amass
     from ..motion.sequence import Motion
-    from ..sensors.triangulation import projection_matrices
+    from ..geometry.triangulation import projection_matrices
     from ..viz.mesh import export_sequence
 
     out_dir.mkdir(parents=True, exist_ok=True)

@@ -41,8 +41,8 @@ def write_demo_recording(root, frames: int = 16, fps: float = 60.0, views: int =
     from ..formats import CalibratedCamera, save_calibration, write_openpose
     from ..motion.amass import Z_UP_TO_Y_UP
     from ..motion.library import walk
-    from ..sensors.camera import project_points, ring_cameras
-    from ..sensors.keypoints import keypoint_regressor
+    from ..geometry.camera import project_points, ring_cameras
+    from ..geometry.keypoints import keypoint_regressor
 
     root = Path(root)
     W, H = 1280, 720

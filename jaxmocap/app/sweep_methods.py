@@ -237,13 +237,14 @@ class InertialMethod:
 
     def sequences(self, dataset, errors, cache):
         from ..methods import inertial as I
+        from .scenarios import inertial_setup
 
         sc = scenario_for(dataset, errors, cache, self.body)
         out = []
         for i in range(sc.num_sequences):
             seq = sc.sequence(i)
             try:
-                setup = I.from_scenario(sc, i, self.body, prior=_prior(dataset.get("prior", "bundled"), sc.meta["names"][i]))
+                setup = inertial_setup(sc, i, self.body, prior=_prior(dataset.get("prior", "bundled"), sc.meta["names"][i]))
             except ValueError as e:  # e.g. a dropout at frame 0: no calibration, this sequence only
                 out.append(FailedItem(f"{type(e).__name__}: {e}", int(sc["length"][i])))
                 continue

@@ -85,9 +85,9 @@ def demo_inputs(frames: int = 60, wearers: int = 2, bystanders: int = 2, seed: i
     """The demo scene: `wearers` people with 13 IMUs and `bystanders` without, from
     `DEMO_MOTIONS`, filmed by a hand-held camera with an IMU (`sensors.vip_config`)."""
     from ..body.io import resolve_body
-    from ..methods.visual_inertial import from_scenario
     from ..sensors import make_scenario
     from ..sensors.scenario import vip_config
+    from .scenarios import vip_sequence
 
     _count("frames", frames, 8)
     _count("wearers", wearers, 1, 4)
@@ -103,7 +103,7 @@ def demo_inputs(frames: int = 60, wearers: int = 2, bystanders: int = 2, seed: i
     seq = sc.sequence(0)
     datas, truths = [], []
     for p in range(wearers):
-        data, truth, bones = from_scenario(sc, 0, body, person=p)
+        data, truth, bones = vip_sequence(sc, 0, body, person=p)
         datas.append(data)
         truths.append({k: truth[k] for k in ("poses", "trans", "betas", "cam_R", "cam_t")})
     cams = sc.config.cameras

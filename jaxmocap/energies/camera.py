@@ -41,9 +41,9 @@ from scipy.ndimage import distance_transform_edt
 
 from ..body.kinematics import forward_rotations_unchecked
 from ..body.model import Body
+from ..geometry.camera import project
+from ..geometry.keypoints import regress_keypoints
 from ..priors.pose_prior import PosePrior
-from ..sensors.camera import project
-from ..sensors.keypoints import regress_keypoints
 from ..solve import GemanMcClure, Huber, Term, WindowBasis, basis_term, window
 from .imu import mahalanobis_term
 from .posed import POSED_BODY, posed_body, shared
@@ -107,13 +107,13 @@ class CameraData(eqx.Module):
     """Observations of calibrated static views and what the camera terms need.
 
     body: the body model; prior: the pose prior; regressor: (K, N) keypoint regressor
-    (`sensors.keypoint_regressor`) mapping mesh vertices to the detector's keypoints.
+    (`geometry.keypoint_regressor`) mapping mesh vertices to the detector's keypoints.
     K, R, t: (V, 3, 3), (V, 3, 3), (V, 3) intrinsics and world-to-camera extrinsics
     (undistorted pixels: apply `undistort_pixels` to detections first).
     keypoints: (T, V, K, 2) pixels; confidence: (T, V, K), 0 = missing (NaN keypoints
     are masked as well). joint_weights: (K,) w_i. betas: (B,) fixed shape (stage 2) or
     None (shape is an unknown). silhouettes: `Silhouettes` or None. layout: the name of
-    the keypoint layout (`sensors.keypoints.KEYPOINT_FORMATS`).
+    the keypoint layout (`geometry.keypoints.KEYPOINT_FORMATS`).
     model_points: (N,) int indices of the body's vertices that stand for the model
     silhouette in E_S, or None (every `stride`-th vertex, `silhouette_terms`).
     pose_blend: False when the body's pose blend shapes are all zero (checked by whoever

@@ -23,13 +23,13 @@ Sensor model (eq. 4.7-4.9 as we write them):
   point's central-difference acceleration minus R_y(γ_s) ã^g(t) (eq. 3.10-3.13).
   Our choice: the sensor point p^b in its bone frame is taken from calibration and not
   re-derived from x₀ (the sensor vertex moves rigidly with its bone up to skinning).
-- The camera IMU's axes are the camera's axes (`sensors.camera.camera_imu`; a rigid,
+- The camera IMU's axes are the camera's axes (`sensors.moving_camera.camera_imu`; a rigid,
   calibrated mount). Our choice: its heading is not an unknown, it defines the world's
   heading; without that, turning the whole scene about the vertical together with every
   γ_s would leave all energies unchanged (a gauge freedom).
 
 E_img (eq. 4.27-4.28): confidence-weighted reprojection of the COCO-18 keypoints,
-through `sensors.camera.project`, in pixels scaled by 1080 / image height (our choice:
+through `geometry.camera.project`, in pixels scaled by 1080 / image height (our choice:
 w_img = 1e-4 is the thesis's weight for 1080-pixel video; the scaling keeps its meaning
 for our smaller synthetic images), with a Geman-McClure loss of σ = 100 px at that scale
 (our choice: the detector's left/right swaps and outliers must not drag the body).
@@ -43,10 +43,10 @@ from jax import Array
 
 from ..body.kinematics import ancestors, chain_transforms, mat3_apply, mat3_mul
 from ..body.model import SMPL_PARENTS, Body
+from ..geometry.camera import project
+from ..geometry.keypoints import regress_keypoints
 from ..priors.pose_prior import PosePrior
 from ..rotation import matrix_to_axis_angle, rotation_y
-from ..sensors.camera import project
-from ..sensors.keypoints import regress_keypoints
 from ..solve import GemanMcClure, Term, nan_mask
 from ..timeseries import second_difference
 from .posed import posed_body

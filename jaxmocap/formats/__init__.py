@@ -2,7 +2,7 @@
 videos (through MediaPipe Pose), DIP-IMU and 3DPW pickles.
 
 The data layer: readers and writers of the files labs have, checked and converted to one
-convention; nothing here imports from sensors, energies or methods.
+convention; nothing here imports from geometry, sensors, energies or methods.
 """
 
 from . import calibration as calibration

@@ -7,7 +7,7 @@ OpenPose's ``--write_json`` writes one file per frame, ``<name>_<frame:012d>_key
 
 with K (u, v, confidence) triples per person in the model's order (BODY_25, BODY_25B,
 COCO-18; HALPE_26: RTMPose's, which Pose2Sim >= 0.9 writes in this format; counts in
-`KEYPOINT_COUNTS`, names in `jaxmocap.sensors.keypoints.KEYPOINT_FORMATS`), pixel
+`KEYPOINT_COUNTS`, names in `jaxmocap.geometry.keypoints.KEYPOINT_FORMATS`), pixel
 centres at integers, undetected keypoints as (0, 0, 0). A recording is one folder per
 camera under a root (Pose2Sim: ``pose/cam01_json/``; EasyMocap: ``openpose/01/``).
 
@@ -33,7 +33,7 @@ view (`KeypointRecording.present`), or whose "people" list is empty, has no peop
 (confidence 0). Cameras that share no frame number with any other camera are refused (an
 unsynchronised or misnamed folder, not a longer recording). People are kept in the
 file's order; which one is the subject is decided later across views
-(`jaxmocap.sensors.triangulation.select_person`).
+(`jaxmocap.geometry.triangulation.select_person`).
 
 BODY_25 and BODY_25B both have 25 keypoints and cannot be told apart from the numbers:
 `layout=None` reads 25-point files with `KeypointRecording.layout` None, to be decided

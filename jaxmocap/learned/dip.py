@@ -41,8 +41,8 @@ import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
+from ..geometry.imu_calibration import normalize_to_root, virtual_bone_orientations
 from ..rotation import axis_angle_to_matrix, matrix_to_axis_angle, nearest_rotation
-from ..sensors.calibration import normalize_to_root, virtual_bone_orientations
 from ._weights import fill_module, read_header, save_module
 
 __all__ = [
@@ -276,8 +276,8 @@ def birnn_poses(setup, network: DIPNetwork | None = None) -> Array:
     """The DIP poses (T, 24, 3) of a calibrated 6-IMU sequence: a start for SIP.
 
     Args:
-        setup: an `InertialSetup` on the "sip6" sensors, in that order (`from_scenario`,
-            `calibrate`, `from_dip(..., sensors=[7, 8, 11, 12, 0, 2])`).
+        setup: an `InertialSetup` on the "sip6" sensors, in that order
+            (`app.scenarios.inertial_setup`, `calibrate`, `from_dip(..., sensors=[7, 8, 11, 12, 0, 2])`).
         network: a trained `DIPNetwork` (default: `default_dip_model()`).
     """
     if tuple(setup.bones) != SIP6_BONES:

@@ -93,7 +93,7 @@ def windows(motion: Motion, window: int, stride: int) -> list[tuple[Motion, int]
 def _calibrated_inputs(body, poses0, betas, trans0, orientation, acceleration):
     """Calibrate on the first frame's true pose (eq. 6.5) and build the inputs, one window."""
     from ..body.kinematics import forward
-    from ..sensors.calibration import sensor_to_bone_offsets
+    from ..geometry.imu_calibration import sensor_to_bone_offsets
     from .dip import SIP6_BONES, dip_inputs, hold_dropped
 
     first = hold_dropped(orientation)[0]  # a dropout at frame 0 reads the first later sample

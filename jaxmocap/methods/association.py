@@ -94,8 +94,8 @@ import numpy as np
 import scipy.optimize
 import scipy.sparse
 
+from ..geometry.keypoints import COCO18_NAMES, flip_pairs
 from ..rotation import axis_angle_to_matrix, matrix_to_axis_angle
-from ..sensors.keypoints import COCO18_NAMES, flip_pairs
 from ..solve import Problem, Term, frame, solve
 
 __all__ = ["AssociationModel", "Association", "AssociationGraph", "HypothesisFeatures", "load_model", "associate",
@@ -754,7 +754,7 @@ def associate(joints3d, K, cam_orientation, detections, model: AssociationModel 
 
     Args:
         joints3d: (P, T, 18, 3) world COCO-18 keypoints of each wearer's hypothesis pose
-            (e.g. the Inertial Tracker's through `sensors.keypoints.regress_keypoints`).
+            (e.g. the Inertial Tracker's through `geometry.keypoints.regress_keypoints`).
         K: (3, 3) intrinsics; cam_orientation: (T, 3, 3) camera-to-world rotation from the
             camera IMU, or None (each hypothesis camera then starts from a DLT).
         detections: (T, D, 18, 3) rows (u, v, confidence) in pixels; padded or missing rows

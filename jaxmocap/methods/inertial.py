@@ -52,7 +52,6 @@ __all__ = [
     "preset",
     "InertialSetup",
     "calibrate",
-    "from_scenario",
     "from_dip",
     "inertial_problem",
     "orientation_poser",
@@ -266,25 +265,6 @@ def first_complete_frame(orientation) -> int | None:
     """The first frame of (T, S, 3, 3) readings where every sensor reports (no NaN), or None."""
     ok = np.isfinite(np.asarray(orientation)).all(axis=(-1, -2)).all(axis=-1)
     return int(np.argmax(ok)) if ok.any() else None
-
-
-def from_scenario(scenario, index: int, body: Body, person: int = 0, truth_init: bool = True, start: int = 0, **kw) -> InertialSetup:
-    """Calibrate sequence `index` of a `jaxmocap.sensors.Scenario` (measured IMU readings).
-
-    x₀ is the true pose at frame `start` (the thesis's "initial pose provided with the
-    dataset"), and the setup holds the readings from `start` on; pass
-    `start=first_complete_frame(scenario.sequence(index)["imu_ori"][person])` when frame 0
-    may have dropped samples (the setup then starts there: crop the truth alike).
-    """
-    seq = scenario.sequence(index)
-    p = person
-    n = len(seq["imu_ori"][p])
-    if not isinstance(start, (int, np.integer)) or not 0 <= start < n:
-        raise ValueError(f"start={start!r} must be a frame index in 0 .. {n - 1}.")
-    return calibrate(
-        body, seq["imu_bones"], seq["imu_vertices"], seq["imu_ori"][p][start:], seq["imu_acc"][p][start:],
-        seq["poses"][p][start], scenario.config.fps, betas=seq["betas"][p], trans0=seq["trans"][p][start], **kw,
-    )  # fmt: skip
 
 
 def from_dip(path_or_dict, body: Body, bones, vertices, pose0=None, fps: float = 60.0, sensors=None, **kw) -> InertialSetup:
@@ -687,7 +667,7 @@ def estimate_body_scale(
     Args:
         make_setup: s -> the `InertialSetup` calibrated with the body scaled by s
             (`jaxmocap.body.scaled_body`) on the same readings, e.g.
-            `lambda s: from_scenario(sc, i, scaled_body(body, s), ...)`.
+            `lambda s: app.scenarios.inertial_setup(sc, i, scaled_body(body, s), ...)`.
         init: (T, 24, 3) start poses of every candidate (default: SOP, size-free).
         scales: at least 3 distinct positive candidates, relative to the body of
             `make_setup(1.0)`.
@@ -769,3 +749,13 @@ def _parabola_vertex(s: np.ndarray, c: np.ndarray, best: int) -> float:
     if not a > 0:
         return float(s[best])
     return float(np.clip(s[k] - b / (2 * a), x[0], x[-1]))
+
+
+# Moved to the app layer (`jaxmocap.app.scenarios`, the adapters over a scenario's named
+# arrays); the old name resolves there until the next release.
+def __getattr__(name: str):
+    if name == "from_scenario":
+        from ..app.scenarios import inertial_setup
+
+        return inertial_setup
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -2,7 +2,7 @@
 
 1. **Object-only tracking** (§5.2.2, eq. 5.1): frame by frame, each view keeps the
    segmentation candidate overlapping the rendering of the previous frame's fit most
-   (`sensors.segmentation.select_candidate`), then the object's 6-DoF pose is fitted to
+   (`geometry.masks.select_candidate`), then the object's 6-DoF pose is fitted to
    the kept masks and the object-labelled depth points (`object_mask`, `object_depth`),
    starting from the previous frame. The first frame starts at the centroid of its object
    points under each of the 24 axis-aligned rotations (coarse, then fine); the lowest
@@ -55,13 +55,12 @@ from ..energies.interaction import (
     smoothness_term,
 )
 from ..energies.posed import CombinedData
+from ..geometry.masks import select_candidate
+from ..geometry.raster import rasterize_views, visible_vertices, window_for
+from ..motion.reach import CONTACT_PARTS, contact_vertices
 from ..objects import RigidObject
 from ..priors.pose_prior import PosePrior
 from ..rotation import host_exp, host_log
-from ..sensors.depth import visible_vertices
-from ..sensors.objects import CONTACT_PARTS, contact_vertices
-from ..sensors.segmentation import select_candidate
-from ..sensors.silhouette import rasterize_views, window_for
 from ..solve import Problem, frame, solve, with_weights
 from .multiview import MuVSWeights, camera_data, dataclasses_replace, initialise, stage_one
 
@@ -183,28 +182,10 @@ class InteractionObservations:
 
     @classmethod
     def from_scenario(cls, scenario, i: int = 0, seed: int = 0, num_distractors: int = 2) -> InteractionObservations:
-        """Sequence i of a `make_scenario` scene with an object, cameras, body25 keypoints and
-        depth points (`sensors.scenario.interaction_config`); candidates come from
-        `sensors.segmentation.object_candidates` (mask errors and distractors)."""
-        from ..sensors.segmentation import object_candidates
+        """Moved to `jaxmocap.app.scenarios.interaction_observations`; this alias goes in the next release."""
+        from ..app.scenarios import interaction_observations
 
-        s = scenario.sequence(i)
-        missing = [k for k in ("obj_R", "det_keypoints", "depth_points", "labels") if k not in s]
-        if missing:
-            raise ValueError(f"the scenario lacks {missing}: make it with sensors.scenario.interaction_config().")
-        P = s["poses"].shape[0]
-        kp = s["det_keypoints"][:, :, 0]  # (C, T, K, 3), slot 0 (one person, no distractors)
-        lab, pts, val = s["depth_labels"], s["depth_points"], s["depth_valid"]
-        to_tv = lambda x: np.swapaxes(np.asarray(x), 0, 1)  # noqa: E731  (C, T, ...) -> (T, C, ...)
-        cand, _ = object_candidates(s["labels"], P, np.random.default_rng(seed), num_distractors)
-        obj = RigidObject(s["obj_vertices"], s["obj_faces"], scenario.meta.get("object") or "object")
-        return cls(
-            K=np.asarray(s["cam_K"], np.float64), R=np.asarray(s["cam_R"][:, 0], np.float64),
-            t=np.asarray(s["cam_t"][:, 0], np.float64), keypoints=to_tv(kp).astype(np.float64),
-            body_points=to_tv(pts), body_valid=to_tv(val & (lab == 0)),
-            object_points=to_tv(pts), object_valid=to_tv(val & (lab == P)), candidates=cand,
-            obj=obj, fps=float(scenario.config.fps),
-        )  # fmt: skip
+        return interaction_observations(scenario, i, seed, num_distractors)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -445,7 +426,7 @@ def track_object(obs: InteractionObservations, weights: InterCapWeights = InterC
 
 def _best_by_points(obs, candidates, v, seen) -> np.ndarray:
     """The candidate of view v covering most projected object points of frame 0."""
-    from ..sensors.camera import project
+    from ..geometry.camera import project
 
     pts = np.asarray(obs.object_points[0])[seen]
     uv, z = project(jnp.asarray(obs.K[v]), jnp.asarray(obs.R[v]), jnp.asarray(obs.t[v]), jnp.asarray(pts))

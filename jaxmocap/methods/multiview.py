@@ -66,11 +66,11 @@ from ..energies.camera import (
     silhouette_terms,
     temporal_term,
 )
+from ..geometry.camera import intrinsics
+from ..geometry.keypoints import KEYPOINT_FORMATS, flip_pairs, keypoint_regressor
+from ..geometry.triangulation import triangulate
 from ..priors.pose_prior import PosePrior, default_pose_prior
 from ..rotation import matrix_to_axis_angle
-from ..sensors.camera import intrinsics
-from ..sensors.keypoints import KEYPOINT_FORMATS, flip_pairs, keypoint_regressor
-from ..sensors.triangulation import triangulate
 from ..solve import Problem, frame, solve, solve_batch, with_weights
 
 __all__ = ["MuVSWeights", "MuVSResult", "camera_data", "compact", "initialise", "resolve_left_right", "stage_one", "stage_two",

@@ -19,10 +19,11 @@ onto the detections (linear least squares with the rotation known; our stand-in 
 per-hypothesis camera fit of eq. 4.13-4.14). The body translation starts at the given
 one on every frame.
 
-Association (eq. 4.11-4.18): `associated_keypoints` assigns a scenario's detections to its
-IMU wearers (`methods.association`) from their Inertial Tracker poses; pass its rows to
-`from_scenario(keypoints=…)`. By default `from_scenario` takes the person's detections by
-the simulator's identity labels (the "oracle" used by the ablations).
+Association (eq. 4.11-4.18): `tracker_hypotheses` gives the Inertial Tracker keypoints of
+each wearer that `methods.association` assigns detections to. For simulated scenes,
+`app.scenarios.associated_keypoints` does it for a scenario's detections; pass its rows to
+`app.scenarios.vip_sequence(keypoints=…)`, which by default takes the person's detections
+by the simulator's identity labels (the "oracle" used by the ablations).
 
 Variants (Tables 4.4-4.9): `free_heading=False` (VIP-noHeadParam), `free_heading=False,
 free_x0=False` (VIP-vanilla), `tracker_with(…)` on a VIP result (VIP-IT), true
@@ -56,14 +57,14 @@ from ..energies.visual_inertial import (
     image_term,
     initial_pose_term,
 )
+from ..geometry.keypoints import keypoint_regressor, regress_keypoints
 from ..priors.pose_prior import PosePrior, default_pose_prior
 from ..rotation import axis_angle_to_matrix, matrix_to_axis_angle
-from ..sensors.keypoints import keypoint_regressor, person_track, regress_keypoints
 from ..solve import Problem, Solution, frame, sequence, solve, solve_batch, with_weights
-from .association import Association, AssociationModel, associate
+from .association import AssociationModel, associate
 
-__all__ = ["VIPWeights", "VIPResult", "vip_data", "from_scenario", "inertial_tracker", "initial_camera",
-           "video_inertial_poser", "tracker_keypoints", "associated_keypoints", "with_keypoints", "world_keypoints",
+__all__ = ["VIPWeights", "VIPResult", "vip_data", "inertial_tracker", "initial_camera", "video_inertial_poser",
+           "tracker_hypotheses", "with_keypoints", "world_keypoints",
            "VIPScene", "video_inertial_scene"]  # fmt: skip
 
 
@@ -192,66 +193,10 @@ def vip_data(
     )  # fmt: skip
 
 
-def from_scenario(scenario, index: int, body: Body, person: int = 0, x0=None, keypoints=None, sensors=None, **kw):
-    """`VIPData` for one IMU wearer of a camera+IMU scenario (`ScenarioConfig` with a moving
-    camera, `camera_imu=True`, keypoints "coco18").
-
-    x0 defaults to the true pose at frame 0. keypoints (T, 18, 3) replaces the detections
-    (VIP-2D passes the true projections); by default the person's detections are taken by
-    the simulator's identity labels (`associated_keypoints` gives them by association).
-    sensors: indices of the body sensors to use (default all).
-    Returns (data, truth, bones) with truth = {poses, trans, betas, cam_R, cam_t} of that
-    person and bones the bone of each sensor used.
-    """
-    seq = scenario.sequence(index)
-    missing = [k for k in ("cam_imu_ori", "det_keypoints", "imu_ori") if k not in seq]
-    if missing:
-        raise ValueError(f"scenario has no {missing}: VIP needs body IMUs, a camera IMU and COCO-18 detections.")
-    if keypoints is None:
-        keypoints = person_track(seq["det_keypoints"], seq["det_person"], person)[:, 0]
-    x0 = seq["poses"][person][0] if x0 is None else x0
-    K = seq["cam_K"][0]
-    idx = np.arange(len(seq["imu_bones"])) if sensors is None else np.asarray(sensors)
-    bones = tuple(int(b) for b in np.asarray(seq["imu_bones"])[idx])
-    data = vip_data(
-        body, bones, np.asarray(seq["imu_vertices"])[idx], seq["imu_ori"][person][:, idx], seq["imu_acc"][person][:, idx], x0,
-        scenario.config.fps, seq["cam_imu_ori"], seq["cam_imu_acc"], K, keypoints,
-        scenario.config.cameras.height, betas=seq["betas"][person], **kw,
-    )  # fmt: skip
-    truth = {"poses": seq["poses"][person], "trans": seq["trans"][person], "betas": seq["betas"][person],
-             "cam_R": seq["cam_R"][0], "cam_t": seq["cam_t"][0]}  # fmt: skip
-    return data, truth, bones
-
-
-def tracker_keypoints(scenario, index: int, body: Body, people=(0, 1), x0s=None, prior: PosePrior | None = None):
-    """World COCO-18 keypoints (P, T, 18, 3) of the Inertial Tracker's poses (eq. 4.10) of each
-    wearer in `people`, at translation 0 (IMUs do not observe position): the hypotheses of
-    the first association (eq. 4.11). x0s: one given initial pose (24, 3) per person
-    (default each person's true frame-0 pose)."""
-    seq = scenario.sequence(index)
-    T = len(seq["cam_imu_ori"])
-    # The tracker reads no image: a placeholder detection only satisfies `vip_data`'s check.
-    dummy = np.ones((T, 18, 3))
-    datas = [from_scenario(scenario, index, body, person=p, x0=None if x0s is None else x0s[k], keypoints=dummy,
-                           prior=prior) for k, p in enumerate(people)]  # fmt: skip
-    return tracker_hypotheses([d for d, _, _ in datas], datas[0][2])
-
-
 def tracker_hypotheses(datas, bones) -> np.ndarray:
     """Keypoints (P, T, 18, 3) of each wearer's Inertial Tracker poses at translation 0 (IMUs do
     not observe position): the hypotheses of the first association (eq. 4.11)."""
     return np.stack([world_keypoints(d, inertial_tracker(d, bones), np.zeros((d.num_frames, 3))) for d in datas])
-
-
-def associated_keypoints(scenario, index: int, body: Body, people=(0, 1), x0s=None, model: AssociationModel | None = None,
-                         prior: PosePrior | None = None, **kw) -> Association:
-    """Detections of a scenario assigned to its wearers `people` by association (eq.
-    4.11-4.18) from their Inertial Tracker keypoints (`tracker_keypoints`). `.keypoints[k]`
-    (T, 18, 3) is person people[k]'s input to `from_scenario(keypoints=…)`; kw go to
-    `association.associate`."""
-    seq = scenario.sequence(index)
-    joints3d = tracker_keypoints(scenario, index, body, people, x0s, prior)
-    return associate(joints3d, seq["cam_K"][0], seq["cam_imu_ori"], seq["det_keypoints"][0], model=model, **kw)
 
 
 @functools.lru_cache(maxsize=None)
@@ -374,7 +319,7 @@ def video_inertial_poser(
     """VIP fusion (eq. 4.19-4.30) from the Inertial Tracker (eq. 4.10).
 
     Args:
-        data: `vip_data` / `from_scenario`; bones: the bone of each body sensor.
+        data: `vip_data` / `app.scenarios.vip_sequence`; bones: the bone of each body sensor.
         weights: `VIPWeights`; free_heading / free_x0: estimate γ_s / x₀ (False keeps
             them at 0 / the given x₀: VIP-noHeadParam, VIP-vanilla).
         camera: (T, 6) camera-to-world start (default `initial_camera`); with
@@ -544,3 +489,14 @@ def into_camera(X, cam_from, cam_to):
     Rf, cf, Rt, ct = cam_from[:, :3, :3], cam_from[:, :3, 3], cam_to[:, :3, :3], cam_to[:, :3, 3]
     local = np.einsum("tba,tnb->tna", Rf, X - cf[:, None])
     return np.einsum("tab,tnb->tna", Rt, local) + ct[:, None]
+
+
+# Moved to the app layer (`jaxmocap.app.scenarios`, the adapters over a scenario's named
+# arrays); the old names resolve there until the next release.
+def __getattr__(name: str):
+    if name in ("from_scenario", "tracker_keypoints", "associated_keypoints"):
+        from ..app.scenarios import associated_keypoints, tracker_keypoints, vip_sequence
+
+        return {"from_scenario": vip_sequence, "tracker_keypoints": tracker_keypoints,
+                "associated_keypoints": associated_keypoints}[name]  # fmt: skip
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

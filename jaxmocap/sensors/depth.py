@@ -1,29 +1,27 @@
 """Depth cameras: per-view point clouds with visibility and noise (InterCap-style RGB-D).
 
-From a rasterised depth image (`silhouette.rasterize`) every covered pixel back-projects
+From a rasterised depth image (`geometry.raster.rasterize`) every covered pixel back-projects
 to p^c = z K⁻¹ (u, v, 1)ᵀ and to the world by p^g = Rᵀ (p^c - t). Noise follows the
 usual time-of-flight / structured-light model: axial std σ_z = σ₀ + σ₂ z² along the
 pixel ray, lateral std `lateral` (m) and a fraction of missing pixels. A fixed number of
 points per view and frame is sampled (without replacement, deterministic from the rng),
 padded with a mask when fewer pixels are covered.
 
-`visible_vertices` marks mesh vertices whose depth agrees with the z-buffer (within a
-tolerance), which is what a point-to-body term over visible vertices needs (InterCap
-E_D, Huang eq. 5.2-5.5).
+`visible_vertices` (the vertices the z-buffer sees) is `jaxmocap.geometry.raster`.
 """
 
 from __future__ import annotations
 
 import dataclasses
 
-import jax.numpy as jnp
 import numpy as np
-from jax import Array
 
-from .camera import project
-from .silhouette import BACKGROUND, FLOOR
+from ..geometry.raster import BACKGROUND, FLOOR
 
-__all__ = ["DepthNoiseModel", "depth_point_cloud", "visible_vertices"]
+# Lived here until the geometry split; the alias goes in the next release.
+from ..geometry.raster import visible_vertices as visible_vertices
+
+__all__ = ["DepthNoiseModel", "depth_point_cloud"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -97,14 +95,3 @@ def depth_point_cloud(
     labels[:n] = label[rows, cols]
     valid[:n] = True
     return points, labels, valid
-
-
-def visible_vertices(K: Array, R: Array, t: Array, vertices: Array, depth: Array, tolerance: float = 0.02) -> Array:
-    """(N,) bool: the vertex projects inside the image and is within `tolerance` of the z-buffer."""
-    H, W = depth.shape
-    uv, z = project(K, R, t, vertices)
-    col = jnp.floor(uv[..., 0]).astype(jnp.int32)
-    row = jnp.floor(uv[..., 1]).astype(jnp.int32)
-    inside = (col >= 0) & (col < W) & (row >= 0) & (row < H) & (z > 0)
-    zbuf = depth[jnp.clip(row, 0, H - 1), jnp.clip(col, 0, W - 1)]
-    return inside & (z <= zbuf + tolerance)

@@ -51,6 +51,7 @@ from jax import Array
 from .._checks import check_finite, check_frames, check_rate
 from ..body.kinematics import BodyOutput, forward
 from ..body.model import SMPL_JOINT_NAMES, Body
+from ..geometry.surface import ray_vertex, rest_joints  # also re-exported: they lived here
 from ..rotation import matrix_to_axis_angle, rotation_y  # rotation_y: re-exported where it used to live
 
 __all__ = [
@@ -173,31 +174,6 @@ class IMUPlacement(eqx.Module):
             tuple(self.bones[i] for i in idx),
             f"{self.set_name}[{len(idx)}]",
         )
-
-
-def ray_vertex(body: Body, point, direction, bone: int) -> int:
-    """The rest-mesh vertex skinned mostly to `bone` nearest to the ray point + s·direction, s > 0.
-
-    Candidates: skinning weight ≥ 0.5 for `bone`; fallbacks: argmax weight = bone, then
-    any weight > 0. Deterministic (ties resolve to the lowest index).
-    """
-    v = np.asarray(body.v_template, np.float64)
-    w = np.asarray(body.weights, np.float64)
-    d = np.asarray(direction, np.float64)
-    d = d / np.linalg.norm(d)
-    rel = v - np.asarray(point, np.float64)
-    along = rel @ d
-    dist = np.linalg.norm(rel - along[:, None] * d, axis=1)
-    for candidates in (w[:, bone] >= 0.5, w.argmax(1) == bone, w[:, bone] > 0.0):
-        ok = candidates & (along > 0)
-        if ok.any():
-            return int(np.flatnonzero(ok)[np.argmin(dist[ok])])
-    raise ValueError(f"No vertex of this body is skinned to joint {bone}.")
-
-
-def rest_joints(body: Body) -> np.ndarray:
-    """Rest joints 𝒥 T̄ of the mean shape, (J, 3) NumPy float64."""
-    return np.asarray(body.J_regressor, np.float64) @ np.asarray(body.v_template, np.float64)
 
 
 def landmark_vertex(body: Body, landmark: _Landmark) -> int:

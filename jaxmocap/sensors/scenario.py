@@ -58,18 +58,20 @@ import numpy as np
 
 from .._checks import check_rate
 from ..body.kinematics import BodyOutput, forward
+from ..geometry.camera import intrinsics, project, ring_cameras
+from ..geometry.imu_calibration import sensor_to_bone_offsets, virtual_bone_orientations
+from ..geometry.keypoints import KEYPOINT_FORMATS, keypoint_regressor, regress_keypoints
+from ..geometry.raster import rasterize_views, visible_vertices, window_for
 from ..motion.reach import ReachError
 from ..motion.sequence import Motion
 from ..rotation import axis_angle_to_matrix
-from .camera import camera_imu, handheld_trajectory, intrinsics, project, ring_cameras
-from .calibration import sensor_to_bone_offsets, virtual_bone_orientations
-from .depth import DepthNoiseModel, depth_point_cloud, visible_vertices
+from .depth import DepthNoiseModel, depth_point_cloud
+from .detector import DetectorErrorModel, detect
 from .errors import IMUErrorModel, global_free_acceleration, simulate_imu
 from .imu import imu_placement
-from .keypoints import KEYPOINT_FORMATS, DetectorErrorModel, detect, keypoint_regressor, regress_keypoints
+from .moving_camera import camera_imu, handheld_trajectory
 from .objects import CONTACT_PARTS, ObjectTrajectory, RigidObject, contact_trajectory, contact_vertices
 from .objects import pick_and_place
-from .silhouette import rasterize_views, window_for
 
 __all__ = [
     "CameraConfig",
@@ -93,7 +95,7 @@ class CameraConfig:
 
     width/height in pixels, vertical field of view in degrees, distance (m) from the
     scene centre and camera height (m). `moving`: hand-held (one view, see
-    `camera.handheld_trajectory`); `camera_imu`: an IMU on the (first) camera.
+    `moving_camera.handheld_trajectory`); `camera_imu`: an IMU on the (first) camera.
     """
 
     num_views: int = 1

@@ -1,4 +1,4 @@
-"""Object segmentation candidates and InterCap's temporal selection rule (Huang §5.2.2).
+"""Simulated object segmentation candidates for InterCap (Huang §5.2.2).
 
 InterCap segments the object in every view with an instance segmenter (PointRend) that
 returns several masks of plausible classes; the object's mask is the candidate with the
@@ -18,8 +18,7 @@ and view K = 1 + num_distractors masks in random order,
   - with probability `miss_rate`, and wherever the object has no pixels, the object's
     candidate is an empty mask and its index is -1.
 
-`select_candidate` is the selection rule: the candidate with the largest IoU with the
-reference mask (the previous frame's fit rendered into the view).
+The selection rule that reads these candidates is `jaxmocap.geometry.masks.select_candidate`.
 """
 
 from __future__ import annotations
@@ -27,7 +26,10 @@ from __future__ import annotations
 import numpy as np
 from scipy import ndimage
 
-__all__ = ["object_candidates", "select_candidate"]
+# Lived here until the geometry split; the alias goes in the next release.
+from ..geometry.masks import select_candidate as select_candidate
+
+__all__ = ["object_candidates"]
 
 _MIN_IOU = 0.7  # smallest IoU of a corrupted true mask with the clean one (before holes)
 _MAX_DISTRACTOR_IOU = 0.1  # distractors overlap the object less than this
@@ -191,29 +193,3 @@ def object_candidates(
             if found:
                 true_index[t, v] = int(np.flatnonzero(order == 0)[0])
     return candidates, true_index
-
-
-def select_candidate(candidates: np.ndarray, reference: np.ndarray) -> np.ndarray:
-    """InterCap's rule (Huang §5.2.2): per view the candidate with the largest overlap ratio
-    (IoU, |c ∩ r| / |c ∪ r|) with the reference, the previous frame's fit rendered into it.
-
-    Args:
-        candidates: (V, K, H, W) bool masks of one frame; reference: (V, H, W) bool.
-    Returns:
-        (V,) int candidate index per view; -1 where no candidate overlaps the reference
-        (or the reference is empty).
-    """
-    candidates, reference = np.asarray(candidates), np.asarray(reference)
-    if candidates.dtype != bool or candidates.ndim != 4:
-        raise ValueError(f"candidates must be (V, K, H, W) bool masks, got {candidates.dtype} {candidates.shape}.")
-    if reference.dtype != bool or reference.shape != (candidates.shape[0], *candidates.shape[2:]):
-        raise ValueError(
-            f"reference must be (V, H, W) = {(candidates.shape[0], *candidates.shape[2:])} bool masks, "
-            f"got {reference.dtype} {reference.shape}."
-        )
-    ref = reference[:, None]
-    inter = np.count_nonzero(candidates & ref, axis=(-1, -2))
-    union = np.count_nonzero(candidates | ref, axis=(-1, -2))
-    iou = inter / np.maximum(union, 1)
-    best = np.argmax(iou, 1)
-    return np.where(iou.max(1) > 0, best, -1) if iou.shape[1] else np.full(len(iou), -1)

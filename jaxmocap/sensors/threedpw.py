@@ -2,7 +2,7 @@
 
 The pickles carry no IMU readings, so the body IMUs are simulated from the person's
 reference poses (`errors.simulate_imu`, noise-free unless an error model is given) and the
-camera IMU from the camera poses (`camera.camera_imu`, axes = camera axes); the detections
+camera IMU from the camera poses (`moving_camera.camera_imu`, axes = camera axes); the detections
 are the file's own OpenPose COCO-18 keypoints. Everything is at the images' 30 Hz.
 """
 
@@ -11,9 +11,9 @@ from __future__ import annotations
 import numpy as np
 
 from ..formats.threedpw import ThreeDPWSequence, valid_span
-from .camera import camera_imu
 from .errors import IMUErrorModel, simulate_imu
 from .imu import imu_placement
+from .moving_camera import camera_imu
 
 __all__ = ["vip_inputs"]
 

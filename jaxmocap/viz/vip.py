@@ -16,7 +16,7 @@ import numpy as np
 __all__ = ["COCO18_LIMBS", "PERSON_COLORS", "UNASSIGNED_COLOR", "error_over_time_png", "overlay_png", "scene_glb"]
 
 #: COCO-18 bones (OpenPose's POSE_COCO_PAIRS without the two ear-shoulder PAF-only pairs),
-#: by index in `sensors.keypoints.COCO18_NAMES` (nose, neck, r/l shoulder, elbow, wrist,
+#: by index in `geometry.keypoints.COCO18_NAMES` (nose, neck, r/l shoulder, elbow, wrist,
 #: r/l hip, knee, ankle, r/l eye, ear).
 COCO18_LIMBS = (
     (1, 2), (2, 3), (3, 4), (1, 5), (5, 6), (6, 7), (1, 8), (8, 9), (9, 10), (1, 11), (11, 12),
