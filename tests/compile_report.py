@@ -8,7 +8,7 @@ import argparse
 import json
 from collections import defaultdict
 
-KEYS = ("wall_s", "trace_s", "lower_s", "compile_s", "programs", "cache_hits", "cache_misses")
+KEYS = ("wall_s", "cpu_s", "trace_s", "lower_s", "compile_s", "programs", "cache_hits", "cache_misses")
 
 
 def main(argv=None):
