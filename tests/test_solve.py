@@ -172,7 +172,8 @@ def test_block_tridiagonal_solves_match_dense(K, N):
     b = rng.normal(size=(K, N, 2))
     ref = np.linalg.solve(A, b.reshape(K * N, 2)).reshape(K, N, 2)
     for method in ("scan", "cyclic"):
-        x = tridiagonal_solve(tridiagonal_factor(jnp.asarray(D), jnp.asarray(U), method), jnp.asarray(b))
+        # jitted: one program instead of one per eager operation and shape
+        x = jax.jit(lambda D, U, b: tridiagonal_solve(tridiagonal_factor(D, U, method), b))(D, U, b)  # noqa: B023
         np.testing.assert_allclose(np.asarray(x), ref, atol=1e-11 * np.abs(ref).max(), err_msg=method)
     with pytest.raises(ValueError, match="tridiagonal"):
         tridiagonal_factor(jnp.asarray(D), jnp.asarray(U), "lu")
@@ -206,7 +207,7 @@ def test_rows_factorisation_matches_dense(T, n, R, B):
     ref = np.linalg.solve(H, b.reshape(T * n, 2)).reshape(T, n, 2)
     methods = [(rows_factor, rows_solve), (rows_cyclic_factor, rows_cyclic_solve)]
     for fac, sol in methods:
-        x = sol(fac(jnp.asarray(P0), jnp.asarray(C)), jnp.asarray(b))
+        x = jax.jit(lambda P0, C, b: sol(fac(P0, C), b))(P0, C, b)  # noqa: B023  (one program)
         np.testing.assert_allclose(np.asarray(x), ref, atol=1e-10 * np.abs(ref).max(), err_msg=fac.__name__)
 
 
@@ -252,7 +253,7 @@ def test_block_jacobian_normal_equations_match_dense(W):
         args = Args(problem, data, mask, layout)
         st = args.structure()
         assert st.perm is not None
-        out[name] = linearise(params, args, st, jnp.float64, jnp.float64)
+        out[name] = jax.jit(lambda p, args=args, st=st: linearise(p, args, st, jnp.float64, jnp.float64))(params)
     (nf, gf, cf), (nd, gd, cd), (nm, gm, cm) = out["factored"], out["dense"], out["masked"]
     for a, b in ((nf, nd), (nm, nd)):
         for x, y in zip(jax.tree_util.tree_leaves(a), jax.tree_util.tree_leaves(b)):
@@ -274,7 +275,7 @@ def test_inverse_cholesky_matches_numpy(n):
     S = A @ np.swapaxes(A, 1, 2) + n * np.eye(n)
     ref = np.linalg.inv(np.linalg.cholesky(S))
     for base in (4, 16, 32):
-        L_inv = np.asarray(inverse_cholesky(jnp.asarray(S), base))
+        L_inv = np.asarray(jax.jit(inverse_cholesky, static_argnums=1)(S, base))
         np.testing.assert_allclose(L_inv, ref, atol=1e-12 * np.abs(ref).max(), err_msg=f"base {base}")
         assert np.all(np.triu(L_inv, 1) == 0.0)
 
