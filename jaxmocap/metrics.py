@@ -18,8 +18,10 @@ per-joint errors; the `summary` helpers average them per sequence.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Sequence
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jax import Array
@@ -174,20 +176,29 @@ def _mean(e, mask):
     return total / (m.sum(axis=(-2, -1)) * e.shape[-1])
 
 
-def _posed_pair(body, pred_poses, true_poses, betas, pred_trans, true_trans):
-    """Forward kinematics of a predicted and a true (T, 24, 3) trajectory on one body."""
-    from .body.kinematics import forward
-
+def _check_pair(pred_poses, true_poses, betas, pred_trans, true_trans):
+    """Shapes and finiteness of a predicted and a true (T, 24, 3) trajectory, named."""
     if jnp.shape(pred_poses) != jnp.shape(true_poses):
         raise ValueError(
             f"pred_poses has shape {jnp.shape(pred_poses)} but true_poses has {jnp.shape(true_poses)}; "
             "both must be (T, 24, 3) with the same T (trim or resample one of them)."
         )
-    for name, x in (("pred_poses", pred_poses), ("true_poses", true_poses), ("pred_trans", pred_trans),
-                    ("true_trans", true_trans)):  # fmt: skip
+    for name, x in (("pred_poses", pred_poses), ("true_poses", true_poses), ("betas", betas),
+                    ("pred_trans", pred_trans), ("true_trans", true_trans)):  # fmt: skip
         if x is not None:
-            check_finite(name, x)  # named here: forward's own check would say "pose"
+            check_finite(name, x)  # named here, before the jit: inside it forward's checks see tracers
+
+
+def _posed_pair(body, pred_poses, true_poses, betas, pred_trans, true_trans):
+    """Forward kinematics of a predicted and a true (T, 24, 3) trajectory on one body."""
+    from .body.kinematics import forward
+
     return forward(body, pred_poses, betas, pred_trans), forward(body, true_poses, betas, true_trans)
+
+
+def _static_joints(joints):
+    """A joint set as a hashable jit argument: a set's name, or a tuple of indices."""
+    return joints if isinstance(joints, str) or joints is None else tuple(int(i) for i in joint_indices(joints))
 
 
 def pose_errors(body, pred_poses, true_poses, betas=None, pred_trans=None, true_trans=None,
@@ -197,11 +208,20 @@ def pose_errors(body, pred_poses, true_poses, betas=None, pred_trans=None, true_
     Returns a dict of NumPy arrays: "mpjpe" (T, N_J) mm after Procrustes, "mpjpe_root"
     (T, N_J) mm root-aligned without rotation, "mpjae" (T, N_J') degrees.
     """
+    _check_pair(pred_poses, true_poses, betas, pred_trans, true_trans)
+    out = _pose_errors(body, pred_poses, true_poses, betas, pred_trans, true_trans,
+                       _static_joints(position_joints), _static_joints(angle_joints))  # fmt: skip
+    return {k: np.asarray(v) for k, v in out.items()}
+
+
+# One compiled program per call shape: eagerly, each operation would compile on its own.
+@functools.partial(jax.jit, static_argnames=("position_joints", "angle_joints"))
+def _pose_errors(body, pred_poses, true_poses, betas, pred_trans, true_trans, position_joints, angle_joints):
     pred, true = _posed_pair(body, pred_poses, true_poses, betas, pred_trans, true_trans)
     return {
-        "mpjpe": np.asarray(position_errors(pred.joints, true.joints, position_joints, "procrustes")) * 1000.0,
-        "mpjpe_root": np.asarray(position_errors(pred.joints, true.joints, position_joints, "root")) * 1000.0,
-        "mpjae": np.asarray(angle_errors(pred.joint_rotations, true.joint_rotations, angle_joints)),
+        "mpjpe": position_errors(pred.joints, true.joints, position_joints, "procrustes") * 1000.0,
+        "mpjpe_root": position_errors(pred.joints, true.joints, position_joints, "root") * 1000.0,
+        "mpjae": angle_errors(pred.joint_rotations, true.joint_rotations, angle_joints),
     }
 
 
@@ -250,17 +270,24 @@ def literature_metrics(body, pred_poses, true_poses, fps: float, betas=None, pre
     so the numbers measure pose, not body size. `mask` (T,) bool keeps the real frames of
     a padded trajectory (padding to a few lengths spares a compilation per length).
     """
+    _check_pair(pred_poses, true_poses, betas, pred_trans, true_trans)
+    return {k: float(v) for k, v in _literature_metrics(body, pred_poses, true_poses, float(fps), betas, pred_trans,
+                                                         true_trans, mask).items()}  # fmt: skip
+
+
+@functools.partial(jax.jit, static_argnames=("fps",))
+def _literature_metrics(body, pred_poses, true_poses, fps, betas, pred_trans, true_trans, mask):
     pred, true = _posed_pair(body, pred_poses, true_poses, betas, pred_trans, true_trans)
     root = lambda o, x: x - o.joints[..., :1, :]  # noqa: E731
     rel = root(pred, pred.joints)
-    mean = lambda e: float(_frame_mean(e.mean(axis=-1), mask))  # noqa: E731  (..., T, N) -> over N, then real frames
+    mean = lambda e: _frame_mean(e.mean(axis=-1), mask)  # noqa: E731  (..., T, N) -> over N, then real frames
     return {
         "sip_error_deg": mean(angle_errors(pred.joint_rotations, true.joint_rotations, "sip_error")),
         "angular_error_deg": mean(angle_errors(pred.joint_rotations, true.joint_rotations, "all")),
         "position_error_cm": mean(jnp.linalg.norm(rel - root(true, true.joints), axis=-1)) * 100,
         "mesh_error_cm": mean(jnp.linalg.norm(root(pred, pred.vertices) - root(true, true.vertices), axis=-1)) * 100,
-        "jitter_root_km_s3": float(jitter(rel, fps, mask)),
-        "jitter_global_km_s3": float(jitter(pred.joints, fps, mask)),
+        "jitter_root_km_s3": jitter(rel, fps, mask),
+        "jitter_global_km_s3": jitter(pred.joints, fps, mask),
     }
 
 
