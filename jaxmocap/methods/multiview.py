@@ -74,7 +74,7 @@ from ..rotation import matrix_to_axis_angle
 from ..solve import Problem, frame, solve, solve_batch, with_weights
 
 __all__ = ["MuVSWeights", "PRESETS", "preset", "MuVSResult", "camera_data", "compact", "initialise", "resolve_left_right", "stage_one", "stage_two",
-           "multiview_smplify", "mask_views", "stack", "monocular_view", "monocular_depth", "place_monocular",
+           "multiview_smplify", "mask_views", "stack", "monocular_view", "monocular_depth", "place_monocular", "final_depth",
            "rescale_about_camera", "STATURE_CV", "reprojection_px"]
 
 
@@ -132,7 +132,7 @@ class MuVSWeights:
     sigma: float = 10.0
     sigma_monocular: float = 100.0
     pose_prior: float = 1.0  # λ_θ, eq. 4.1: "validated" (muvs_tuning.json best_pose_prior; "thesis" 20)
-    shape: float = 2.0  # λ_β, eq. 4.1: "validated" (muvs_tuning.json best_shape; "thesis" 50)
+    shape: float = 50.0  # λ_β, eq. 4.1: "validated" = "thesis" (muvs_tuning.json best_shape)
     anneal: tuple[float, ...] = (20.0, 4.0, 1.0)
     silhouette_model: float = 0.1
     silhouette_mask: float = 0.1
@@ -832,6 +832,15 @@ def place_monocular(data: CameraData, params: dict, floor=None) -> tuple[dict, d
     return params, depth
 
 
+def final_depth(data: CameraData, final: dict, placed: dict) -> dict:
+    """`MuVSResult.depth`: `monocular_depth` of the final fit, with the scale k that
+    `place_monocular` applied after stage 1 and that record's uncertainty (`placed`)."""
+    depth = {**monocular_depth(data, final), "scale": placed["scale"], "from": placed["from"],
+             "relative": placed["relative"], "ground": placed["ground"]}
+    depth["depth_uncertainty_m"] = depth["depth_m"] * depth["relative"]
+    return depth
+
+
 def multiview_smplify(
     data: CameraData,
     weights: MuVSWeights | str = "validated",
@@ -861,10 +870,8 @@ def multiview_smplify(
     else:
         final, c2 = stage_two(data, p1, weights, temporal_silhouettes)
         costs = {**costs, **c2}
-    if isinstance(depth, dict):  # the record of the final fit; k was applied after stage 1
-        depth = {**monocular_depth(data, final), "scale": depth["scale"], "from": depth["from"],
-                 "relative": depth["relative"], "ground": depth["ground"]}
-        depth["depth_uncertainty_m"] = depth["depth_m"] * depth["relative"]
+    if isinstance(depth, dict):
+        depth = final_depth(data, final, depth)
     return MuVSResult(final["pose"], final["trans"], final["betas"], stage1, costs, depth is not None, depth)
 
 
