@@ -10,7 +10,7 @@ joints), the share of frames with legs on the correct side, and the shape error 
 zero-pose vertices). The lowest MPJPE chooses.
 
     python experiments/muvs_tuning.py            # -> out/muvs_tuning/muvs_tuning.json
-    python experiments/muvs_tuning.py --out experiments/results   # publish (~20 min on 2 CPU cores)
+    python experiments/muvs_tuning.py --out experiments/results   # publish (~10 min on 2 CPU cores)
 
 Result keys: `grid` every (λ_θ, λ_β) tried; `prior` the λ_θ profile at the chosen λ_β,
 `shape` the λ_β profile at the chosen λ_θ; `best_pose_prior`, `best_shape`,
