@@ -333,7 +333,8 @@ def _run_multiview(args) -> int:
         from .app.multiview_demo import run_demo
 
         out = Path(args.out or "multiview-demo")
-        r = run_demo(out, body=args.body, temporal=not args.no_temporal, log=_say, progress=sys.stderr.isatty())
+        r = run_demo(out, body=args.body, temporal=not args.no_temporal, log=_say, progress=sys.stderr.isatty(),
+                     weights=args.weights)  # fmt: skip
         out = out / "fit"
     else:
         keypoints, calib, out = args.keypoints, args.calib, args.out

@@ -20,7 +20,7 @@ from jaxmocap.cli import main
 from jaxmocap.formats import CalibratedCamera, save_calibration, write_openpose
 from jaxmocap.geometry.camera import project_points, ring_cameras
 from jaxmocap.geometry.keypoints import keypoint_regressor
-from jaxmocap.methods.multiview import STATURE_CV
+from jaxmocap.methods.multiview import PRESETS, STATURE_CV
 from jaxmocap.motion.amass import Z_UP_TO_Y_UP, load_amass
 from jaxmocap.motion.library import walk
 from jaxmocap.body import posed_vertices
@@ -278,6 +278,7 @@ def test_one_camera_says_depth_is_unobserved_and_how_uncertain_it_is(demo_record
     assert "warning: one camera (cam01): depth along its line of sight is not observed" in io.err
     report = json.loads((tmp_path / "mono" / "report.json").read_text())
     assert report["monocular"] is True and report["frames"]["fps"] == 60.0
+    assert report["weights"]["pose_prior"] == PRESETS["validated"].pose_prior != PRESETS["thesis"].pose_prior  # the default
     depth = report["depth"]
     assert 3.0 < depth["depth_m"] < 6.0 and 0.04 * depth["depth_m"] < depth["depth_uncertainty_m"] < 0.2 * depth["depth_m"]
     # the method's record (`MuVSResult.depth`): the body's size, the detections' scale error
@@ -293,13 +294,14 @@ def test_one_camera_says_depth_is_unobserved_and_how_uncertain_it_is(demo_record
 
 
 def test_multiview_demo_writes_a_lab_recording_and_fits_it(tmp_path, capsys):
-    code, io = _run(["demo", "--out", tmp_path / "demo", "--no-temporal"], capsys)
+    code, io = _run(["demo", "--out", tmp_path / "demo", "--no-temporal", "--weights", "thesis"], capsys)
     assert code == 0, io.err
     for line in ("demo     writing a synthetic 4-camera recording", "cam04_json 15 frames (1..16)",
                  "layout   body25b (from", "confirmed by the skeleton", "fps      60", "demo     MPJPE"):
         assert line in io.out, (line, io.out)
     report = json.loads((tmp_path / "demo" / "fit" / "report.json").read_text())
     assert report["monocular"] is False and report["layout"] == "body25b" and report["frames"]["count"] == 16
+    assert (report["weights"]["pose_prior"], report["weights"]["shape"]) == (20.0, 50.0)  # --weights thesis reached the fit
     assert report["reprojection"]["final"]["overall"]["median_px"] < 6.0
     assert (tmp_path / "demo" / "recording" / "Config.toml").is_file()
     assert (tmp_path / "demo" / "fit" / "smpl.npz").is_file()
