@@ -19,8 +19,9 @@ both have (confidence >= 0.2, seen by two views):
     ankles) per 30-frame DCT window of stage 2 (the last window is partial), fit and
     triangulated; and of SMPL's 24 joints for the fit;
   - run time: the detector per camera and each stage of the fit.
-Nothing here is tuned: MuVSWeights() is used as it is (tuned on synthetic CMU subjects 02
-and 131). Demo_MultiPerson is the held-out recording: it was not run while the detector,
+Nothing here is tuned: the library's default weights are used as they are (the "validated"
+preset, `MuVSWeights()`: λ_θ = 1, λ_β = 50, chosen on synthetic CMU subjects 02 and 131 by
+experiments/muvs_tuning.py; until 2026-12-07 λ_θ was 20). Demo_MultiPerson is the held-out recording: it was not run while the detector,
 the layout and this script were built, and is reported separately. It has several people;
 MediaPipe's legacy pose solution tracks one person per video, so the views may follow
 different people, and `select_person` has no second candidate per view to choose from.

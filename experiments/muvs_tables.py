@@ -86,14 +86,16 @@ SILHOUETTE_VARIANTS = {"default": {}, "slack_4px": {"silhouette_slack": 4.0},
 
 
 def tuned_weights(path: Path = TUNING_FILE) -> tuple[mv.MuVSWeights, dict]:
-    """`MuVSWeights` with the pose prior and silhouette variant `muvs_tuning.py` chose on the
-    development subjects (its result file), and what was taken from where. The library's
-    default λ_θ (20) was chosen on the subjects these tables evaluate; the development
-    subjects' choice differs (experiments/results/muvs_tuning.json)."""
+    """`MuVSWeights` with the pose prior, shape weight and silhouette variant `muvs_tuning.py`
+    chose on the development subjects (its result file), and what was taken from where. The
+    library's default preset "validated" is the same choice (tests/test_presets.py); the
+    seed's λ_θ = 20 had been chosen on the subjects these tables evaluate."""
     tuned = json.loads(Path(path).read_text())
     if tuned.get("split", {}).get("tuning") != list(DEVELOPMENT):
         raise SystemExit(f"{path} was not tuned on the development subjects {DEVELOPMENT}: run experiments/muvs_tuning.py.")
-    change = {"pose_prior": float(tuned["best_pose_prior"]), **SILHOUETTE_VARIANTS[tuned.get("best_silhouettes", "default")]}
+    change = {"pose_prior": float(tuned["best_pose_prior"]),
+              "shape": float(tuned.get("best_shape", mv.PRESETS["thesis"].shape)),  # absent: tuned before λ_β was
+              **SILHOUETTE_VARIANTS[tuned.get("best_silhouettes", "default")]}
     return mv.MuVSWeights(**change), {"from": str(Path(path).name), "changed": change, "clips": tuned["clips"]}
 
 

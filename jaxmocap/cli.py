@@ -316,6 +316,10 @@ def _configure_multiview(p: argparse.ArgumentParser) -> None:
     p.add_argument("--keep-swaps", action="store_true",
                    help="do not flip back views whose detector swapped the legs (MuVS as written)")
     p.add_argument("--masks", metavar="DIR", help="person masks: one folder of PNGs per camera (adds silhouettes)")
+    p.add_argument("--weights", default="validated", choices=("validated", "thesis"),
+                   help="MuVS's weights (methods.multiview.PRESETS): validated, chosen on the development subjects "
+                   "(pose prior λ_θ 1, shape prior λ_β 50; experiments/results/muvs_tuning.json), or thesis, the "
+                   "values this implementation started with (λ_θ 20, λ_β 50) (default: validated)")
 
 
 def _say(line: str) -> None:
@@ -329,7 +333,8 @@ def _run_multiview(args) -> int:
         from .app.multiview_demo import run_demo
 
         out = Path(args.out or "multiview-demo")
-        r = run_demo(out, body=args.body, temporal=not args.no_temporal, log=_say, progress=sys.stderr.isatty())
+        r = run_demo(out, body=args.body, temporal=not args.no_temporal, log=_say, progress=sys.stderr.isatty(),
+                     weights=args.weights)  # fmt: skip
         out = out / "fit"
     else:
         keypoints, calib, out = args.keypoints, args.calib, args.out
@@ -350,7 +355,7 @@ def _run_multiview(args) -> int:
         out = Path(out)
         options = dict(body=args.body, frames=args.frames, temporal=not args.no_temporal,
                        resolve_swaps=not args.keep_swaps, masks_dir=args.masks, fps=args.fps,
-                       progress=sys.stderr.isatty(), log=_say)  # fmt: skip
+                       weights=args.weights, progress=sys.stderr.isatty(), log=_say)  # fmt: skip
         if args.videos is not None:
             from .app.multiview_video import fit_videos
 

@@ -261,14 +261,15 @@ def _jitter(body, p) -> np.ndarray:
 def test_temporal_stage_keeps_the_reprojection_of_clean_data(walking):
     """Eq. 4.7-4.8 on clean keypoints: stage 2 may smooth, not fit worse (issue 49: the DCT
     vectors' zero slope at the window ends pulled a walking body to a stop there), with the
-    default λ_θ and the development-tuned λ_θ = 1, whose stage 1 is exact (0.07 px): E_T
-    in full then pulled it to the DCT span, 0.17 px (`MuVSWeights.temporal_noise`)."""
+    default ("validated", λ_θ = 1), whose stage 1 is exact (0.07 px): E_T in full then
+    pulled it to the DCT span, 0.17 px (`MuVSWeights.temporal_noise`); and with "thesis"
+    (λ_θ = 20)."""
     data, p1, _ = walking["fits"]["clean"]
-    tuned = mv.MuVSWeights(pose_prior=1.0)
-    exact, _ = mv.stage_one(data, mv.initialise(data, tuned.num_betas), tuned, silhouettes=False)
-    assert mv.reprojection_px(data, exact) < 0.5 * mv.reprojection_px(data, p1)
+    thesis = mv.PRESETS["thesis"]
+    loose, _ = mv.stage_one(data, mv.initialise(data, thesis.num_betas), thesis, silhouettes=False)
+    assert mv.reprojection_px(data, p1) < 0.5 * mv.reprojection_px(data, loose)
     assert mv.reprojection_px(data, p1) == pytest.approx(_reprojection(walking, "clean", p1), rel=1e-3)
-    for w, fit in ((mv.MuVSWeights(), p1), (tuned, exact)):
+    for w, fit in ((mv.MuVSWeights(), p1), (thesis, loose)):
         p2, costs = mv.stage_two(data, fit, w)
         before, after = _reprojection(walking, "clean", fit), _reprojection(walking, "clean", p2)
         assert after <= 1.1 * before, (w.pose_prior, before, after)

@@ -20,6 +20,7 @@ from jaxmocap.cli import main
 from jaxmocap.formats import CalibratedCamera, save_calibration, write_openpose
 from jaxmocap.geometry.camera import project_points, ring_cameras
 from jaxmocap.geometry.keypoints import keypoint_regressor
+from jaxmocap.methods.multiview import PRESETS, STATURE_CV
 from jaxmocap.motion.amass import Z_UP_TO_Y_UP, load_amass
 from jaxmocap.motion.library import walk
 from jaxmocap.body import posed_vertices
@@ -249,18 +250,6 @@ def test_frame_numbers_missing_in_every_camera_become_empty_frames():
         _complete_frames(KeypointRecording(("a",), "body25", np.array([1, 2, 10, 9000]), (kp,)))
 
 
-def test_monocular_depth_uncertainty_is_the_body_size_spread_at_its_distance():
-    from jaxmocap.app.multiview import STATURE_CV, monocular_depth
-
-    cam = CalibratedCamera("c", np.diag([1000.0, 1000.0, 1.0]), np.zeros(5), np.eye(3), [0.0, 0.0, 4.0], 0, 0)
-    joints = np.zeros((3, 24, 3))
-    det = np.zeros((3, 25, 3))
-    det[:, :2] = [[0.0, 0.0, 1.0], [0.0, 400.0, 1.0]]  # the body spans 400 px
-    d = monocular_depth(cam, joints, det, 4.0)
-    assert d["depth_m"] == pytest.approx(4.0) and d["body_extent_px"] == pytest.approx(400.0)
-    assert d["depth_uncertainty_m"] == pytest.approx(4.0 * np.hypot(STATURE_CV, 0.01))
-
-
 @pytest.fixture(scope="module")
 def demo_recording(tmp_path_factory):
     from jaxmocap.app.multiview_demo import write_demo_recording
@@ -289,21 +278,30 @@ def test_one_camera_says_depth_is_unobserved_and_how_uncertain_it_is(demo_record
     assert "warning: one camera (cam01): depth along its line of sight is not observed" in io.err
     report = json.loads((tmp_path / "mono" / "report.json").read_text())
     assert report["monocular"] is True and report["frames"]["fps"] == 60.0
+    assert report["weights"]["pose_prior"] == PRESETS["validated"].pose_prior != PRESETS["thesis"].pose_prior  # the default
     depth = report["depth"]
     assert 3.0 < depth["depth_m"] < 6.0 and 0.04 * depth["depth_m"] < depth["depth_uncertainty_m"] < 0.2 * depth["depth_m"]
+    # the method's record (`MuVSResult.depth`): the body's size, the detections' scale error
+    # and the frames' depth scatter; no floor is given to the fit, so nothing was rescaled
+    assert depth["camera"] == "cam01" and depth["view"] == 0 and depth["scale"] == 1.0 and depth["ground"] is None
+    size = depth["size"]
+    assert depth["relative"] == pytest.approx(size["relative"], rel=0.5) and size["frame_scatter_m"] >= 0
+    assert depth["relative"] >= STATURE_CV and size["body_extent_px"] > 0 and size["reprojection_px"] > 0
+    assert depth["depth_uncertainty_m"] == pytest.approx(depth["depth_m"] * depth["relative"])
     assert abs(depth["floor"]["ratio"] - 1) < 0.1, depth  # the demo's body is the mean body, on the floor
     assert "- warning: one camera (cam01): depth along its line of sight is not observed" in (
         tmp_path / "mono" / "report.md").read_text()
 
 
 def test_multiview_demo_writes_a_lab_recording_and_fits_it(tmp_path, capsys):
-    code, io = _run(["demo", "--out", tmp_path / "demo", "--no-temporal"], capsys)
+    code, io = _run(["demo", "--out", tmp_path / "demo", "--no-temporal", "--weights", "thesis"], capsys)
     assert code == 0, io.err
     for line in ("demo     writing a synthetic 4-camera recording", "cam04_json 15 frames (1..16)",
                  "layout   body25b (from", "confirmed by the skeleton", "fps      60", "demo     MPJPE"):
         assert line in io.out, (line, io.out)
     report = json.loads((tmp_path / "demo" / "fit" / "report.json").read_text())
     assert report["monocular"] is False and report["layout"] == "body25b" and report["frames"]["count"] == 16
+    assert (report["weights"]["pose_prior"], report["weights"]["shape"]) == (20.0, 50.0)  # --weights thesis reached the fit
     assert report["reprojection"]["final"]["overall"]["median_px"] < 6.0
     assert (tmp_path / "demo" / "recording" / "Config.toml").is_file()
     assert (tmp_path / "demo" / "fit" / "smpl.npz").is_file()

@@ -96,3 +96,58 @@ def test_explicit_limits_override_the_preset(jump):
     with pytest.raises(ValueError, match="preset name"):
         I.sparse_inertial_poser(setup, "Thesis", init=sop)
     assert jnp.isfinite(r.solution.decrease)
+
+
+# --- MuVS (methods.multiview): the same mechanism --------------------------------------
+
+MUVS_TUNING = ROOT / "experiments" / "results" / "muvs_tuning.json"
+
+
+def test_muvs_presets_the_default_is_validated_and_thesis_keeps_the_seed():
+    import inspect
+
+    from jaxmocap.app.multiview import fit_recording
+    from jaxmocap.cli import build_parser
+    from jaxmocap.methods import multiview as mv
+
+    validated, thesis = mv.PRESETS["validated"], mv.PRESETS["thesis"]
+    assert validated == mv.MuVSWeights() and mv.preset() is validated and mv.preset("thesis") is thesis
+    assert (thesis.pose_prior, thesis.shape) == (20.0, 50.0)  # the seed's λ_θ, λ_β, exact
+    assert thesis.replace(pose_prior=validated.pose_prior, shape=validated.shape) == validated
+    for fn in (mv.multiview_smplify, mv.stage_one, mv.stage_two):
+        assert inspect.signature(fn).parameters["weights"].default == "validated", fn.__name__
+    assert inspect.signature(fit_recording).parameters["weights"].default is None  # None: "validated"
+    mine = mv.MuVSWeights(sigma=5.0)
+    assert mv.preset(mine) is mine
+    with pytest.raises(ValueError, match="preset name"):
+        mv.preset("validate")
+    with pytest.raises(ValueError, match="preset name"):
+        mv.preset({"pose_prior": 1.0})
+    # the CLI offers the presets, the validated one by default
+    parser = build_parser()
+    assert parser.parse_args(["multiview", "demo"]).weights == "validated"
+    for name in mv.PRESETS:
+        assert parser.parse_args(["multiview", "demo", "--weights", name]).weights == name
+    with pytest.raises(SystemExit):
+        parser.parse_args(["multiview", "demo", "--weights", "tuned"])
+
+
+def test_muvs_validated_preset_is_what_the_development_subjects_chose():
+    from jaxmocap.methods import multiview as mv
+    from jaxmocap.motion.splits import check_record
+
+    assert MUVS_TUNING.is_file(), f"{MUVS_TUNING} is missing: run python experiments/muvs_tuning.py --out experiments/results"
+    recorded = json.loads(MUVS_TUNING.read_text())
+    check_record(recorded["split"])
+    assert recorded["split"]["tuning"] == ["02", "131"] and not recorded["split"]["evaluation"]
+    v, thesis = mv.PRESETS["validated"], mv.PRESETS["thesis"]
+    assert (v.pose_prior, v.shape) == (recorded["best_pose_prior"], recorded["best_shape"])
+    # the silhouette variant chosen: its settings in the preset, the others' at the seed's values
+    chosen = recorded["silhouettes"][recorded["best_silhouettes"]]
+    fields = {k for row in recorded["silhouettes"].values() for k in row if k in mv.MuVSWeights.__dataclass_fields__}
+    assert fields, "muvs_tuning.json records no silhouette setting"
+    for k in fields:
+        assert getattr(v, k) == chosen.get(k, getattr(thesis, k)), k
+    assert all(v for k, v in recorded["defaults_agree"].items() if k != "note"), recorded["defaults_agree"]
+    best = recorded["grid"][f"{recorded['best_pose_prior']}/{recorded['best_shape']}"]["mpjpe_mm"]
+    assert best == min(row["mpjpe_mm"] for row in recorded["grid"].values())

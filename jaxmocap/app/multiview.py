@@ -56,9 +56,6 @@ __all__ = ["fit_recording", "jitter", "read_masks", "reprojection_errors", "worl
 MIN_CONFIDENCE = 0.2
 #: Frame rate assumed when neither fps= nor the project's Config.toml gives one.
 DEFAULT_FPS = 30.0
-#: Relative spread of body size (adult stature: SD ≈ 9 cm about 1.70 m, sexes pooled): with
-#: one camera, depth is the body's size in pixels read against the mean body's size.
-STATURE_CV = 0.055
 #: At most this many PLY files (every n-th frame beyond) and GLB nodes are written.
 MAX_PLY, MAX_GLB_NODES = 300, 30
 #: Masks are refused when their distance transforms (float32, every frame and view) exceed this.
@@ -300,25 +297,6 @@ def _read_summary(recording) -> str:
     return line
 
 
-def monocular_depth(camera, joints, detections, reprojection_px: float | None) -> dict:
-    """With one camera, how far the body is and how uncertain that distance is (1σ, m).
-
-    The depth comes from the body's size in the image against the fitted shape, which the
-    shape prior keeps near the mean body: its error is the spread of body size
-    (`STATURE_CV`) combined with the detections' scale error (median reprojection error
-    over the body's median pixel extent). joints: (T, 24, 3) world; detections: (T, K, 3).
-    """
-    depth = np.median((joints[:, 0] @ camera.R.T + camera.t)[:, 2])
-    seen = detections[..., 2] > 0
-    extents = [np.ptp(d[s, :2], 0).max() for d, s in zip(detections, seen) if s.sum() >= 2]
-    extent = float(np.median(extents)) if extents else float("nan")
-    scale = (reprojection_px or 0.0) / extent if extent > 0 else 0.0
-    relative = math.hypot(STATURE_CV, scale)
-    return {"camera": camera.name, "depth_m": float(depth), "depth_uncertainty_m": float(depth * relative),
-            "relative": float(relative), "body_extent_px": extent,
-            "from": "the body's size in the image (shape prior: the mean body)"}  # fmt: skip
-
-
 def ground_depth(camera, detections, model_keypoints, names, up: str) -> dict | None:
     """A second, independent depth with one camera: where the feet meet the floor.
 
@@ -512,20 +490,25 @@ def fit_recording(
             they add the silhouette term to stage 1.
         fps: the recording's frame rate (OpenPose files do not store it); None takes
             Config.toml's frame_rate, else `DEFAULT_FPS`.
-        weights: `methods.multiview.MuVSWeights` (default: its defaults).
+        weights: `methods.multiview.MuVSWeights` or a preset name (`methods.multiview.PRESETS`);
+            None: "validated", the weights chosen on the development subjects (λ_θ, λ_β).
         progress: show a tqdm bar over the stages on stderr.
         log: called with one line per finding before the fit (cameras and frames read,
             layout and fps and where they came from; lines starting "warning:" are
             warnings); None: silent (they are in the report's "notes").
     Returns:
         The report (also written as report.json): frames, views, layout check,
-        reprojection errors, jitter, timings, output paths; "monocular" (one camera:
-        depth is not observed) with "depth" (`monocular_depth`).
+        reprojection errors, jitter, timings, output paths; "monocular" (one camera saw
+        the person: depth is not observed, `MuVSResult.monocular`) with "depth" (the
+        method's record, `MuVSResult.depth`: `methods.multiview.monocular_depth` of the final
+        fit with stage 1's uncertainty, plus "camera" and "floor", `ground_depth`).
     Raises:
         ValueError (KeypointFileError, CalibrationError) naming the file or argument.
     """
     from ..formats import align_views, load_calibration, read_config, read_openpose
-    from ..methods.multiview import MuVSWeights, camera_data, initialise, resolve_left_right, stage_one, stage_two
+    from ..methods.multiview import (
+        camera_data, final_depth, initialise, place_monocular, preset, resolve_left_right, stage_one, stage_two,
+    )
     from ..geometry.keypoints import KEYPOINT_FORMATS, keypoint_regressor
     from ..geometry.triangulation import projection_matrices, select_person
     from ..body.io import resolve_body
@@ -566,7 +549,7 @@ def fit_recording(
     if fps_note is None and config is not None and config.fps is not None and fps != config.fps:
         fps_note = (f"warning: fps {fps:g} as given, but {config.fps_from} says {config.fps:g}; "
                     "the given one is used.")  # fmt: skip
-    weights = MuVSWeights() if weights is None else weights
+    weights = preset("validated" if weights is None else weights)
     timings: dict[str, float] = {}
     stages = ["read", "select person", "initialise", "stage 1", "stage 2", "write"]
     if not temporal:
@@ -654,6 +637,7 @@ def fit_recording(
 
         begin("stage 1")
         p1, costs = stage_one(data, p0, weights, silhouettes=masks is not None)
+        p1, placed = place_monocular(data, p1)  # one view seeing the person: its depth record (no floor: k = 1)
         done("stage 1")
         final = {"pose": p1["pose"], "trans": p1["trans"], "betas": np.median(p1["betas"], 0)}
         if temporal:
@@ -679,18 +663,18 @@ def fit_recording(
     report["resolve_swaps"] = resolve_swaps
     report["layout_check"] = {"verdict": check.verdict, "named": named, "named_by": named_by if named else None,
                               "scores": check.scores}  # fmt: skip
-    report["monocular"] = len(cameras) == 1
+    report["monocular"] = placed is not None  # as `MuVSResult.monocular`: one camera saw the person
     if report["monocular"]:
-        _, joints = _posed(body_model, final["pose"], final["betas"], final["trans"])
-        report["depth"] = monocular_depth(cameras[0], joints, keypoints[:, 0],
-                                          report["reprojection"]["final"]["overall"]["median_px"])
+        camera = cameras[placed["view"]]
+        report["depth"] = {**final_depth(data, final, placed), "camera": camera.name}  # `MuVSResult.depth`
         d = report["depth"]
-        say(f"warning: one camera ({cameras[0].name}): depth along its line of sight is not observed; it comes from "
+        say(f"warning: one camera ({camera.name}): depth along its line of sight is not observed; it comes from "
             f"{d['from']}: {d['depth_m']:.2f} m ± {d['depth_uncertainty_m']:.2f} m (1σ). Add a second camera to "
             "measure it.")  # fmt: skip
         verts, _ = _posed(body_model, final["pose"], final["betas"], final["trans"])
         model_kp = np.einsum("kn,tnc->tkc", keypoint_regressor(body_model, layout), verts)
-        floor = ground_depth(cameras[0], keypoints[:, 0], model_kp, KEYPOINT_FORMATS[layout], report["world_up"])
+        floor = ground_depth(camera, keypoints[:, placed["view"]], model_kp, KEYPOINT_FORMATS[layout],
+                             report["world_up"])  # fmt: skip
         d["floor"] = floor
         if floor is not None and abs(floor["ratio"] - 1) > 2 * d["relative"]:
             say(f"warning: the feet would meet the floor (the world's 0 plane) at {floor['ground_depth_m']:.2f} m from "

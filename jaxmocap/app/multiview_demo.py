@@ -76,10 +76,10 @@ def write_demo_recording(root, frames: int = 16, fps: float = 60.0, views: int =
 
 
 def run_demo(out, frames: int = 16, body="default-low", temporal: bool = True, log=print,
-             progress: bool = False) -> dict:  # fmt: skip
+             progress: bool = False, weights=None) -> dict:  # fmt: skip
     """Write the demo recording into ``out/recording`` and fit it into ``out/fit``; returns
     the fit's report with "demo": {"mpjpe_mm", "seconds"} added. progress: a bar over the
-    fit's stages on stderr."""
+    fit's stages on stderr; weights: `fit_recording`'s (None: the "validated" preset)."""
     from ..formats import read_project
     from .._checks import output_folder
     from .multiview import fit_recording
@@ -94,7 +94,7 @@ def run_demo(out, frames: int = 16, body="default-low", temporal: bool = True, l
     log("demo     stage 1 (per frame)" + (", stage 2 (temporal)" if temporal else "") + "; the first run compiles "
         "the solvers, a few minutes on a laptop CPU")  # fmt: skip
     report = fit_recording(project.keypoints, project.calibration, out / "fit", body=body, temporal=temporal,
-                           progress=progress, log=log)  # fmt: skip
+                           weights=weights, progress=progress, log=log)  # fmt: skip
     from ..body import posed_vertices
     from ..body.io import resolve_body
     from ..motion.amass import load_amass
