@@ -19,6 +19,7 @@ labelled point clouds, contact flags, floor) and, for the keypoints and the body
 | `penetration` | 5.6, body-object term of PROX | max(0, -sdf) of body vertices in the posed object |
 | `ground`, `object_ground` | 5.6, E_G, E_G' | max(0, h - y) of body vertices and object points |
 | `contact` | 5.7, E_C | Q_t · distance of the closest body contact vertex to the object surface |
+| `floor` | 5.6-5.7, E_G and E_C with the floor as the surface | signed height of the lowest sole point above a known floor (one camera's depth, `methods.multiview`) |
 
 Choices where the thesis leaves one (each noted at its function too):
 - eq. 5.1 compares rendered and observed masks/depth inside the observed mask only (the
