@@ -13,7 +13,10 @@
 - **Monocular** (Table 4.5): the same code with one view. The result says so
   (`MuVSResult.monocular`) with the depth along the camera's line of sight and its 1σ
   (`monocular_depth`: the body's size, the frames' depth scatter, and where the feet meet
-  a known floor, `place_monocular`).
+  a known floor, `place_monocular`). Where the floor is known, both stages also hold the
+  lowest foot on it (ours: InterCap's ground and contact terms, eq. 5.6-5.7, with the floor
+  as the surface touched, `energies.interaction.floor_contact_term`): one view's keypoint
+  term alone pulls the body towards the camera (below).
 
 Left/right swaps (ours, on by default in `multiview_smplify` and the CLI): before stage 1,
 `resolve_left_right` flips back the leg labels of any view that disagrees with the others
@@ -130,7 +133,14 @@ class MuVSWeights:
     floor, floor_sigma: λ (per m²) and Geman-McClure σ (m; None: quadratic) of the floor
         contact term (`energies.interaction.floor_contact_term`, eq. 5.6-5.7 with the floor
         as the surface: the lowest foot point on a known floor), used only where the
-        stages are given a floor; `multiview_smplify` gives it with one view only (`_FLOOR`).
+        stages are given a floor; `multiview_smplify` gives it with one view only
+        (`_floor_for`). λ = 1e4 makes 1 cm of floating cost 1 px² of E_J; σ = 0.1 m lets
+        a jump's frames go (feet 0.3 m up: 1/100 of a quadratic's gradient). Chosen on the
+        development clips 02_04, 02_07, 131_01 (one view of 4, 40 frames): stage 1's
+        unaligned / aligned MPJPE ratio per clip 2.5-4.8 without the term; with σ = 0.1 and
+        λ = 1e3 2.1-4.1, 1e4 1.8-2.6, 1e5 1.7-2.4 (σ 0.05, 0.2 or quadratic no better); the
+        whole pipeline (muvs_monocular.py --development, S,T,H) 316 / 139 mm without the
+        term, 199 / 136 mm with λ = 1e4, 196 / 131 mm with 1e5.
     """
 
     keypoints: float = 1.0
@@ -753,13 +763,19 @@ def monocular_depth(data: CameraData, params: dict, floor=None) -> dict:
       feet are down are the lower `GROUND_QUANTILE` of those k; error: the spread of k
       over all frames (1.4826 MAD), the frames' depth scatter (the feet are the fit's) and
       the angle of the feet under the horizon (δd/d = δα / (sin α cos α), δα the
-      reprojection error over the focal length). On 3 CMU clips (one view of 4, 40
-      frames, the tables' detector) the fit stood 10-16 % too close at the right body
-      size (the pose prior's foreshortening, not the size ambiguity), which the ground
-      only partly sees (k 0.99-1.05): unaligned MPJPE 706 -> 664 mm, the truth 1.1-2.4σ away.
-      Stage 1 itself settles there: started at the depths where the detected feet meet the
-      floor (init 958 -> 445 mm), it returned to 4.08-4.25 m (692 mm); a floor term in the
-      fit, not a better start, is what one view still lacks.
+      reprojection error over the focal length). Without a floor in the fit, on 3 CMU clips
+      (one view of 4, 40 frames, the tables' detector) the fit stood 10-16 % too close at
+      the right body size, which the ground only partly sees (k 0.99-1.05): unaligned MPJPE
+      706 -> 664 mm, the truth 1.1-2.4σ away; started at the depths where the detected
+      feet meet the floor (init 958 -> 445 mm), stage 1 returned to 4.08-4.25 m (692 mm).
+      Why (ours, the development clips 02_04, 02_07, 131_01, stage 1 started at the true
+      pose, shape and place): with λ_θ = 1 the fit walks to 0.86-0.93 of the true depth,
+      with no pose prior to 0.56-0.63, with no shape prior to 0.57-0.97 with a body 0.65-1.11
+      times as tall; the pose prior holds it back, so the pull is the keypoint term's: a
+      limb's length in the image can shrink by turning it out of the image plane but not
+      grow, so the noisiest (longest-looking) limbs set the scale and the body comes closer.
+      The floor contact term in the stages (`multiview_smplify` with a floor) is what
+      stops it; `experiments/muvs_monocular.py` measures it.
     The two are combined by their inverse variances.
     Returns {"view", "depth_m" (median pelvis depth after scaling by k),
     "depth_uncertainty_m" (1σ), "relative", "scale" (k), "from", "size": {...},
