@@ -12,10 +12,10 @@ segmentation-like boundary errors (`segmentation_errors`).
 For 1-4 views (the others masked, so one compiled solve serves all), every clip is fitted
 as one batch: stage 1 on joints (MuVS^n), + silhouettes (^S), stage 2 (^S,T), stage 2 with
 silhouettes (^S,T,H). MPJPE over SMPL's 24 joints in mm without alignment (Huang §4.4.1);
-monocular also after per-frame similarity alignment ("Sim", Table 4.5); its fits are scaled
-about the camera by where their feet meet the floor after stage 1 (`place_monocular`,
-the library's one-camera depth; 3 clips x 40 frames on CPU: 706 -> 664 mm unaligned,
-aligned 121 mm either way). Shape error: mean
+monocular also after per-frame similarity alignment ("Sim", Table 4.5); its fits hold the
+feet on the floor in every stage (the floor contact term, `stage_one(floor=...)`) and are
+scaled about the camera by where their feet meet it after stage 1 (`place_monocular`, the
+library's one-camera depth; `experiments/muvs_monocular.py` measures both on 3 clips). Shape error: mean
 vertex distance of the zero-pose meshes (Table 4.2). Leg-swap repair: of the (view, frame)
 pairs whose detected legs were swapped while the true knees and ankles were >= 15 cm apart, the
 share whose fitted 3-D knees and ankles are on the correct side (and, for reference, the
@@ -259,13 +259,14 @@ def main(argv=None):
         d = d if args.keep_swaps else mv.resolve_left_right(d)  # views that swapped the legs (library default)
         t1 = time.perf_counter()
         p0 = mv.initialise(d, w.num_betas)
-        pj, _ = mv.stage_one(d, p0, w, silhouettes=False)
-        ps, _ = mv.stage_one(d, pj, w.replace(anneal=()), silhouettes=True)
-        if n == 1:  # one view: the body's size scaled by where its feet meet the floor (y = 0)
+        floor = FLOOR if n == 1 else None  # one view: the feet held on the floor (y = 0) in every stage
+        pj, _ = mv.stage_one(d, p0, w, silhouettes=False, floor=floor)
+        ps, _ = mv.stage_one(d, pj, w.replace(anneal=()), silhouettes=True, floor=floor)
+        if n == 1:  # and the body's size scaled by where its feet meet the floor
             pj, _ = mv.place_monocular(d, pj, FLOOR)
             ps, _ = mv.place_monocular(d, ps, FLOOR)
-        pt, _ = mv.stage_two(d, ps, w)
-        ph, _ = mv.stage_two(d, ps, w, silhouettes=True)
+        pt, _ = mv.stage_two(d, ps, w, floor=floor)
+        ph, _ = mv.stage_two(d, ps, w, silhouettes=True, floor=floor)
         timing[f"views_{n}_s"] = time.perf_counter() - t1
         fits = {"stage1": pj, "S": ps, "S_T": pt, "S_T_H": ph}
         np.savez_compressed(args.out / f"{name}_fits_views_{n}.npz", **{f"{k}_{q}": v[q] for k, v in fits.items()

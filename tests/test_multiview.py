@@ -353,3 +353,68 @@ def test_the_floor_puts_a_body_of_the_wrong_size_back_at_its_depth(scene):
     assert abs(d["depth_m"] - depth(truth)) < 2 * d["depth_uncertainty_m"]
     same, none = mv.place_monocular(data, small, floor)
     assert none is None and same is small
+
+
+def test_floor_contact_term_is_the_robust_height_of_the_lowest_sole(scene):
+    """The floor term (eq. 5.6-5.7 with the floor as the surface) by hand: per frame, the
+    lowest foot keypoint's height less its rest height above the sole, through ρ_GM."""
+    body = scene["body"]
+    data = mv.camera_data(body, scene["K"], scene["R"], scene["t"], scene["kp"], "body25")
+    names = KEYPOINT_FORMATS["body25"]
+    feet = [names.index(n) for n in ("left_big_toe", "left_small_toe", "left_heel",
+                                     "right_big_toe", "right_small_toe", "right_heel")]  # fmt: skip
+    up, height, points, offsets, sigma = mv._floor_spec(data, ((0.0, 2.0, 0.0), 0.05), 0.1)
+    assert up == (0.0, 1.0, 0.0) and height == 0.05 and points == tuple(feet) and sigma == 0.1
+    reg = np.asarray(data.regressor, np.float64)
+    rest = np.asarray(body.v_template, np.float64)
+    np.testing.assert_allclose(offsets, (reg[feet] @ rest)[:, 1] - rest[:, 1].min(), atol=1e-6)
+    assert 0.0 < min(offsets) and max(offsets) < 0.08  # toes and heels a few cm above the sole
+    params = {"pose": axis_angle_to_matrix(jnp.asarray(scene["pose"], jnp.float32)),
+              "trans": jnp.asarray(scene["trans"], jnp.float32), "betas": jnp.asarray(np.broadcast_to(scene["betas"], (6, 10)), jnp.float32)}  # fmt: skip
+    verts = np.asarray(forward(body, jnp.asarray(scene["pose"], jnp.float32), jnp.asarray(scene["betas"], jnp.float32),
+                               jnp.asarray(scene["trans"], jnp.float32)).vertices, np.float64)  # fmt: skip
+    sole = ((reg[feet] @ verts)[..., 1] - np.asarray(offsets)).min(-1) - 0.05  # (T,)
+    r = np.asarray(ec_floor(up, height, points, offsets, sigma).fn(params, data))
+    assert r.shape == (6, 1, 1)
+    np.testing.assert_allclose(r[:, 0, 0] ** 2, 0.1**2 * sole**2 / (0.1**2 + sole**2), rtol=1e-4)
+    assert np.all(np.sign(r[:, 0, 0]) == np.sign(sole))  # above the floor: pulled down; below: pushed up
+    quadratic = np.asarray(ec_floor(up, height, points, offsets, None).fn(params, data))[:, 0, 0]
+    np.testing.assert_allclose(quadratic, sole, atol=1e-5)
+    # the compact body of the solves gives the same residual
+    np.testing.assert_allclose(np.asarray(ec_floor(up, height, points, offsets, None).fn(params, mv.compact(data, 0)))[:, 0, 0],
+                               sole, atol=1e-5)  # fmt: skip
+    with pytest.raises(ValueError, match="floor must be"):
+        mv._floor_spec(data, ((0.0, 0.0, 0.0), 0.0), 0.1)
+
+
+def ec_floor(*spec):
+    from jaxmocap.energies.interaction import floor_contact_term
+
+    return floor_contact_term(*spec)
+
+
+def test_the_floor_term_moves_a_body_too_close_to_the_camera_back(scene):
+    """One view cannot tell a body 10 % too close (and small) from the truth
+    (`rescale_about_camera`): started there, stage 1 stays too close without the floor; with
+    it (the true feet stand on it) the feet pull the body back, and the depth error and the
+    unaligned MPJPE shrink. Several views: the pipeline gives the stages no floor."""
+    body = scene["body"]
+    data = mv.camera_data(body, scene["K"], scene["R"], scene["t"], scene["kp"], "body25")
+    one = mv.mask_views(data, [0])
+    truth = {"pose": scene["pose"], "trans": scene["trans"], "betas": np.broadcast_to(scene["betas"], (6, 10)).copy()}
+    close = mv.rescale_about_camera(one, truth, 1 / 1.1, 0)
+    verts, joints = mv._full_pose(one, truth)
+    floor = ((0.0, 1.0, 0.0), float(verts[..., 1].min()))
+    depth = lambda p: np.median((mv._full_pose(one, p)[1][:, 0] @ scene["R"][0].T + scene["t"][0])[:, 2])  # noqa: E731
+    w = mv.MuVSWeights(anneal=(1.0,))
+    alone, _ = mv.stage_one(one, close, w, silhouettes=False, max_steps=15)
+    ground, costs = mv.stage_one(one, close, w, silhouettes=False, max_steps=15, floor=floor)
+    err_alone, err_ground = abs(depth(alone) - depth(truth)), abs(depth(ground) - depth(truth))
+    # nothing in the image says it is too close (the shape prior, pulling β to the mean body,
+    # moves it part of the way: 0.36 -> 0.14 m)
+    assert err_alone > 0.02 * depth(truth), err_alone
+    assert err_ground < 0.5 * err_alone, (err_alone, err_ground)  # 0.05 against 0.14 m
+    mpjpe = lambda p: float(np.linalg.norm(mv._full_pose(one, p)[1] - joints, axis=-1).mean())  # noqa: E731
+    assert mpjpe(ground) < 0.6 * mpjpe(alone), (mpjpe(alone), mpjpe(ground))  # 88 against 178 mm
+    assert mv._floor_for(one, floor) is floor and mv._floor_for(data, floor) is None and mv._floor_for(one, None) is None
+    assert mv._floor_for(mv.stack([one, one]), floor) is floor and mv._floor_for(mv.stack([one, data]), floor) is None

@@ -19,6 +19,7 @@ labelled point clouds, contact flags, floor) and, for the keypoints and the body
 | `penetration` | 5.6, body-object term of PROX | max(0, -sdf) of body vertices in the posed object |
 | `ground`, `object_ground` | 5.6, E_G, E_G' | max(0, h - y) of body vertices and object points |
 | `contact` | 5.7, E_C | Q_t · distance of the closest body contact vertex to the object surface |
+| `floor` | 5.6-5.7, E_G and E_C with the floor as the surface | signed height of the lowest sole point above a known floor (one camera's depth, `methods.multiview`) |
 
 Choices where the thesis leaves one (each noted at its function too):
 - eq. 5.1 compares rendered and observed masks/depth inside the observed mask only (the
@@ -52,6 +53,7 @@ from jax import Array
 
 from ..body.kinematics import shaped_joints
 from ..body.model import SMPL_JOINT_NAMES, Body
+from ..geometry.keypoints import regress_keypoints
 from ..objects import ObjectSDF
 from ..solve import GemanMcClure, Huber, Term
 from .camera import Silhouettes, posed_in_views, project_to_views, mask_to_model
@@ -71,6 +73,7 @@ __all__ = [
     "ground_term",
     "object_ground_term",
     "contact_term",
+    "floor_contact_term",
     "BEND_JOINTS",
 ]
 
@@ -359,3 +362,33 @@ def contact_term(weight: float = 1.0) -> Term:
         return (jnp.sqrt(data.contact.astype(d.dtype))[:, None] * d)[..., None]
 
     return Term("contact", fn, weight, mask=lambda d: (d.contact > 0)[:, None])
+
+
+def floor_contact_term(up, height: float, points, offsets, sigma: float | None = None, weight: float = 1.0) -> Term:
+    """E_G and E_C (eq. 5.6-5.7) with the floor as the surface touched: per frame, the signed
+    height above the floor {x: up·x = height} of the lowest of the feet, (T, 1, 1).
+
+    The feet are the keypoints `points` (indices into `data.regressor`'s rows, e.g. heels
+    and toes) less `offsets` (each one's height above the sole when the foot is flat), so
+    the residual is the sole's height: negative below the floor (E_G, pushed out) and
+    positive above it (E_C, pulled down). As in `contact_term`, only the closest point
+    enters (which part of the foot touches is the fit's). E_C applies in contact frames
+    (Q_t); where no one says which those are, `sigma` (m) makes it a Geman-McClure cost
+    that a frame with both feet in the air (a jump) hardly feels; None: quadratic. Reads
+    `CameraData` (the keypoints of `energies.camera.keypoint_term`).
+    """
+    up = np.asarray(up, np.float64)
+    if up.shape != (3,) or not np.linalg.norm(up) > 0:
+        raise ValueError(f"floor_contact_term: up must be a non-zero 3-vector; got {up!r}.")
+    up = up / np.linalg.norm(up)
+    points = np.asarray(points, np.int32)
+    offsets = np.broadcast_to(np.asarray(offsets, np.float64), points.shape)
+    loss = None if sigma is None else GemanMcClure(sigma)
+
+    def fn(params, data):
+        feet = regress_keypoints(data.regressor, posed_in_views(params, data).vertices)[:, points]  # (T, P, 3)
+        above = feet @ jnp.asarray(up, feet.dtype) - jnp.asarray(offsets, feet.dtype) - height
+        r = jnp.min(above, axis=-1)[:, None, None]
+        return r if loss is None else loss(r)
+
+    return Term("floor", fn, weight)

@@ -13,7 +13,13 @@
 - **Monocular** (Table 4.5): the same code with one view. The result says so
   (`MuVSResult.monocular`) with the depth along the camera's line of sight and its 1σ
   (`monocular_depth`: the body's size, the frames' depth scatter, and where the feet meet
-  a known floor, `place_monocular`).
+  a known floor, `place_monocular`). Where the floor is known, both stages also hold the
+  lowest foot on it (ours: InterCap's ground and contact terms, eq. 5.6-5.7, with the floor
+  as the surface touched, `energies.interaction.floor_contact_term`): one view's keypoint
+  term alone pulls the body towards the camera (below). On 3 clips of the evaluated
+  subjects (one view of 4, 40 frames, `experiments/results/muvs_monocular.md`) it lowers
+  the unaligned MPJPE after stage 2 (+H) from 429 to 194 mm (aligned 89 -> 75 mm: ratio
+  4.8 -> 2.6, per clip 2.1-3.1) and puts the median depth within 0.95-1.01 of the truth.
 
 Left/right swaps (ours, on by default in `multiview_smplify` and the CLI): before stage 1,
 `resolve_left_right` flips back the leg labels of any view that disagrees with the others
@@ -54,6 +60,7 @@ from scipy.ndimage import median_filter
 from ..body.compact import compact_body
 from ..body.kinematics import forward, shaped_joints
 from ..body.model import Body
+from ..energies.interaction import floor_contact_term
 from ..energies.camera import (
     CameraData,
     Silhouettes,
@@ -134,6 +141,17 @@ class MuVSWeights:
         1024 x 768 instead of 256 x 192, noise in proportion: MPJPE 84 -> 168 mm).
         Default: the 256 x 192, 55° cameras the weights were tuned with. None: raw
         pixels (InterCap, whose weights were tuned on its own cameras).
+    floor, floor_sigma: λ (per m²) and Geman-McClure σ (m; None: quadratic) of the floor
+        contact term (`energies.interaction.floor_contact_term`, eq. 5.6-5.7 with the floor
+        as the surface: the lowest foot point on a known floor), used only where the
+        stages are given a floor; `multiview_smplify` gives it with one view only
+        (`_floor_for`). λ = 1e4 makes 1 cm of floating cost 1 px² of E_J; σ = 0.1 m lets
+        a jump's frames go (feet 0.3 m up: 1/100 of a quadratic's gradient). Chosen on the
+        development clips 02_04, 02_07, 131_01 (one view of 4, 40 frames): stage 1's
+        unaligned / aligned MPJPE ratio per clip 2.5-4.8 without the term; with σ = 0.1 and
+        λ = 1e3 2.1-4.1, 1e4 1.8-2.6, 1e5 1.7-2.4 (σ 0.05, 0.2 or quadratic no better); the
+        whole pipeline (muvs_monocular.py --development, S,T,H) 316 / 139 mm without the
+        term, 199 / 136 mm with λ = 1e4, 196 / 131 mm with 1e5.
     """
 
     keypoints: float = 1.0
@@ -155,6 +173,8 @@ class MuVSWeights:
     temporal_noise: float | None = 2.0
     num_betas: int = 10
     reference_focal: float | None = REFERENCE_FOCAL
+    floor: float = 1e4
+    floor_sigma: float | None = 0.1
 
     def replace(self, **changes) -> MuVSWeights:
         return dataclasses.replace(self, **changes)
@@ -510,18 +530,54 @@ def _monocular_root(data, uv, conf, torso: float = 0.5):
 
 
 @functools.lru_cache(maxsize=None)
-def _stage_one_problem(sigma: float, stride: int, slack: float, silhouettes: bool, huber: float = 1.0) -> Problem:
+def _stage_one_problem(sigma: float, stride: int, slack: float, silhouettes: bool, huber: float = 1.0,
+                       floor: tuple | None = None) -> Problem:
     # Cached: a term's function is static, so a new closure would mean a new compile.
     terms = [keypoint_term(sigma), pose_prior_term(), shape_term()] + _silhouettes(silhouettes, stride, slack, huber)
-    return Problem(terms, {"pose": frame("so3"), "trans": frame(), "betas": frame()})
+    return Problem(terms + _floor_terms(floor), {"pose": frame("so3"), "trans": frame(), "betas": frame()})
 
 
 @functools.lru_cache(maxsize=None)
 def _stage_two_problem(sigma: float, stride: int, slack: float, silhouettes: bool, length: int, num_dct: int,
-                       temporal_sigma: float, huber: float = 1.0) -> Problem:
+                       temporal_sigma: float, huber: float = 1.0, floor: tuple | None = None) -> Problem:
     terms = [keypoint_term(sigma), pose_prior_term(), temporal_term(length, num_dct, temporal_sigma)]
-    terms += _silhouettes(silhouettes, stride, slack, huber)
+    terms += _silhouettes(silhouettes, stride, slack, huber) + _floor_terms(floor)
     return Problem(terms, {"pose": frame("so3"), "trans": frame(), "coef": dct_window(length)})
+
+
+def _floor_terms(spec: tuple | None) -> list:
+    """The floor contact term of `_floor_spec`'s (up, height, points, offsets, σ), or none."""
+    return [] if spec is None else [floor_contact_term(*spec)]
+
+
+#: Keypoints that stand for the soles in the floor contact term, by name; layouts without
+#: feet (COCO) use the ankles.
+_FOOT_KEYPOINTS = ("toe", "heel", "foot_index")
+
+
+def _floor_spec(data: CameraData, floor, sigma: float | None) -> tuple | None:
+    """Hashable (up, height, points, offsets, σ) of the floor contact term for `floor` =
+    (up (3,), height), or None without a floor: the foot keypoints of `data.layout` and
+    each one's height above the sole of the rest mesh (β = 0: within millimetres of any
+    body's, the feet are flat in the rest pose)."""
+    if floor is None:
+        return None
+    up, height = np.asarray(floor[0], np.float64), float(floor[1])
+    if up.shape != (3,) or not np.linalg.norm(up) > 0 or not np.isfinite(height):
+        raise ValueError(f"floor must be (up (3,) non-zero, height); got {floor!r}.")
+    up = up / np.linalg.norm(up)
+    names = KEYPOINT_FORMATS[data.layout]
+    points = [i for i, n in enumerate(names) if any(k in n for k in _FOOT_KEYPOINTS)]
+    points = points or [names.index(n) for n in ("left_ankle", "right_ankle") if n in names]
+    if not points:
+        raise ValueError(f"floor: the {data.layout!r} layout has no foot or ankle keypoints to stand on the floor.")
+    one = _member(data, 0) if _batched(data) else data
+    if one.model_points is not None:
+        raise ValueError("floor: pass the CameraData of camera_data, not a compact one.")
+    rest = np.asarray(one.body.v_template, np.float64)
+    feet = np.asarray(one.regressor, np.float64)[points] @ rest
+    offsets = feet @ up - float((rest @ up).min())
+    return (tuple(up.tolist()), height, tuple(points), tuple(offsets.tolist()), sigma)
 
 
 def _silhouettes(on: bool, stride: int, slack: float, huber: float) -> list:
@@ -534,6 +590,7 @@ def _weighted(problem: Problem, w: MuVSWeights, dtype, prior_factor: float = 1.0
     values = {
         "keypoints": w.keypoints, "pose_prior": w.pose_prior * prior_factor, "shape": w.shape * prior_factor,
         "silhouette_model": w.silhouette_model, "silhouette_mask": w.silhouette_mask, "temporal": w.temporal,
+        "floor": w.floor,
     }  # fmt: skip
     names = {t.name for t in problem.terms}
     return with_weights(problem, {k: jnp.asarray(v, dtype) for k, v in values.items() if k in names})
@@ -588,11 +645,13 @@ def _solve(problem: Problem, params: dict, data: CameraData, max_steps: int):
 
 
 def stage_one(data: CameraData, params0: dict, weights: MuVSWeights | str = "validated", silhouettes: bool = True,
-              max_steps: int | None = None) -> tuple[dict, dict]:
+              max_steps: int | None = None, floor=None) -> tuple[dict, dict]:
     """Per-frame fit (eq. 4.1-4.6): joints with an annealed prior, then + silhouettes.
 
     `max_steps` (default `weights.steps`) caps each solve. The terms run on the
-    `compact` body (same energies, fewer points).
+    `compact` body (same energies, fewer points). `floor` = (up (3,), height): the plane
+    {x: up·x = height} the feet stand on, adding the floor contact term
+    (`MuVSWeights.floor`) to every solve; None (default): no such term.
     Returns ({pose, trans, betas (T, B)}, {stage: cost}).
     """
     weights = preset(weights)
@@ -602,7 +661,8 @@ def stage_one(data: CameraData, params0: dict, weights: MuVSWeights | str = "val
     steps = weights.steps if max_steps is None else (max_steps,) * 3
     weights, delta = _in_pixels(weights, data)
     sigma = _sigma(data, weights)
-    joints_only = _stage_one_problem(sigma, weights.silhouette_stride, weights.silhouette_slack, False, delta)
+    ground = _floor_spec(data, floor, weights.floor_sigma)
+    joints_only = _stage_one_problem(sigma, weights.silhouette_stride, weights.silhouette_slack, False, delta, ground)
     joint_data = compact(data, 0)
     for i, factor in enumerate(weights.anneal):
         prob = _weighted(joints_only, weights, dtype, factor)
@@ -611,8 +671,8 @@ def stage_one(data: CameraData, params0: dict, weights: MuVSWeights | str = "val
         costs[f"joints_{i}"] = np.asarray(sol.cost).tolist()
         costs[f"joints_{i}_steps"] = np.asarray(sol.num_steps).tolist()
     if silhouettes and data.silhouettes is not None:
-        prob = _weighted(_stage_one_problem(sigma, weights.silhouette_stride, weights.silhouette_slack, True, delta),
-                         weights, dtype)  # fmt: skip
+        prob = _weighted(_stage_one_problem(sigma, weights.silhouette_stride, weights.silhouette_slack, True, delta,
+                                            ground), weights, dtype)  # fmt: skip
         sol = _solve(prob, p, compact(data, weights.silhouette_points, weights.silhouette_stride), steps[1])
         p = sol.value
         costs["silhouettes"] = np.asarray(sol.cost).tolist()
@@ -621,8 +681,9 @@ def stage_one(data: CameraData, params0: dict, weights: MuVSWeights | str = "val
 
 
 def stage_two(data: CameraData, params1: dict, weights: MuVSWeights | str = "validated", silhouettes: bool = False,
-              max_steps: int | None = None) -> tuple[dict, dict]:
-    """Temporal fit (eq. 4.7-4.8) with β = median of the stage-1 shapes.
+              max_steps: int | None = None, floor=None) -> tuple[dict, dict]:
+    """Temporal fit (eq. 4.7-4.8) with β = median of the stage-1 shapes; `floor` as in
+    `stage_one`.
 
     E_T is a basis term (`energies.camera.temporal_term`): the engine eliminates the DCT
     coefficients by their Kronecker structure (`jaxmocap.solve.basis`).
@@ -649,7 +710,7 @@ def stage_two(data: CameraData, params1: dict, weights: MuVSWeights | str = "val
     w, delta = _in_pixels(weights, data)
     w = w.replace(temporal=_temporal_weight(data, params1, weights, delta))
     prob = _stage_two_problem(_sigma(data, w), w.silhouette_stride, w.silhouette_slack, use_sil, w.window,
-                              w.num_dct, w.temporal_sigma, delta)  # fmt: skip
+                              w.num_dct, w.temporal_sigma, delta, _floor_spec(data, floor, w.floor_sigma))  # fmt: skip
     sol = _solve(_weighted(prob, w, dtype), p, data2, max_steps)
     out = {k: np.asarray(v) for k, v in sol.value.items()}
     out["betas"] = betas
@@ -737,13 +798,22 @@ def monocular_depth(data: CameraData, params: dict, floor=None) -> dict:
       feet are down are the lower `GROUND_QUANTILE` of those k; error: the spread of k
       over all frames (1.4826 MAD), the frames' depth scatter (the feet are the fit's) and
       the angle of the feet under the horizon (δd/d = δα / (sin α cos α), δα the
-      reprojection error over the focal length). On 3 CMU clips (one view of 4, 40
-      frames, the tables' detector) the fit stood 10-16 % too close at the right body
-      size (the pose prior's foreshortening, not the size ambiguity), which the ground
-      only partly sees (k 0.99-1.05): unaligned MPJPE 706 -> 664 mm, the truth 1.1-2.4σ away.
-      Stage 1 itself settles there: started at the depths where the detected feet meet the
-      floor (init 958 -> 445 mm), it returned to 4.08-4.25 m (692 mm); a floor term in the
-      fit, not a better start, is what one view still lacks.
+      reprojection error over the focal length). Without a floor in the fit, on 3 CMU clips
+      (one view of 4, 40 frames, the tables' detector) the fit stood 10-16 % too close at
+      the right body size, which the ground only partly sees (k 0.99-1.05): unaligned MPJPE
+      706 -> 664 mm, the truth 1.1-2.4σ away; started at the depths where the detected
+      feet meet the floor (init 958 -> 445 mm), stage 1 returned to 4.08-4.25 m (692 mm).
+      Why (ours, the development clips 02_04, 02_07, 131_01, stage 1 started at the true
+      pose, shape and place): with λ_θ = 1 the fit walks to 0.86-0.93 of the true depth,
+      with no pose prior to 0.56-0.63, with no shape prior to 0.57-0.97 with a body 0.65-1.11
+      times as tall; the pose prior holds it back, so the pull is the keypoint term's. On
+      the true keypoints it stays at 0.97-1.03 (so neither the keypoint regressor nor the
+      focal length is off); with the detector's 3 px noise alone (no misses, outliers or
+      swaps) it goes to 0.84-0.94: a limb's length in the image can shrink by turning it
+      out of the image plane but not grow, so the limbs that noise lengthens set the
+      scale and the body comes closer.
+      The floor contact term in the stages (`multiview_smplify` with a floor) is what
+      stops it; `experiments/muvs_monocular.py` measures it.
     The two are combined by their inverse variances.
     Returns {"view", "depth_m" (median pelvis depth after scaling by k),
     "depth_uncertainty_m" (1σ), "relative", "scale" (k), "from", "size": {...},
@@ -863,24 +933,37 @@ def multiview_smplify(
 
     With `resolve_swaps` (default), views that swapped the legs are flipped back first
     (`resolve_left_right`, our addition, measured in the module docstring); False is MuVS
-    as written. With one view the result says so (`MuVSResult.monocular`, `.depth`); the
-    body is then scaled about the camera by what `floor` = (up (3,), height), where known,
-    says of its size (`place_monocular`) after stage 1. `weights`: `MuVSWeights` or a
-    preset name (`PRESETS`: "validated", the default, or "thesis")."""
+    as written. With one view the result says so (`MuVSResult.monocular`, `.depth`); where
+    the floor is known, `floor` = (up (3,), height), both stages then hold the feet on it
+    (the floor contact term, `MuVSWeights.floor`; with several views the stages get no
+    floor, `_floor_for`) and after stage 1 the body is scaled about the camera by what the
+    floor says of its size (`place_monocular`). `weights`: `MuVSWeights` or a preset name
+    (`PRESETS`: "validated", the default, or "thesis")."""
     weights = preset(weights)
     data = resolve_left_right(data) if resolve_swaps else data
     p0 = initialise(data, weights.num_betas) if params0 is None else params0
-    p1, costs = stage_one(data, p0, weights, silhouettes)
+    ground = _floor_for(data, floor)
+    p1, costs = stage_one(data, p0, weights, silhouettes, floor=ground)
     p1, depth = place_monocular(data, p1, floor)
     stage1 = {"poses": p1["pose"], "trans": p1["trans"], "betas": p1["betas"]}
     if not temporal:
         final = {"pose": p1["pose"], "trans": p1["trans"], "betas": np.median(p1["betas"], -2)}
     else:
-        final, c2 = stage_two(data, p1, weights, temporal_silhouettes)
+        final, c2 = stage_two(data, p1, weights, temporal_silhouettes, floor=ground)
         costs = {**costs, **c2}
     if isinstance(depth, dict):
         depth = final_depth(data, final, depth)
     return MuVSResult(final["pose"], final["trans"], final["betas"], stage1, costs, depth is not None, depth)
+
+
+def _floor_for(data: CameraData, floor):
+    """`floor` if every sequence (batch member) is seen by one view, else None: the floor
+    contact term is for one view, whose depth nothing else measures. With two or more,
+    triangulation measures it, and a contact term would only pull a jump's feet down."""
+    if floor is None:
+        return None
+    members = [_member(data, i) for i in range(data.keypoints.shape[0])] if _batched(data) else [data]
+    return floor if all(monocular_view(m) is not None for m in members) else None
 
 
 def mask_views(data: CameraData, keep: Sequence[int]) -> CameraData:
