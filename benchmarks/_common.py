@@ -47,6 +47,7 @@ def machine() -> dict:
     }
     try:
         import numpy
+
         info["numpy"] = numpy.__version__
         model = subprocess.run(["sh", "-c", "grep -m1 'model name' /proc/cpuinfo"], capture_output=True, text=True)
         info["cpu"] = model.stdout.split(":", 1)[-1].strip()

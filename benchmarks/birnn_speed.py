@@ -57,7 +57,9 @@ def main():
                             ("batch", batch, jnp.asarray(rng.normal(size=(B, 300, NUM_INPUTS)), jnp.float32))):  # fmt: skip
             r = time_call(fn, net, x, min_seconds=2.0, max_repeats=200)
             frames = int(np.prod(x.shape[:-1]))
-            r.update(frames=frames, frames_per_second=frames / r["median_s"], ratio_vs_sop=frames / r["median_s"] / sop_fps)
+            r.update(
+                frames=frames, frames_per_second=frames / r["median_s"], ratio_vs_sop=frames / r["median_s"] / sop_fps
+            )
             results[f"birnn_{hidden}_{name}"] = r
             print(f"BiRNN {hidden:3d} units, {name:12s} ({'x'.join(map(str, x.shape[:-1]))} frames): "
                   f"{r['frames_per_second']:11.0f} frames/s ({r['ratio_vs_sop']:.0f}x SOP)", flush=True)  # fmt: skip

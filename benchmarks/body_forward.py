@@ -81,8 +81,12 @@ def smpl_layout_model(num_vertices: int = 6890, seed: int = 0):
     for j in range(24):
         reg[j, rng.choice(V, 30, replace=False)] = 1 / 30
     return make_body(
-        rng.normal(scale=0.3, size=(V, 3)), rng.integers(0, V, (13776, 3)),
-        rng.normal(scale=0.01, size=(V, 3, 10)), rng.normal(scale=0.01, size=(V, 3, 207)), reg, weights,
+        rng.normal(scale=0.3, size=(V, 3)),
+        rng.integers(0, V, (13776, 3)),
+        rng.normal(scale=0.01, size=(V, 3, 10)),
+        rng.normal(scale=0.01, size=(V, 3, 207)),
+        reg,
+        weights,
     )
 
 
@@ -122,7 +126,9 @@ def _closure_variant():
 
     def run(body, pose, betas, trans):
         if id(body) not in compiled:
-            compiled[id(body)] = jax.jit(lambda p, s, t: (lambda o: (o.vertices, o.joints))(jaxmocap.forward(body, p, s, t)))
+            compiled[id(body)] = jax.jit(
+                lambda p, s, t: (lambda o: (o.vertices, o.joints))(jaxmocap.forward(body, p, s, t))
+            )
         return compiled[id(body)](pose, betas, trans)
 
     return run
@@ -131,7 +137,9 @@ def _closure_variant():
 def _bf16_bases(body):
     """The body with its blend-shape bases stored in bfloat16."""
     return eqx.tree_at(
-        lambda b: (b.shapedirs, b.posedirs), body, (body.shapedirs.astype(jnp.bfloat16), body.posedirs.astype(jnp.bfloat16))
+        lambda b: (b.shapedirs, b.posedirs),
+        body,
+        (body.shapedirs.astype(jnp.bfloat16), body.posedirs.astype(jnp.bfloat16)),
     )
 
 
@@ -185,7 +193,9 @@ class Smplx:
         with t.no_grad():
             p = t.from_numpy(np.array(pose, np.float32).reshape(len(pose), -1))
             out = self.model(
-                betas=t.from_numpy(np.array(betas, np.float32)), global_orient=p[:, :3], body_pose=p[:, 3:],
+                betas=t.from_numpy(np.array(betas, np.float32)),
+                global_orient=p[:, :3],
+                body_pose=p[:, 3:],
                 transl=t.from_numpy(np.array(trans, np.float32)),
             )
             return out.vertices, out.joints
@@ -200,7 +210,12 @@ class Smplx:
             self(pose, betas, trans)
             times.append(time.perf_counter() - t0)
         times.sort()
-        return {"compile_and_first_call_s": first, "median_s": times[len(times) // 2], "min_s": times[0], "repeats": len(times)}
+        return {
+            "compile_and_first_call_s": first,
+            "median_s": times[len(times) // 2],
+            "min_s": times[0],
+            "repeats": len(times),
+        }
 
 
 def _smplx_status(backend: str) -> tuple[bool, str | None, dict]:
@@ -211,7 +226,11 @@ def _smplx_status(backend: str) -> tuple[bool, str | None, dict]:
         import torch
     except ImportError as e:
         return False, f"smplx/torch not importable ({e}); pip install -e '.[bench]'", {}
-    return True, None, {"torch": torch.__version__, "smplx": getattr(smplx, "__version__", None) or _dist_version("smplx")}
+    return (
+        True,
+        None,
+        {"torch": torch.__version__, "smplx": getattr(smplx, "__version__", None) or _dist_version("smplx")},
+    )
 
 
 def _dist_version(name: str) -> str | None:
@@ -224,7 +243,11 @@ def _dist_version(name: str) -> str | None:
 
 
 def run(
-    models: list[str], batches: list[int], min_seconds: float, variant_seconds: float, variants: list[str],
+    models: list[str],
+    batches: list[int],
+    min_seconds: float,
+    variant_seconds: float,
+    variants: list[str],
     variant_batches: list[int],
 ) -> dict:
     bodies = {
@@ -315,7 +338,13 @@ def run(
         "skinning": "dense" if backend == "cpu" else "sparse (each vertex's max_influences non-zero weights)",
         "blend_shapes": f"one product [betas, pose feature] @ stacked bases from {kinematics._JOINT_BLEND_MIN_BATCH} samples, two below",
     }
-    result["versions"] = {"jax": jax.__version__, "jaxlib": _dist_version("jaxlib"), "equinox": eqx.__version__, "numpy": np.__version__, **smplx_versions}
+    result["versions"] = {
+        "jax": jax.__version__,
+        "jaxlib": _dist_version("jaxlib"),
+        "equinox": eqx.__version__,
+        "numpy": np.__version__,
+        **smplx_versions,
+    }
     return result
 
 
@@ -347,17 +376,26 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--models", nargs="+", default=["default_low", "smpl6890"])
     parser.add_argument(
-        "--batches", nargs="+", type=int, default=None,
+        "--batches",
+        nargs="+",
+        type=int,
+        default=None,
         help="batch sizes (default: 1 64 1024 on the CPU, 1024 4096 16384 65536 131072 on accelerators)",
     )
     parser.add_argument("--min-seconds", type=float, default=1.0)
     parser.add_argument("--variant-seconds", type=float, default=0.3, help="timing per variant (after its compile)")
     parser.add_argument(
-        "--variants", nargs="*", choices=[*VARIANTS, "closure_body"], default=None,
+        "--variants",
+        nargs="*",
+        choices=[*VARIANTS, "closure_body"],
+        default=None,
         help=f"variants to time (default: {' '.join(GPU_VARIANTS)} on accelerators, {' '.join(CPU_VARIANTS)} on the CPU)",
     )
     parser.add_argument(
-        "--variant-batches", nargs="*", type=int, default=None,
+        "--variant-batches",
+        nargs="*",
+        type=int,
+        default=None,
         help="batches at which variants are timed (default: the two largest on accelerators, all on the CPU)",
     )
     parser.add_argument("--suffix", default="", help="results file suffix, e.g. 'gpu'")

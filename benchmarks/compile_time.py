@@ -62,7 +62,9 @@ def _cases(frames: int, steps: int) -> dict:
     params = {"pose": sop, "trans": jnp.broadcast_to(setup.trans0, (frames, 3))}
     it = dict(max_steps=steps, rtol=0.0, atol=0.0, progress=False)
     problem = inertial.inertial_problem(setup)
-    plain = Problem([Term(t.name, t.fn, t.weight, t.bandwidth, t.loss, t.mask) for t in problem.terms], rotations=("pose",))
+    plain = Problem(
+        [Term(t.name, t.fn, t.weight, t.bandwidth, t.loss, t.mask) for t in problem.terms], rotations=("pose",)
+    )
     weight = jnp.asarray(next(t.weight for t in problem.terms if t.name == "acc"), jnp.float32)
     cost = lambda w: solve(with_weights(problem, {"acc": w}), params, setup.data, **it).cost  # noqa: E731
     grad = jax.jit(jax.grad(cost))

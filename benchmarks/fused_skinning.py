@@ -118,8 +118,19 @@ def _kernel(*refs, n, v, blend, skin, order):
         plgpu.store(out_ref.at[:, :, pl.ds(a, 1)], outs[a][:, :, None], mask=mask)
 
 
-def posed(coeff_bases, template, weights, coeffs, offsets, transforms, trans, blend: str, skin: str, tile,
-          interpret: bool = False):
+def posed(
+    coeff_bases,
+    template,
+    weights,
+    coeffs,
+    offsets,
+    transforms,
+    trans,
+    blend: str,
+    skin: str,
+    tile,
+    interpret: bool = False,
+):
     """Posed vertices (N, V, 3) by one kernel. coeff_bases (K, V, 3), template (V, 3),
     weights (V, J); coeffs (N, K) (blend "gemm") or offsets (N, 3Vp), the product's rows
     for Vp a multiple of the tile's vertices (blend "input"); transforms (N, J, 3, 4)."""
@@ -136,8 +147,10 @@ def posed(coeff_bases, template, weights, coeffs, offsets, transforms, trans, bl
     args, specs = [pad_v(template.T)], [spec((3, bv), lambda i, j: (0, j))]
     if blend == "gemm":
         Kp = _round_up(coeff_bases.shape[0], K_STEP)
-        args += [jnp.pad(coeffs, ((0, Np - N), (0, Kp - coeffs.shape[1]))),
-                 pad_v(jnp.pad(jnp.moveaxis(coeff_bases, -1, 0), ((0, 0), (0, Kp - coeff_bases.shape[0]), (0, 0))))]
+        args += [
+            jnp.pad(coeffs, ((0, Np - N), (0, Kp - coeffs.shape[1]))),
+            pad_v(jnp.pad(jnp.moveaxis(coeff_bases, -1, 0), ((0, 0), (0, Kp - coeff_bases.shape[0]), (0, 0)))),
+        ]
         specs += [spec((bs, Kp), lambda i, j: (i, 0)), spec((3, Kp, bv), lambda i, j: (0, 0, j))]
     else:
         args += [jnp.pad(offsets, ((0, Np - N), (0, 0)))]
@@ -185,7 +198,9 @@ def _product(coeff_bases, coeffs, vertices_to: int):
 
 def _kernel_fn(blend, skin, tile, interpret=False):
     def run(coeff_bases, template, weights, x):
-        offsets = _product(coeff_bases, x["coeffs"], _round_up(template.shape[0], tile[1])) if blend == "input" else None
+        offsets = (
+            _product(coeff_bases, x["coeffs"], _round_up(template.shape[0], tile[1])) if blend == "input" else None
+        )
         return posed(coeff_bases, template, weights, x["coeffs"], offsets, x["transforms"], x["trans"], blend, skin,
                      tile, interpret)  # fmt: skip
 
@@ -219,7 +234,8 @@ def run(batch: int, min_seconds: float) -> dict:
     sub = {k: v[:1024] for k, v in x.items()}
     with jax.default_matmul_precision("highest"):
         exact = jax.jit(lambda b, R, s, t: K.forward_rotations_unchecked(b, R, s, t, skinning="dense").vertices)(
-            body, sub["R"], sub["betas"], sub["trans"])
+            body, sub["R"], sub["betas"], sub["trans"]
+        )
     error_mm = lambda out: 1e3 * float(jnp.abs(out - exact).max())  # noqa: E731
     rate = lambda t: batch / t["median_s"]  # noqa: E731
     # XLA's stages, as the library runs them (the body an argument, as in body_forward.py)
@@ -256,8 +272,13 @@ def run(batch: int, min_seconds: float) -> dict:
         kernels[f"{blend}_{skin}"] = entry
     best_kernel = max((k for k in kernels if "_none" not in k and kernels[k]["best_passes_per_s"]),
                       key=lambda k: kernels[k]["best_passes_per_s"], default=None)  # fmt: skip
-    return {"batch": batch, "xla_passes_per_s": xla, "kernels": kernels, "best_kernel": best_kernel,
-            "best_kernel_vs_library": best_kernel and kernels[best_kernel]["best_passes_per_s"] / xla["library_forward"]}
+    return {
+        "batch": batch,
+        "xla_passes_per_s": xla,
+        "kernels": kernels,
+        "best_kernel": best_kernel,
+        "best_kernel_vs_library": best_kernel and kernels[best_kernel]["best_passes_per_s"] / xla["library_forward"],
+    }
 
 
 def main():
@@ -271,7 +292,12 @@ def main():
         raise SystemExit(0 if worst < 1e-4 else f"a kernel is off by {worst:.2e} m")
     if jax.default_backend() != "gpu":
         raise SystemExit("the kernels are Triton kernels: run this on a CUDA GPU, or pass --check for the interpreter.")
-    result = {"benchmark": "fused_skinning", "machine": machine(), "dtype": "float32", **run(args.batch, args.min_seconds)}
+    result = {
+        "benchmark": "fused_skinning",
+        "machine": machine(),
+        "dtype": "float32",
+        **run(args.batch, args.min_seconds),
+    }
     print("wrote", write_json("fused_skinning_gpu.json", result))
 
 

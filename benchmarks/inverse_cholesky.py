@@ -51,7 +51,10 @@ def main(argv=None) -> int:
     p.add_argument("--min-seconds", type=float, default=1.0)
     args = p.parse_args(argv)
     gpu = jax.default_backend() != "cpu"
-    cases = [("batched", 31250 if gpu else 250, 102, CYCLIC_BASE), ("batched", 125000 if gpu else 1000, 24, CYCLIC_BASE)]
+    cases = [
+        ("batched", 31250 if gpu else 250, 102, CYCLIC_BASE),
+        ("batched", 125000 if gpu else 1000, 24, CYCLIC_BASE),
+    ]
     if not gpu:
         cases.append(("scan", 500, 102, SCAN_BASE))
     out = {"benchmark": "inverse_cholesky", "machine": machine(), "dtype": "float32", "cases": {}}

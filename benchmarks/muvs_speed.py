@@ -177,8 +177,16 @@ def main(argv=None):
     }  # fmt: skip
     name = "muvs_speed" + (f"_{args.suffix}" if args.suffix else "") + ".json"
     print(write_json(name, result))
-    for k in ("stage1_s_per_frame", "stage2_s_per_window", "stage1_s_per_frame_steady", "stage2_s_per_window_steady",
-              "stage1_compile_s", "stage2_compile_s", "baseline_engine_stage2_s_per_window", "frames_per_s_total"):
+    for k in (
+        "stage1_s_per_frame",
+        "stage2_s_per_window",
+        "stage1_s_per_frame_steady",
+        "stage2_s_per_window_steady",
+        "stage1_compile_s",
+        "stage2_compile_s",
+        "baseline_engine_stage2_s_per_window",
+        "frames_per_s_total",
+    ):
         if k in result:
             print(f"{k}: {result[k]:.4g}")
 

@@ -46,8 +46,11 @@ def main(argv=None) -> int:
         objs = jax.device_put(rng.normal(scale=0.1, size=(n, 1, 3)).astype(np.float32))
         t = time_call(fn, scene, poses, trans, objs, min_seconds=args.min_seconds, max_repeats=20)
         row = {"frames": n, **t, "frames_per_s": n / t["median_s"], "us_per_frame": 1e6 * t["median_s"] / n}
-        print(f"batch {n:>7d}: {row['frames_per_s']:>12,.0f} frames/s  ({row['us_per_frame']:.1f} µs/frame, "
-              f"compile+first {t['compile_and_first_call_s']:.1f} s)", flush=True)
+        print(
+            f"batch {n:>7d}: {row['frames_per_s']:>12,.0f} frames/s  ({row['us_per_frame']:.1f} µs/frame, "
+            f"compile+first {t['compile_and_first_call_s']:.1f} s)",
+            flush=True,
+        )
         rows.append(row)
     payload = {
         "benchmark": "physics_check",

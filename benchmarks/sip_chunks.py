@@ -115,7 +115,11 @@ def main(argv=None) -> int:
     p.add_argument("--child", help="internal: run one spec here and write its row to this file")
     args = p.parse_args(argv)
     if args.child:
-        row = _one_step(args.specs[0], args.frames) if args.step else _one(args.specs[0], args.sequences, args.frames, args.iters)
+        row = (
+            _one_step(args.specs[0], args.frames)
+            if args.step
+            else _one(args.specs[0], args.sequences, args.frames, args.iters)
+        )
         with open(args.child, "w") as f:
             json.dump(row, f)
         return 0

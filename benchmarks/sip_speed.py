@@ -142,14 +142,21 @@ def _engine_only(args) -> int:
 
         stacked = inertial.stack_setups([setup] * args.engine_batch)
         init = jnp.broadcast_to(jnp.asarray(given["init"]), (args.engine_batch,) + given["init"].shape)
-        run = lambda: inertial.sparse_inertial_poser_batch(stacked, init, max_steps=args.iters, rtol=0.0, atol=0.0).value["pose"]  # noqa: E731
+
+        def run():
+            return inertial.sparse_inertial_poser_batch(stacked, init, max_steps=args.iters, rtol=0.0, atol=0.0).value[
+                "pose"
+            ]
+
         out["big_batch"] = dict(time_call(run, min_seconds=1e-9, max_repeats=1), sequences=args.engine_batch)
         print(f"[{where.name}] batch {args.engine_batch} x {args.frames} frames: {out['big_batch']['median_s']:.2f} s")
     np.savez(Path(args.json_out).with_suffix(".npz"), pose=np.asarray(sol.value["pose"]),
              trans=np.asarray(sol.value["trans"]))  # fmt: skip
     Path(args.json_out).write_text(json.dumps(out, indent=2) + "\n")
-    print(f"[{where.name}] SIP {args.frames} frames x {args.iters} LM steps: {timing['median_s']:.3f} s "
-          f"(compile + first {timing['compile_and_first_call_s']:.1f} s), final cost {out['final_cost']:.9g}")
+    print(
+        f"[{where.name}] SIP {args.frames} frames x {args.iters} LM steps: {timing['median_s']:.3f} s "
+        f"(compile + first {timing['compile_and_first_call_s']:.1f} s), final cost {out['final_cost']:.9g}"
+    )
     return 0
 
 
@@ -186,17 +193,28 @@ def main(argv=None) -> int:
     p.add_argument("--min-seconds", type=float, default=2.0)
     p.add_argument("--no-baseline", action="store_true", help="skip the AD-Jacobian baseline")
     p.add_argument("--no-v1", action="store_true", help="skip the v1-engine (commit d67d910) baseline")
-    p.add_argument("--long", default="", help="comma-separated long sequence lengths to time once each (e.g. 5000,20000)")
+    p.add_argument(
+        "--long", default="", help="comma-separated long sequence lengths to time once each (e.g. 5000,20000)"
+    )
     p.add_argument("--big-batch", type=int, default=0, help="time this many sequences of --frames frames at once")
-    p.add_argument("--big-batch-tridiagonal", default="", help="comma-separated factorisations to time the big batch "
-                   "with besides the default (key big_batch_by_tridiagonal)")
-    p.add_argument("--before", help="also time the single sequence with the engine at this commit (subprocess, same "
-                   "machine; build/engine_<commit>, extracted from git or carried): key `before`")
+    p.add_argument(
+        "--big-batch-tridiagonal",
+        default="",
+        help="comma-separated factorisations to time the big batch "
+        "with besides the default (key big_batch_by_tridiagonal)",
+    )
+    p.add_argument(
+        "--before",
+        help="also time the single sequence with the engine at this commit (subprocess, same "
+        "machine; build/engine_<commit>, extracted from git or carried): key `before`",
+    )
     p.add_argument("--engine-only", action="store_true", help="internal: time the single SIP solve only")
     p.add_argument("--init", help="internal (--engine-only): .npz with the setup's arrays and the SOP start")
     p.add_argument("--json-out", help="internal (--engine-only): where to write time and final cost")
     p.add_argument("--expect-package", help="internal (--engine-only): folder jaxmocap must come from")
-    p.add_argument("--engine-batch", type=int, default=0, help="internal (--engine-only): also time this many sequences at once")
+    p.add_argument(
+        "--engine-batch", type=int, default=0, help="internal (--engine-only): also time this many sequences at once"
+    )
     args = p.parse_args(argv)
     if args.engine_only:
         if not (args.init and args.json_out):
@@ -219,9 +237,11 @@ def main(argv=None) -> int:
                   frames_per_second=args.frames / single["median_s"],
                   seconds_per_iteration=single["median_s"] / args.iters)  # fmt: skip
     final_cost = float(sol.cost)
-    print(f"SIP {args.frames} frames x {args.iters} LM steps: {single['median_s']:.3f} s "
-          f"(compile + first {single['compile_and_first_call_s']:.1f} s), final cost {final_cost:.9g}; "
-          f"SOP {sop_timing['median_s']:.2f} s")
+    print(
+        f"SIP {args.frames} frames x {args.iters} LM steps: {single['median_s']:.3f} s "
+        f"(compile + first {single['compile_and_first_call_s']:.1f} s), final cost {final_cost:.9g}; "
+        f"SOP {sop_timing['median_s']:.2f} s"
+    )
     from jaxmocap.solve.tridiagonal import TRIDIAGONAL_METHODS, default_tridiagonal_method
 
     tridiagonal = {"default": default_tridiagonal_method()}
@@ -231,7 +251,9 @@ def main(argv=None) -> int:
         print(f"  tridiagonal={method}: {t['median_s']:.3f} s, final cost {float(s.cost):.9g}")
     for method in TRIDIAGONAL_METHODS:
         if method != tridiagonal["default"]:
-            tridiagonal[f"default_vs_{method}_ratio"] = tridiagonal[tridiagonal["default"]]["median_s"] / tridiagonal[method]["median_s"]
+            tridiagonal[f"default_vs_{method}_ratio"] = (
+                tridiagonal[tridiagonal["default"]]["median_s"] / tridiagonal[method]["median_s"]
+            )
 
     long = {}
     for T in [int(x) for x in args.long.split(",") if x]:
@@ -243,8 +265,10 @@ def main(argv=None) -> int:
         t, s = _time_sip(long_setup, long_sop, args.iters, 1e-9)  # compile + one timed solve
         long[T] = dict(t, sop_with_compile_s=sop_s, final_cost=float(s.cost),
                        linear_scaling=t["median_s"] / (T / args.frames * single["median_s"]))  # fmt: skip
-        print(f"SIP {T} frames x {args.iters} LM steps: {t['median_s']:.2f} s "
-              f"({long[T]['linear_scaling']:.2f} x linear from {args.frames} frames); SOP {sop_s:.1f} s")
+        print(
+            f"SIP {T} frames x {args.iters} LM steps: {t['median_s']:.2f} s "
+            f"({long[T]['linear_scaling']:.2f} x linear from {args.frames} frames); SOP {sop_s:.1f} s"
+        )
 
     v1 = {}
     if not args.no_v1:
@@ -268,9 +292,11 @@ def main(argv=None) -> int:
         except Exception as e:  # noqa: BLE001 - a cross-check only
             v1["v1_final_cost_by_current_costs"] = None
             print(f"(v1 end point not re-evaluated with the current costs: {type(e).__name__}: {e})")
-        print(f"v1 engine ({v1['v1_commit']}): {v1['v1_time_s']:.3f} s; current/v1 = "
-              f"{v1['optx_default_vs_v1_ratio']:.3f}; final cost {v1['v1_final_cost']:.9g} "
-              f"(relative difference {rel:.2e})")
+        print(
+            f"v1 engine ({v1['v1_commit']}): {v1['v1_time_s']:.3f} s; current/v1 = "
+            f"{v1['optx_default_vs_v1_ratio']:.3f}; final cost {v1['v1_final_cost']:.9g} "
+            f"(relative difference {rel:.2e})"
+        )
         # float32 iterates of two different programs drift apart by rounding over 20 steps;
         # the same solve in float64 (both engines, subprocesses) shows whether the
         # algorithms agree: 200 frames x 10 steps.
@@ -285,8 +311,10 @@ def main(argv=None) -> int:
         v1["float64_check"] = {"frames": min(args.frames, 200), "lm_iterations": 10, "final_cost": a,
                                "v1_final_cost": b, "final_cost_rel_diff": abs(a - b) / abs(b)}  # fmt: skip
         v1["final_cost_rel_diff_float64"] = abs(a - b) / abs(b)
-        print(f"float64, {min(args.frames, 200)} frames x 10 steps: final cost {a!r} vs v1 {b!r} "
-              f"(relative difference {v1['final_cost_rel_diff_float64']:.2e})")
+        print(
+            f"float64, {min(args.frames, 200)} frames x 10 steps: final cost {a!r} vs v1 {b!r} "
+            f"(relative difference {v1['final_cost_rel_diff_float64']:.2e})"
+        )
 
     baseline = None
     if not args.no_baseline:
@@ -306,8 +334,10 @@ def main(argv=None) -> int:
             print(f"baseline (AD Jacobians) skipped: {baseline['skipped']}")
         else:
             single["ratio_to_baseline"] = single["median_s"] / baseline["median_s"]
-            print(f"baseline (AD Jacobians, no elimination): {baseline['median_s']:.3f} s, "
-                  f"ratio {single['ratio_to_baseline']:.3f}")
+            print(
+                f"baseline (AD Jacobians, no elimination): {baseline['median_s']:.3f} s, "
+                f"ratio {single['ratio_to_baseline']:.3f}"
+            )
 
     before = None
     if args.before:  # an earlier engine on this machine: a ratio that survives a change of card
@@ -330,8 +360,10 @@ def main(argv=None) -> int:
                           min_seconds=1e-9, max_repeats=1)  # fmt: skip
             t.update(sequences=args.big_batch, frames=args.frames, lm_iterations=args.iters,
                      frames_per_second=args.big_batch * args.frames / t["median_s"])  # fmt: skip
-            print(f"batch {args.big_batch} x {args.frames} frames x {args.iters} steps ({method or 'default'}): "
-                  f"{t['median_s']:.2f} s (compile + first {t['compile_and_first_call_s']:.1f} s)")
+            print(
+                f"batch {args.big_batch} x {args.frames} frames x {args.iters} steps ({method or 'default'}): "
+                f"{t['median_s']:.2f} s (compile + first {t['compile_and_first_call_s']:.1f} s)"
+            )
             if method is None:
                 big = t
             else:
@@ -340,7 +372,9 @@ def main(argv=None) -> int:
     if before and big and "big_batch" in before["run"]:
         before["big_batch_s"] = before["run"]["big_batch"]["median_s"]
         before["big_batch_ratio"] = big["median_s"] / before["big_batch_s"]
-        print(f"batch {args.big_batch} at {args.before}: {before['big_batch_s']:.2f} s; now/before = {before['big_batch_ratio']:.3f}")
+        print(
+            f"batch {args.big_batch} at {args.before}: {before['big_batch_s']:.2f} s; now/before = {before['big_batch_ratio']:.3f}"
+        )
 
     batches = {}
     if args.batches:
@@ -356,7 +390,9 @@ def main(argv=None) -> int:
         t = time_call(run_batch, min_seconds=args.min_seconds, max_repeats=5)
         t["frames_per_second"] = B * args.batch_frames / t["median_s"]
         batches[str(B)] = t
-        print(f"batch {B:5d} x {args.batch_frames} frames: {t['median_s']:.3f} s, {t['frames_per_second']:.0f} frames/s")
+        print(
+            f"batch {B:5d} x {args.batch_frames} frames: {t['median_s']:.3f} s, {t['frames_per_second']:.0f} frames/s"
+        )
 
     payload = {
         "benchmark": "sip_speed",

@@ -89,8 +89,11 @@ def main():
         for name in variants:
             row[f"{name}_over_floor"] = row[f"{name}_s"] / row["floor_s"]
         rows.append(row)
-        print(f"batch {N:6d}: dense {td['median_s']*1e3:9.3f} ms  sparse(K={K}) {ts['median_s']*1e3:9.3f} ms  "
-              f"ratio {row['sparse_over_dense']:.2f}  diff {err:.1e}", flush=True)
+        print(
+            f"batch {N:6d}: dense {td['median_s'] * 1e3:9.3f} ms  sparse(K={K}) {ts['median_s'] * 1e3:9.3f} ms  "
+            f"ratio {row['sparse_over_dense']:.2f}  diff {err:.1e}",
+            flush=True,
+        )
         print("    " + "  ".join(f"{name} {row[f'{name}_s']*1e3:.3f} ms ({row[f'{name}_over_floor']:.2f}x floor)"
                                  for name in variants), flush=True)  # fmt: skip
     name = "skinning_variants" + (f"_{args.suffix}" if args.suffix else "") + ".json"

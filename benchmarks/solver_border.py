@@ -372,7 +372,9 @@ def _condition_estimate(solve_dense, matvec, N: int, iters: int = 40) -> float:
     return float(hi * lo)
 
 
-def dense_check(kind: str, T: int, lams, chunk: int, max_n: int, backend: str = "scipy", lock: str | None = None) -> dict:
+def dense_check(
+    kind: str, T: int, lams, chunk: int, max_n: int, backend: str = "scipy", lock: str | None = None
+) -> dict:
     """One damped step, structured vs a dense float64 solve of the same normal equations."""
     import scipy.sparse as sp
 
@@ -538,29 +540,50 @@ def main():
     import threading
 
     p = argparse.ArgumentParser(description=__doc__.strip().splitlines()[0])
-    p.add_argument("--T", type=int, nargs="*", default=list(ALL_T), help="sequence lengths to time (default: all; none: no timing)")
+    p.add_argument(
+        "--T", type=int, nargs="*", default=list(ALL_T), help="sequence lengths to time (default: all; none: no timing)"
+    )
     p.add_argument("--problems", nargs="+", default=list(PROBLEMS), choices=PROBLEMS)
     p.add_argument("--steps", type=int, default=3, help="LM steps per timed solve (rtol = atol = 0)")
     p.add_argument("--repeats", type=int, default=2, help="timed solves after the warm-up (best taken)")
     p.add_argument("--dense-T", type=int, nargs="*", default=[100, 300], help="T for the dense check (none: skip)")
-    p.add_argument("--lams", type=float, nargs="+", default=[10.0, 1.0, 1e-2],
-                   help="LM damping for the dense check (max_rel_err_vs_dense: lambda >= 1)")
+    p.add_argument(
+        "--lams",
+        type=float,
+        nargs="+",
+        default=[10.0, 1.0, 1e-2],
+        help="LM damping for the dense check (max_rel_err_vs_dense: lambda >= 1)",
+    )
     p.add_argument("--dense-chunk", type=int, help="Jacobian columns per forward-mode batch (256 CPU, 1024 GPU)")
-    p.add_argument("--dense-backend", choices=("scipy", "jax"),
-                   help="dense Cholesky: SciPy on the host (CPU default) or JAX on the device (GPU default)")
+    p.add_argument(
+        "--dense-backend",
+        choices=("scipy", "jax"),
+        help="dense Cholesky: SciPy on the host (CPU default) or JAX on the device (GPU default)",
+    )
     p.add_argument("--dense-max-n", type=int, default=30000, help="largest unknown count solved densely")
-    p.add_argument("--process", choices=("T", "problem"), default="T",
-                   help="one child process per (problem, T) (per-T peak memory) or per problem (T ascending)")
-    p.add_argument("--parallel", action="store_true",
-                   help="run the children at once: compiles overlap, device work is serialised by a file lock "
-                   "(for a GPU host with many cores; device memory is then not preallocated)")
+    p.add_argument(
+        "--process",
+        choices=("T", "problem"),
+        default="T",
+        help="one child process per (problem, T) (per-T peak memory) or per problem (T ascending)",
+    )
+    p.add_argument(
+        "--parallel",
+        action="store_true",
+        help="run the children at once: compiles overlap, device work is serialised by a file lock "
+        "(for a GPU host with many cores; device memory is then not preallocated)",
+    )
     p.add_argument("--suffix", default="", help="results file suffix, e.g. gpu")
     p.add_argument("--child", help=argparse.SUPPRESS)
     p.add_argument("--dense-child", help=argparse.SUPPRESS)
     p.add_argument("--lock", help=argparse.SUPPRESS)
-    p.add_argument("--merge", nargs="+", metavar="JSON",
-                   help="combine earlier results files (rows and dense checks; later files win per (problem, T)) "
-                   "into results/solver_border[_<suffix>].json and recompute the summaries; runs nothing")
+    p.add_argument(
+        "--merge",
+        nargs="+",
+        metavar="JSON",
+        help="combine earlier results files (rows and dense checks; later files win per (problem, T)) "
+        "into results/solver_border[_<suffix>].json and recompute the summaries; runs nothing",
+    )
     p.add_argument("--note", help="a note stored in the results file")
     args = p.parse_args()
 
@@ -569,7 +592,9 @@ def main():
         return
     if args.dense_child:
         for T in args.T:
-            row = dense_check(args.dense_child, T, args.lams, args.dense_chunk, args.dense_max_n, args.dense_backend, args.lock)
+            row = dense_check(
+                args.dense_child, T, args.lams, args.dense_chunk, args.dense_max_n, args.dense_backend, args.lock
+            )
             print("ROW " + json.dumps(row), flush=True)
         return
 
@@ -598,13 +623,21 @@ def main():
         "Marcard LM), compiled ahead of time ('compile_s'), run once ('first_run_s'), then best of up to "
         f"{args.repeats} timed runs divided by the steps taken; an accepted step relinearises, a rejected one "
         "only refactorises",
-        "process": ("one child process per (problem, T)" if args.process == "T" else
-                    "one child process per problem, T ascending (peak memory is the process peak so far, "
-                    "dominated by the largest T)")
-        + ("; children in parallel, device work serialised by a file lock (compiles overlap), "
-           "XLA_PYTHON_CLIENT_PREALLOCATE=false" if args.parallel else ""),
-        "peak_memory": "GPU: jax device memory_stats()['peak_bytes_in_use']" if on_gpu else
-        "CPU: peak resident set of the child process (resource.getrusage ru_maxrss), not device memory",
+        "process": (
+            "one child process per (problem, T)"
+            if args.process == "T"
+            else "one child process per problem, T ascending (peak memory is the process peak so far, "
+            "dominated by the largest T)"
+        )
+        + (
+            "; children in parallel, device work serialised by a file lock (compiles overlap), "
+            "XLA_PYTHON_CLIENT_PREALLOCATE=false"
+            if args.parallel
+            else ""
+        ),
+        "peak_memory": "GPU: jax device memory_stats()['peak_bytes_in_use']"
+        if on_gpu
+        else "CPU: peak resident set of the child process (resource.getrusage ru_maxrss), not device memory",
         "dense_check": "one damped LM step (JtJ + lam I) x = Jt r at the noisy start, engine (linearise -> factor "
         "-> solve_factored, float64 problem data) vs J of delta -> r(x (+) delta) by jax.jvp on unit tangents "
         "(float64), JtJ and Jt r in SciPy sparse float64 on the host, dense Jacobi-scaled Cholesky in float64 "
@@ -636,7 +669,9 @@ def main():
         payload["loglog_slope"] = max(slopes) if slopes else None
         ok = [d for d in payload["dense"] if "max_rel_err_vs_dense" in d]
         payload["max_rel_err_vs_dense"] = max((d["max_rel_err_vs_dense"] for d in ok), default=None)
-        payload["max_rel_err_vs_dense_all_lambdas"] = max((d["max_rel_err_vs_dense_all_lambdas"] for d in ok), default=None)
+        payload["max_rel_err_vs_dense_all_lambdas"] = max(
+            (d["max_rel_err_vs_dense_all_lambdas"] for d in ok), default=None
+        )
         payload["dense_T"] = sorted({d["T"] for d in ok})
         payload["rows"].sort(key=lambda r: (r["problem"], r["T"]))
         payload["dense"].sort(key=lambda r: (r["problem"], r["T"]))
@@ -686,8 +721,17 @@ def main():
     me = [sys.executable, os.path.abspath(__file__)]
     jobs = []  # (command, (list name, problem, Ts))
     for kind in args.problems:
-        for group in ([[T] for T in Ts] if args.process == "T" else [Ts] if Ts else []):
-            cmd = me + ["--steps", str(args.steps), "--repeats", str(args.repeats), "--child", kind, "--T", *map(str, group)]
+        for group in [[T] for T in Ts] if args.process == "T" else [Ts] if Ts else []:
+            cmd = me + [
+                "--steps",
+                str(args.steps),
+                "--repeats",
+                str(args.repeats),
+                "--child",
+                kind,
+                "--T",
+                *map(str, group),
+            ]
             jobs.append((cmd, ("rows", kind, group)))
     for kind in args.problems if dense_T else []:
         cmd = me + ["--dense-child", kind, "--T", *map(str, dense_T), "--lams", *map(str, args.lams),
@@ -717,10 +761,20 @@ def main():
             if T not in done:
                 on_row(i, {"problem": kind, "T": T, "error": err})
     finish()
-    print("log-log slope of time per step against T:",
-          {k: v["loglog_slope"] for k, v in payload["per_problem"].items()}, "max", payload["loglog_slope"])
-    print("max relative error of the structured step vs dense float64 (lambda >= 1):", payload["max_rel_err_vs_dense"],
-          "at T", payload["dense_T"], "; all lambdas:", payload["max_rel_err_vs_dense_all_lambdas"])
+    print(
+        "log-log slope of time per step against T:",
+        {k: v["loglog_slope"] for k, v in payload["per_problem"].items()},
+        "max",
+        payload["loglog_slope"],
+    )
+    print(
+        "max relative error of the structured step vs dense float64 (lambda >= 1):",
+        payload["max_rel_err_vs_dense"],
+        "at T",
+        payload["dense_T"],
+        "; all lambdas:",
+        payload["max_rel_err_vs_dense_all_lambdas"],
+    )
     print("wrote", name)
 
 

@@ -181,7 +181,9 @@ def step_agreement(T: int = 40) -> dict:
         def solve_both(y, args=args, factor=factor, dtype=dtype):
             r, lin = jax.linearize(lambda p: residuals(p, args), y)
             struct = jax.eval_shape(lambda: y)
-            op = lx.FunctionLinearOperator(damped_operator(lx.FunctionLinearOperator(lin, struct), jnp.asarray(1.0, dtype)), struct)
+            op = lx.FunctionLinearOperator(
+                damped_operator(lx.FunctionLinearOperator(lin, struct), jnp.asarray(1.0, dtype)), struct
+            )
             vec = (r, jax.tree_util.tree_map(jnp.zeros_like, y))
             a = lx.linear_solve(op, vec, linear_solver(args, factor), throw=False)
             b = lx.linear_solve(op, vec, lx.QR(), throw=False)
@@ -223,7 +225,15 @@ def main():
         Ts = Ts[:3]
 
     def child(*extra):
-        cmd = [sys.executable, __file__, "--steps", str(args.steps), "--converge-max-T", str(args.converge_max_T), *extra]
+        cmd = [
+            sys.executable,
+            __file__,
+            "--steps",
+            str(args.steps),
+            "--converge-max-T",
+            str(args.converge_max_T),
+            *extra,
+        ]
         out = subprocess.run(cmd, capture_output=True, text=True)
         rows = [json.loads(line[4:]) for line in out.stdout.splitlines() if line.startswith("ROW ")]
         if out.returncode or not rows:

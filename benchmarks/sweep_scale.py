@@ -121,10 +121,16 @@ def main(argv=None) -> int:
     p.add_argument("--sweep-out", default="out/sweeps/sip_ablation", help="the sweep's store (may hold cached data)")
     p.add_argument("--sweep-summary", help="copy the sweep's summary files here")
     p.add_argument("--suffix", default="")
-    p.add_argument("--refresh-one-gpu", action="store_true",
-                   help="also write this run's one-GPU `batch` into results/sweep_scale.json (keeping its sweep)")
-    p.add_argument("--multi-gpu-only", action="store_true",
-                   help="time the one-device batch and the multi-GPU speed-ups alone; update those keys of the result file")
+    p.add_argument(
+        "--refresh-one-gpu",
+        action="store_true",
+        help="also write this run's one-GPU `batch` into results/sweep_scale.json (keeping its sweep)",
+    )
+    p.add_argument(
+        "--multi-gpu-only",
+        action="store_true",
+        help="time the one-device batch and the multi-GPU speed-ups alone; update those keys of the result file",
+    )
     args = p.parse_args(argv)
     B, T, it = args.sequences, args.frames, args.iters
     out = {"benchmark": "sweep_scale", "machine": machine(), "dtype": "float32", "sequences": B, "frames": T,
@@ -176,9 +182,14 @@ def main(argv=None) -> int:
         # The one-GPU part of the main file (its sweep part, a separate run, is kept).
         main_file = RESULTS / "sweep_scale.json"
         kept = json.loads(main_file.read_text()) if main_file.exists() else {}
-        if (kept.get("sequences"), kept.get("frames"), kept.get("lm_iterations")) not in ((B, T, it), (None, None, None)):
+        if (kept.get("sequences"), kept.get("frames"), kept.get("lm_iterations")) not in (
+            (B, T, it),
+            (None, None, None),
+        ):
             p.error(f"--refresh-one-gpu: {main_file} is for another problem size; give the same sizes")
-        kept.update({k: out[k] for k in ("sequences", "frames", "lm_iterations", "dtype", "batch", "data_and_sop_init_s")})
+        kept.update(
+            {k: out[k] for k in ("sequences", "frames", "lm_iterations", "dtype", "batch", "data_and_sop_init_s")}
+        )
         kept["batch"] = dict(out["batch"], machine=machine(), refreshed_by=f"sweep_scale.py --suffix {args.suffix}")
         print(f"refreshed the one-GPU part of {write_json('sweep_scale.json', kept)}", flush=True)
 
@@ -206,7 +217,9 @@ def main(argv=None) -> int:
         )
     if args.multi_gpu_only:
         if "speedup_2_gpus" in out:
-            out.setdefault("speedup_2_gpus_history", {})[f"{len(devices)}x {devices[0].device_kind}"] = out["speedup_2_gpus"]
+            out.setdefault("speedup_2_gpus_history", {})[f"{len(devices)}x {devices[0].device_kind}"] = out[
+                "speedup_2_gpus"
+            ]
         print(f"updated {save()}")
         return 0
     save()

@@ -52,11 +52,17 @@ def main():
     sil_fn = lambda: raster.rasterize_views(K, Rb, tb, Vb, body.faces, labels, W, H, window=window)  # noqa: E731
 
     results = {}
-    for name, fn, args in (("imu", imu_fn, (poses, trans)), ("keypoints", kp_fn, (poses, trans)), ("silhouette", sil_fn, ())):
+    for name, fn, args in (
+        ("imu", imu_fn, (poses, trans)),
+        ("keypoints", kp_fn, (poses, trans)),
+        ("silhouette", sil_fn, ()),
+    ):
         r = time_call(fn, *args, min_seconds=2.0)
         r["frames_per_second"] = T / r["median_s"]
         results[name] = r
-        print(f"{name:10s} {r['frames_per_second']:10.0f} frames/s (compile+first {r['compile_and_first_call_s']:.1f} s)")
+        print(
+            f"{name:10s} {r['frames_per_second']:10.0f} frames/s (compile+first {r['compile_and_first_call_s']:.1f} s)"
+        )
     per_frame = sum(1 / results[k]["frames_per_second"] for k in results)
     results["combined_frames_per_second"] = 1 / per_frame
     print(f"combined   {1 / per_frame:10.0f} frames/s")

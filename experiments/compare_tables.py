@@ -58,8 +58,14 @@ def main(argv=None) -> int:
         from _provenance import write_json
 
         # The comparison inherits the newer run's split (none for a run that predates the splits).
-        write_json(args.out, out, split=_split_of(json.loads(Path(args.new).read_text())), argv=argv, indent=2,
-                   data={"compared": [args.old, args.new]})
+        write_json(
+            args.out,
+            out,
+            split=_split_of(json.loads(Path(args.new).read_text())),
+            argv=argv,
+            indent=2,
+            data={"compared": [args.old, args.new]},
+        )
     return 0
 
 

@@ -244,7 +244,9 @@ def write(out: dict, folder: Path) -> None:
                      f"{mean('sip_best'):.1f} | {mean('sop_validated'):.1f} |")  # fmt: skip
     n_worse = sum(rows["sip_validated"][i]["mpjpe_mm"] > rows["sip_thesis"][i]["mpjpe_mm"] for i in range(len(names)))
     lines += ["", f"The default is worse than the thesis preset on {n_worse} of {len(names)} clips."]
-    copied = [f"- `{k}`: {out[k]:.4g} (from {src})" for k, src in out.get("copied_from", {}).items() if out.get(k) is not None]
+    copied = [
+        f"- `{k}`: {out[k]:.4g} (from {src})" for k, src in out.get("copied_from", {}).items() if out.get(k) is not None
+    ]
     if copied:
         lines += ["", "Measured by other experiments on the evaluation subjects, copied here:", "", *copied]
     data = {"tuning_clips": out["tuning"]["clips"], "evaluation_clips": out["evaluation"]["clips"]}
@@ -296,11 +298,19 @@ def main(argv=None) -> int:
     p.add_argument("--tune-clips", type=int, default=9, help="development clips (subjects 02, 131)")
     p.add_argument("--out", type=Path, default=RESULTS)
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--cache", type=Path, default=Path("out/defaults_cache.json"),
-                   help="finished SIP fits by setting, so that a rerun resumes ('' for none)")
-    p.add_argument("--stage", choices=("all", "tune", "evaluate", "report"), default="all",
-                   help="tune: only the choice (written to defaults.json); evaluate: reuse it from defaults.json; "
-                        "report: rewrite defaults.md/.png and the copied numbers from defaults.json")
+    p.add_argument(
+        "--cache",
+        type=Path,
+        default=Path("out/defaults_cache.json"),
+        help="finished SIP fits by setting, so that a rerun resumes ('' for none)",
+    )
+    p.add_argument(
+        "--stage",
+        choices=("all", "tune", "evaluate", "report"),
+        default="all",
+        help="tune: only the choice (written to defaults.json); evaluate: reuse it from defaults.json; "
+        "report: rewrite defaults.md/.png and the copied numbers from defaults.json",
+    )
     p.add_argument("--check-only", action="store_true", help="only refresh the reproduction check in defaults.json")
     args = p.parse_args(argv)
     body = default_body("low")
@@ -336,8 +346,12 @@ def main(argv=None) -> int:
         tuning = tune([Clip(c, args.seed + k, body) for k, c in enumerate(tune_clips)], log)
         if args.stage == "tune":
             args.out.mkdir(parents=True, exist_ok=True)
-            write_json(args.out / "defaults.json", {"tuning": tuning}, split=SPLIT, data={"tuning_clips": tuning["clips"]})
-            log(f"tuning written to {args.out / 'defaults.json'}; set PRESETS['validated'] to it, then --stage evaluate")
+            write_json(
+                args.out / "defaults.json", {"tuning": tuning}, split=SPLIT, data={"tuning_clips": tuning["clips"]}
+            )
+            log(
+                f"tuning written to {args.out / 'defaults.json'}; set PRESETS['validated'] to it, then --stage evaluate"
+            )
             return 0
     v, c = I.PRESETS["validated"], tuning["chosen"]
     matches = (v.weights.mahal, v.max_steps, v.rtol, v.atol) == (c["mahal"], c["max_steps"], c["rtol"], c["atol"])

@@ -115,14 +115,20 @@ def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("--models", default=str(Path(__file__).resolve().parents[1] / "out" / "dip"))
     p.add_argument("--out", default=str(Path(__file__).resolve().parents[1] / "out" / "dip_init"))
-    p.add_argument("--cache", default=str(Path(__file__).resolve().parents[1] / "out" / "sip_tables" / "cache"),
-                   help="sip_tables' cache (scenarios and held-out priors are shared)")
+    p.add_argument(
+        "--cache",
+        default=str(Path(__file__).resolve().parents[1] / "out" / "sip_tables" / "cache"),
+        help="sip_tables' cache (scenarios and held-out priors are shared)",
+    )
     p.add_argument("--frames", type=int, default=100000)
     p.add_argument("--steps", type=int, default=200)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--clips", type=int, help="use N clips spread over the subjects (smoke runs)")
-    p.add_argument("--birnn-only", action="store_true",
-                   help="only the networks' own errors (e.g. another width), to OUT/dip_init_birnn_only.json")
+    p.add_argument(
+        "--birnn-only",
+        action="store_true",
+        help="only the networks' own errors (e.g. another width), to OUT/dip_init_birnn_only.json",
+    )
     args = p.parse_args(argv)
     t0 = time.perf_counter()
     out, cache = Path(args.out), Path(args.cache)
@@ -135,7 +141,9 @@ def main(argv=None):
     folds = Fold(corpus(), cache)
     tables = json.loads((RESULTS / "sip_tables.json").read_text())
     chosen = tables["protocol"]["chosen_w_mahal"]
-    sc6, starts = sip6_scenario(clips, args, body, cache, {r["clip"]: r["calibration_frame"] for r in tables["per_clip"]})
+    sc6, starts = sip6_scenario(
+        clips, args, body, cache, {r["clip"]: r["calibration_frame"] for r in tables["per_clip"]}
+    )
     keep = [i for i, s in enumerate(starts) if s is not None]
     nets, metas = {}, {}
     for s in sorted({clips[i].subject for i in keep}):
@@ -198,31 +206,55 @@ def main(argv=None):
     res = {
         "table": table,
         "sip_birnn_vs_sip_it_percent": {k: rel("SIP from BiRNN", "SIP from SOP", k) for k in ("mpjae", "mpjpe")},
-        "sip_birnn_vs_sip_it_percent_at_20_steps": {k: rel("SIP from BiRNN@20", "SIP from SOP@20", k) for k in ("mpjae", "mpjpe")},
+        "sip_birnn_vs_sip_it_percent_at_20_steps": {
+            k: rel("SIP from BiRNN@20", "SIP from SOP@20", k) for k in ("mpjae", "mpjpe")
+        },
         "birnn_vs_sop_percent": {k: rel("BiRNN", "SOP", k) for k in ("mpjae", "mpjpe")},
-        "lower_final_cost_from_birnn": {"clips": int(np.sum(cost("SIP from BiRNN") < cost("SIP from SOP"))), "of": len(J)},
+        "lower_final_cost_from_birnn": {
+            "clips": int(np.sum(cost("SIP from BiRNN") < cost("SIP from SOP"))),
+            "of": len(J),
+        },
         "converged": {name: float(np.mean([r[1] == 0 for r in runs[name]])) for name in runs if name.startswith("SIP")},
         "mean_steps": {name: float(np.mean([r[2] for r in runs[name]])) for name in runs if name.startswith("SIP")},
-        "per_subject": {s: {name: {k: pooled([all_errs[name][j] for j, r in enumerate(per_clip) if r["subject"] == s], k)
-                                   for k in ("mpjpe", "mpjae")} for name in runs} for s in subjects},
+        "per_subject": {
+            s: {
+                name: {
+                    k: pooled([all_errs[name][j] for j, r in enumerate(per_clip) if r["subject"] == s], k)
+                    for k in ("mpjpe", "mpjae")
+                }
+                for name in runs
+            }
+            for s in subjects
+        },
         "birnn_inference_seconds_all_clips": birnn_seconds,
         "protocol": {
             "split": "leave-one-subject-out: a clip of subject s is posed by the network trained without s "
-                     "(train_dip.py fold 'without s', validation on other subjects than s and 07 only); SIP's prior is "
-                     "built without s and its w_mahal chosen on the development subjects (sip_tables.json "
-                     "protocol.chosen_w_mahal); the table pools subjects " + ", ".join(SPLIT.evaluation),
+            "(train_dip.py fold 'without s', validation on other subjects than s and 07 only); SIP's prior is "
+            "built without s and its w_mahal chosen on the development subjects (sip_tables.json "
+            "protocol.chosen_w_mahal); the table pools subjects " + ", ".join(SPLIT.evaluation),
             "sip_it_start": "SOP: the per-frame orientation poser on the six sensors (the inertial tracker with 6 IMUs; "
-                            "the thesis's SIP start, §3.4.1), 20 LM steps per frame",
+            "the thesis's SIP start, §3.4.1), 20 LM steps per frame",
             "data": "every CMU clip at 30 fps in full, sip6 IMUs, IMUErrorModel.xsens(), seed 0 (as sip_tables.py)",
             "solves": f"float64, rtol = atol = {TOL}; '@20' rows stop at 20 LM steps, the others at {args.steps}",
             "metrics": "MPJPE (mm, Procrustes-aligned, TotalCapture joint set) and MPJAE (degrees, global joint "
-                       "angles) pooled over every frame",
+            "angles) pooled over every frame",
         },
-        "networks": {s: {k: metas[s].get(k) for k in ("fold", "commit", "training_frames", "best_step", "device",
-                                                     "training_seconds_all_folds")} | {"hidden": metas[s]["config"]["hidden"]}
-                     for s in metas},  # fmt: skip
-        "config": {"frames_cap": args.frames, "steps": args.steps, "seed": args.seed, "seconds": time.perf_counter() - t0,
-                   "device": str(jax.devices()[0]), "jax": jax.__version__},  # fmt: skip
+        "networks": {
+            s: {
+                k: metas[s].get(k)
+                for k in ("fold", "commit", "training_frames", "best_step", "device", "training_seconds_all_folds")
+            }
+            | {"hidden": metas[s]["config"]["hidden"]}
+            for s in metas
+        },  # fmt: skip
+        "config": {
+            "frames_cap": args.frames,
+            "steps": args.steps,
+            "seed": args.seed,
+            "seconds": time.perf_counter() - t0,
+            "device": str(jax.devices()[0]),
+            "jax": jax.__version__,
+        },  # fmt: skip
         "thesis": THESIS,
         "per_clip": per_clip,
     }

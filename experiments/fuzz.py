@@ -94,8 +94,12 @@ def _calibration(name: str):
 READERS = {
     "bvh": (F.BVH_SEED, _plain(".bvh"), F.load_bvh, MotionFileError),
     "amc": (F._amc_seed(), _plain(".amc"), lambda p: F.load_asf_amc(p, asf_path=F.CMU / "02.asf"), MotionFileError),
-    "asf": ((F.CMU / "02.asf").read_bytes(), _amc_for_asf, lambda p: F.load_asf_amc(p.parent / "seed.amc", asf_path=p),
-            MotionFileError),  # fmt: skip
+    "asf": (
+        (F.CMU / "02.asf").read_bytes(),
+        _amc_for_asf,
+        lambda p: F.load_asf_amc(p.parent / "seed.amc", asf_path=p),
+        MotionFileError,
+    ),  # fmt: skip
     "amass_npz": (F.AMASS_SEED, _plain(".npz"), F.load_amass, MotionFileError),
     "own_motion_npz": (F.OWN_MOTION_SEED, _plain(".npz"), F.load_motion, MotionFileError),
     "scenario_npz": (F.SCENARIO_SEED, _plain(".npz"), F.load_scenario, MotionFileError),
@@ -104,20 +108,42 @@ READERS = {
     "dip_pkl": (F.DIP_SEED, _plain(".pkl"), F.load_dip, MotionFileError),
     "threedpw_pkl": (F.THREEDPW_SEED, _plain(".pkl"), F.load_threedpw, MotionFileError),
     "pose_prior_npz": (F.PRIOR_SEED, _plain(".npz"), F.load_pose_prior, ValueError),
-    "calibration_pose2sim": (F.CALIB["pose2sim"][1], _calibration("calib.toml"),
-                             lambda p: F.load_calibration(p, format="pose2sim"), CalibrationError),  # fmt: skip
-    "calibration_qualisys": (F.CALIB["qualisys"][1], _calibration("calib.qca.txt"),
-                             lambda p: F.load_calibration(p, format="qualisys"), CalibrationError),  # fmt: skip
-    "calibration_npz": (F.CALIB["npz"][1], _calibration("calib.npz"), lambda p: F.load_calibration(p, format="npz"),
-                        CalibrationError),  # fmt: skip
-    "calibration_easymocap_intri": (F.CALIB["easymocap"][1], lambda f, d: _easymocap(f, d, "intri"),
-                                    lambda p: F.load_calibration(p.parent / "intri.yml", format="easymocap"),
-                                    CalibrationError),  # fmt: skip
-    "calibration_easymocap_extri": (F.CALIB["extri"], lambda f, d: _easymocap(f, d, "extri"),
-                                    lambda p: F.load_calibration(p.parent / "intri.yml", format="easymocap"),
-                                    CalibrationError),  # fmt: skip
-    "openpose_json": (F.CALIB["openpose"], _openpose, lambda p: F.read_openpose(p.parent.parent, "body25"),
-                      KeypointFileError),  # fmt: skip
+    "calibration_pose2sim": (
+        F.CALIB["pose2sim"][1],
+        _calibration("calib.toml"),
+        lambda p: F.load_calibration(p, format="pose2sim"),
+        CalibrationError,
+    ),  # fmt: skip
+    "calibration_qualisys": (
+        F.CALIB["qualisys"][1],
+        _calibration("calib.qca.txt"),
+        lambda p: F.load_calibration(p, format="qualisys"),
+        CalibrationError,
+    ),  # fmt: skip
+    "calibration_npz": (
+        F.CALIB["npz"][1],
+        _calibration("calib.npz"),
+        lambda p: F.load_calibration(p, format="npz"),
+        CalibrationError,
+    ),  # fmt: skip
+    "calibration_easymocap_intri": (
+        F.CALIB["easymocap"][1],
+        lambda f, d: _easymocap(f, d, "intri"),
+        lambda p: F.load_calibration(p.parent / "intri.yml", format="easymocap"),
+        CalibrationError,
+    ),  # fmt: skip
+    "calibration_easymocap_extri": (
+        F.CALIB["extri"],
+        lambda f, d: _easymocap(f, d, "extri"),
+        lambda p: F.load_calibration(p.parent / "intri.yml", format="easymocap"),
+        CalibrationError,
+    ),  # fmt: skip
+    "openpose_json": (
+        F.CALIB["openpose"],
+        _openpose,
+        lambda p: F.read_openpose(p.parent.parent, "body25"),
+        KeypointFileError,
+    ),  # fmt: skip
     "sweep_toml": (F.SWEEP_SEED, _plain(".toml"), F.load_config, SweepConfigError),
 }
 
@@ -213,7 +239,9 @@ def fuzz_reader(name: str, examples: int, seed: int, timeout: float, work: Path,
             keep.mkdir(parents=True, exist_ok=True)
             kept = keep / f"{name}_{i}.bin"
             kept.write_bytes(_example(name, seed, i))
-            failures.append({"example": i, "kind": outcome, "detail": detail[:600], "input": str(kept.relative_to(ROOT))})
+            failures.append(
+                {"example": i, "kind": outcome, "detail": detail[:600], "input": str(kept.relative_to(ROOT))}
+            )
 
     i = 0
     while i < examples:
@@ -283,8 +311,12 @@ def main() -> None:
             from jaxmocap.motion.splits import Split
 
             # Reads no motion: spoiled seed files only.
-            write_json(args.out, {k: v for k, v in report.items() if k != "split"}, data={"readers": names},
-                       split=Split("fuzz", tuning=(), training=(), evaluation=()))
+            write_json(
+                args.out,
+                {k: v for k, v in report.items() if k != "split"},
+                data={"readers": names},
+                split=Split("fuzz", tuning=(), training=(), evaluation=()),
+            )
 
 
 if __name__ == "__main__":

@@ -168,12 +168,8 @@ def simulate(config: Config, body, log) -> dict:
     copies, augmented procedural motions. Returns flat arrays with offsets."""
     clips = corpus()
     if not clips:
-        raise SystemExit(
-            "no CMU clips found (set JAXMOCAP_CMU / JAXMOCAP_CMU_CC, or put them in ../shared/data)."
-        )
-    variants = [
-        (m, s) for m in ((False, True) if config.mirror else (False,)) for s in config.speeds
-    ]
+        raise SystemExit("no CMU clips found (set JAXMOCAP_CMU / JAXMOCAP_CMU_CC, or put them in ../shared/data).")
+    variants = [(m, s) for m in ((False, True) if config.mirror else (False,)) for s in config.speeds]
     seqs = []
 
     def add(motion, role, index, variant, subject, name, mirror, speed, activity):
@@ -200,11 +196,8 @@ def simulate(config: Config, body, log) -> dict:
         add(motion, ROLE_TEST, i, 0, clip.subject, clip.path.stem, False, 1.0, clip.activity)
         for v, (mirror, speed) in enumerate(variants):
             m = motion.mirrored() if mirror else motion
-            add(m.time_scaled(speed), ROLE_TRAIN, i, v, clip.subject, clip.path.stem, mirror, speed,
-                clip.activity)
-        log(
-            f"  simulated {clip.path.stem} ({clip.subject}, {motion.duration:.1f} s) [{time.time() - t0:.0f} s]"
-        )
+            add(m.time_scaled(speed), ROLE_TRAIN, i, v, clip.subject, clip.path.stem, mirror, speed, clip.activity)
+        log(f"  simulated {clip.path.stem} ({clip.subject}, {motion.duration:.1f} s) [{time.time() - t0:.0f} s]")
     frames = int(round(config.procedural_seconds * config.fps))
     for i, (name, make) in enumerate(library.MOTIONS.items()):
         motion = make(num_frames=frames, fps=config.fps)
@@ -280,9 +273,7 @@ class Data:
     def select(self, roles, subjects=None):
         out = []
         for i in range(self.n):
-            if self.a["role"][i] in roles and (
-                subjects is None or self.a["subject"][i] in subjects
-            ):
+            if self.a["role"][i] in roles and (subjects is None or self.a["subject"][i] in subjects):
                 out.append(i)
         return out
 
@@ -318,9 +309,7 @@ def features_of(data: Data, indices, standardiser=None):
     return (x if standardiser is None else standardiser(x)), y
 
 
-def train_network(
-    data, train_idx, key, config, num_classes, epochs, validation=None, on_epoch=None, log=print
-):
+def train_network(data, train_idx, key, config, num_classes, epochs, validation=None, on_epoch=None, log=print):
     x, y = features_of(data, train_idx)
     ok = y >= 0
     standardiser = ColumnStandardiser(x[ok])
@@ -373,13 +362,9 @@ def run_fold(test, subjects, data, config, num_classes, log) -> dict:
 
         def keep(epoch, mlp, standardiser, val_idx=val_idx):
             for i in val_idx:
-                held.setdefault(epoch, []).append(
-                    (log_probs_of(data, i, mlp, standardiser), data.seq(i)[1])
-                )
+                held.setdefault(epoch, []).append((log_probs_of(data, i, mlp, standardiser), data.seq(i)[1]))
 
-        log(
-            f"  inner fold {g + 1}/{len(groups)}: train {fit_subjects} + procedural, validate {group}"
-        )
+        log(f"  inner fold {g + 1}/{len(groups)}: train {fit_subjects} + procedural, validate {group}")
         _, _, curve = train_network(
             data,
             data.select([ROLE_TRAIN], fit_subjects) + procedural,
@@ -456,9 +441,7 @@ def run_fold(test, subjects, data, config, num_classes, log) -> dict:
         epochs,
         log=log,
     )
-    train_y = np.concatenate(
-        [data.seq(i)[1] for i in data.select([ROLE_TRAIN], train_subjects) + procedural]
-    )
+    train_y = np.concatenate([data.seq(i)[1] for i in data.select([ROLE_TRAIN], train_subjects) + procedural])
     majority = int(np.argmax(np.bincount(train_y[train_y >= 0], minlength=num_classes)))
     test_idx = data.select([ROLE_TEST], [test])
     log_probs = [log_probs_of(data, i, mlp, standardiser) for i in test_idx]
@@ -530,13 +513,9 @@ def plot_confusions(conf_mlp, conf_crf, classes, scores, path: Path):
         ax.set_xlabel("predicted")
         ax.set_ylabel("true (frames)")
         s = scores[title]
-        ax.set_title(
-            f"{title}: accuracy {s['accuracy']:.3f}, macro F1 {s['macro_f1']:.3f}", fontsize=10
-        )
+        ax.set_title(f"{title}: accuracy {s['accuracy']:.3f}, macro F1 {s['macro_f1']:.3f}", fontsize=10)
     fig.colorbar(im, ax=axes, shrink=0.8, label="fraction of the true class")
-    fig.suptitle(
-        "Watch HAR, leave-one-subject-out over 5 CMU subjects (rows normalised)", fontsize=10
-    )
+    fig.suptitle("Watch HAR, leave-one-subject-out over 5 CMU subjects (rows normalised)", fontsize=10)
     fig.set_dpi(110)
     tmp = path.with_name(path.stem + ".tmp.png")
     save_figure(fig, tmp)
@@ -635,19 +614,30 @@ def main(argv=None) -> int:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--max-epochs", type=int, default=Config.max_epochs)
     p.add_argument("--out", type=Path, default=Path(__file__).resolve().parent / "results")
-    p.add_argument("--cache", type=Path, default=Path(__file__).resolve().parents[1] / "out" / "har_cache",
-                   help="the simulated data and finished folds (resumable)")
+    p.add_argument(
+        "--cache",
+        type=Path,
+        default=Path(__file__).resolve().parents[1] / "out" / "har_cache",
+        help="the simulated data and finished folds (resumable)",
+    )
     p.add_argument("--fresh", action="store_true", help="ignore the cache")
-    p.add_argument("--folds", default=None,
-                   help="comma-separated test subjects to run (default all); a partial run prints its scores and writes nothing")
+    p.add_argument(
+        "--folds",
+        default=None,
+        help="comma-separated test subjects to run (default all); a partial run prints its scores and writes nothing",
+    )
     p.add_argument("--features", choices=("summary", "raw"), default=Config.features)
     p.add_argument("--hidden", default=None, help="hidden layer sizes, e.g. 1024,512,60")
     p.add_argument("--trailing", action="store_true", help="summary windows end at the frame (causal)")
     p.add_argument("--learning-rate", type=float, default=Config.learning_rate)
     p.add_argument("--dropout", type=float, default=Config.dropout)
     p.add_argument("--class-weight-power", type=float, default=Config.class_weight_power)
-    p.add_argument("--compare", type=Path, default=None,
-                   help="a har.json of another run (e.g. --features raw) whose headline numbers are copied in")
+    p.add_argument(
+        "--compare",
+        type=Path,
+        default=None,
+        help="a har.json of another run (e.g. --features raw) whose headline numbers are copied in",
+    )
     args = p.parse_args(argv)
     hidden = Config.hidden if args.hidden is None else tuple(int(h) for h in args.hidden.split(","))
     config = Config(seed=args.seed, max_epochs=args.max_epochs, features=args.features,
@@ -678,9 +668,7 @@ def main(argv=None) -> int:
     pooled = {c: sum(v[c] for v in frames.values()) for c in A.CLASSES}
     # Outside its largest subject: what the fold testing that subject can train on.
     elsewhere = {c: pooled[c] - max(v[c] for v in frames.values()) for c in A.CLASSES}
-    keep = [
-        k for k, c in enumerate(A.CLASSES) if min(pooled[c], elsewhere[c]) >= config.min_test_frames
-    ]
+    keep = [k for k, c in enumerate(A.CLASSES) if min(pooled[c], elsewhere[c]) >= config.min_test_frames]
     dropped = [c for c in A.CLASSES if min(pooled[c], elsewhere[c]) < config.min_test_frames]
     data = Data(arrays, keep, config)
     C = len(keep)
@@ -716,8 +704,10 @@ def main(argv=None) -> int:
             t = np.concatenate([folds[s]["labels"] for s in run_subjects])
             q = np.concatenate([folds[s][name] for s in run_subjects])
             sc = A.classification_scores(A.confusion_matrix(t, q, C))
-            log(f"{run_subjects} {name}: accuracy {sc['accuracy']:.3f} macro F1 {sc['macro_f1']:.3f} "
-                f"per class {dict(zip(data.kept, np.round(sc['f1'], 2).tolist()))}")
+            log(
+                f"{run_subjects} {name}: accuracy {sc['accuracy']:.3f} macro F1 {sc['macro_f1']:.3f} "
+                f"per class {dict(zip(data.kept, np.round(sc['f1'], 2).tolist()))}"
+            )
         return 0
     truth = np.concatenate([folds[s]["labels"] for s in subjects])
     pred = {
@@ -731,10 +721,7 @@ def main(argv=None) -> int:
     ok = truth >= 0
     rank = (lp[ok] > np.take_along_axis(lp[ok], truth[ok][:, None], 1)).sum(1)
     majority = np.concatenate(
-        [
-            np.full(len(folds[s]["labels"]), json.loads(str(folds[s]["info"]))["majority_class"])
-            for s in subjects
-        ]
+        [np.full(len(folds[s]["labels"]), json.loads(str(folds[s]["info"]))["majority_class"]) for s in subjects]
     )
     per_subject = {}
     for s in subjects:
@@ -745,9 +732,7 @@ def main(argv=None) -> int:
             "frames": int(m.sum()),
             "mlp": float(np.mean(f["mlp"][m] == f["labels"][m])),
             "mlp_crf": float(np.mean(f["crf"][m] == f["labels"][m])),
-            "mlp_crf_likelihood_lambda": float(
-                np.mean(f["crf_likelihood_lambda"][m] == f["labels"][m])
-            ),
+            "mlp_crf_likelihood_lambda": float(np.mean(f["crf_likelihood_lambda"][m] == f["labels"][m])),
             "macro_f1_mlp": macro_f1(f["labels"], f["mlp"], C),
             "macro_f1_crf": macro_f1(f["labels"], f["crf"], C),
             "epochs": info["epochs"],
@@ -760,9 +745,7 @@ def main(argv=None) -> int:
     t_ev = np.concatenate([folds[s]["labels"] for s in ev])
     evaluation_only = {"subjects": ev}
     for key, name in (("mlp", "mlp"), ("crf", "crf")):
-        sc = A.classification_scores(
-            A.confusion_matrix(t_ev, np.concatenate([folds[s][name] for s in ev]), C)
-        )
+        sc = A.classification_scores(A.confusion_matrix(t_ev, np.concatenate([folds[s][name] for s in ev]), C))
         evaluation_only[f"accuracy_{key}"] = sc["accuracy"]
         evaluation_only[f"macro_f1_{key}"] = sc["macro_f1"]
         evaluation_only[f"per_class_f1_{key}"] = dict(zip(data.kept, sc["f1"]))
@@ -866,9 +849,7 @@ def main(argv=None) -> int:
             "class_frames_outside_largest_subject": elsewhere,
             "readings": "left_forearm sensor of sip6 on the default body (low), IMUErrorModel.xsens(), simulated at 60 fps, "
             "box-averaged to 10 fps; windows of 60 frames (6 s), 360 values, start padded with the first frame",
-            "augmentation": "training only: mirrored x speeds "
-            + str(list(config.speeds))
-            + "; procedural motions "
+            "augmentation": "training only: mirrored x speeds " + str(list(config.speeds)) + "; procedural motions "
             f"({', '.join(library.MOTIONS)}, {config.procedural_seconds:g} s each) in every training set",
             "test_data": "the held-out subject's clips, unaugmented, with their own sensor-noise draws",
             "data_fixes": "leading frames before a root jump > 0.3 m dropped (007_03 .. 007_12 start with a bogus frame)",
@@ -887,9 +868,13 @@ def main(argv=None) -> int:
         other = json.loads(args.compare.read_text())
         result["comparison"] = {
             "features": other["protocol"].get("features"),
-            "config": {k: other["config"][k] for k in ("features", "hidden", "dropout", "learning_rate", "class_weight_power")},
+            "config": {
+                k: other["config"][k] for k in ("features", "hidden", "dropout", "learning_rate", "class_weight_power")
+            },
             **{k: other[k] for k in ("classes", "accuracy_mlp", "accuracy_crf", "macro_f1_mlp", "macro_f1_crf")},
-            "evaluation_subjects_only": {k: other["evaluation_subjects_only"][k] for k in ("macro_f1_mlp", "macro_f1_crf")},
+            "evaluation_subjects_only": {
+                k: other["evaluation_subjects_only"][k] for k in ("macro_f1_mlp", "macro_f1_crf")
+            },
             "note": "the same protocol, labels and folds with another input/network (python experiments/har.py "
             + ("--features raw --hidden 1024,512,60" if other["config"]["features"] == "raw" else "...")
             + " --out DIR)",
@@ -900,11 +885,11 @@ def main(argv=None) -> int:
 
     # The split record with its folds (who trained and tuned what) is the provenance's too.
     used = {"subjects": sorted(run_subjects), "procedural_motions": "jaxmocap.motion.library (training only)"}
-    write_json(args.out / "har.json", {k: v for k, v in result.items() if k != "split"}, split=result["split"], data=used)
-    write_text(args.out / "har.md", markdown(result), split=result["split"], data=used)
-    plot_confusions(
-        conf["MLP"], conf["MLP + CRF"], data.kept, scores, args.out / "har_confusion.png"
+    write_json(
+        args.out / "har.json", {k: v for k, v in result.items() if k != "split"}, split=result["split"], data=used
     )
+    write_text(args.out / "har.md", markdown(result), split=result["split"], data=used)
+    plot_confusions(conf["MLP"], conf["MLP + CRF"], data.kept, scores, args.out / "har_confusion.png")
     record(args.out / "har_confusion.png", split=result["split"], data=used)
     log(
         f"accuracy MLP {result['accuracy_mlp']:.3f} -> MLP + CRF {result['accuracy_mlp_crf']:.3f}; "

@@ -133,8 +133,11 @@ def evaluate(body, obs, seq, fit) -> dict:
         seq["contact"], obs.body_points, obs.body_valid, obs.object_points, obs.object_valid,
         contact_vertices(body, PART), obs.obj.vertices,
     )  # fmt: skip
-    m.update(object_pose_errors(fit["object_R"], fit["object_t"], seq["obj_R"], seq["obj_t"], obs.obj.vertices,
-                                 symmetry=obs.obj.symmetry))
+    m.update(
+        object_pose_errors(
+            fit["object_R"], fit["object_t"], seq["obj_R"], seq["obj_t"], obs.obj.vertices, symmetry=obs.obj.symmetry
+        )
+    )
     return m
 
 
@@ -209,8 +212,11 @@ def markdown(result: dict) -> str:
              "over the true contact frames.", ""]  # fmt: skip
     if result.get("reduced"):
         r = result["reduced"]
-        lines += [f"Reduced run (`--subset {','.join(map(str, r['subset']))} --variants {','.join(r['variants'])}`): "
-                  f"scenes {r['subset']} of {r['of']}, joint rows {r['variants']}, on {result['machine']['device']}.", ""]
+        lines += [
+            f"Reduced run (`--subset {','.join(map(str, r['subset']))} --variants {','.join(r['variants'])}`): "
+            f"scenes {r['subset']} of {r['of']}, joint rows {r['variants']}, on {result['machine']['device']}.",
+            "",
+        ]
     lines += [head, "|" + " --- |" * 11]
     for r, m in t.items():
         lines.append(
@@ -259,12 +265,23 @@ def main(argv=None):
     ap.add_argument("--views", type=int, default=4)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", type=Path, default=Path("out/intercap_tables"))
-    ap.add_argument("--only", default="", help="comma-separated scene indices: fit and cache only these (e.g. one "
-                    "machine each); a run without it then gathers the cached fits into the tables")
-    ap.add_argument("--subset", default="", help="comma-separated scene indices: the tables over only these (a "
-                    "reduced run on a slow machine; the .md says so)")
-    ap.add_argument("--variants", default=",".join(VARIANTS), help="comma-separated joint rows to fit (a reduced "
-                    "run on a slow machine: e.g. joint)")
+    ap.add_argument(
+        "--only",
+        default="",
+        help="comma-separated scene indices: fit and cache only these (e.g. one "
+        "machine each); a run without it then gathers the cached fits into the tables",
+    )
+    ap.add_argument(
+        "--subset",
+        default="",
+        help="comma-separated scene indices: the tables over only these (a "
+        "reduced run on a slow machine; the .md says so)",
+    )
+    ap.add_argument(
+        "--variants",
+        default=",".join(VARIANTS),
+        help="comma-separated joint rows to fit (a reduced run on a slow machine: e.g. joint)",
+    )
     args = ap.parse_args(argv)
     args.variants = [v for v in args.variants.split(",") if v.strip()]
     unknown = set(args.variants) - set(VARIANTS)
@@ -295,7 +312,13 @@ def main(argv=None):
     from _provenance import subjects_of, write_json, write_text
 
     names = [clips[i].name for i in subset]
-    data = {"clips": names, "subjects": subjects_of(names), "frames": args.frames, "views": args.views, "seed": args.seed}
+    data = {
+        "clips": names,
+        "subjects": subjects_of(names),
+        "frames": args.frames,
+        "views": args.views,
+        "seed": args.seed,
+    }
     write_json(args.out / "intercap_tables.json", result, split=SPLIT, data=data, argv=argv, indent=2, default=float)
     write_text(args.out / "intercap_tables.md", markdown(result), split=SPLIT, data=data, argv=argv)
     print(markdown(result))

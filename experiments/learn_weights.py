@@ -165,6 +165,7 @@ def make_functions(problem, body, num_sensors, max_steps, rtol, atol):
         return mpjpe, (sol.num_steps, sol.result, sol.value)
 
     value_and_grad = eqx.filter_jit(jax.value_and_grad(loss, has_aux=True))
+
     def poses(theta, clip):
         sol = run(theta, clip)[1]
         return sol.value["pose"], sol.num_steps, sol.result
@@ -231,8 +232,14 @@ def plot(history, thesis_test, path: Path, title: str):
     ax.plot(it, [h["train_mpjpe_mm"] for h in history], "k-o", lw=2, ms=3, label="train mean (loss, warm-started)")
     tested = [h for h in history if "test_mpjpe_mm" in h]
     if tested:
-        ax.plot([h["iteration"] for h in tested], [h["test_mpjpe_mm"] for h in tested], "C3-s", lw=2, ms=4,
-                label="test mean, from SOP (monitoring only)")
+        ax.plot(
+            [h["iteration"] for h in tested],
+            [h["test_mpjpe_mm"] for h in tested],
+            "C3-s",
+            lw=2,
+            ms=4,
+            label="test mean, from SOP (monitoring only)",
+        )
         ax.axhline(thesis_test, color="C3", ls=":", lw=1, label=f"test, thesis weights ({thesis_test:.1f})")
     ax.set_xlabel("Adam iteration")
     ax.set_ylabel("MPJPE [mm]")
@@ -272,9 +279,7 @@ def main(argv=None) -> int:
     body, clips, setups = load_clips(args.frames, args.seed, TRAIN[:1] if args.gradcheck_only else CLIPS)
     S = len(setups[TRAIN[0]].bones)
     problem = I.inertial_problem(setups[TRAIN[0]])  # weights are replaced per call (traced)
-    loss, value_and_grad, poses_fn = make_functions(
-        problem, body, S, args.max_steps, args.rtol, args.atol
-    )
+    loss, value_and_grad, poses_fn = make_functions(problem, body, S, args.max_steps, args.rtol, args.atol)
     theta = np.zeros(len(LEARNED))
     thesis = I.SIPWeights()
 
@@ -339,13 +344,19 @@ def main(argv=None) -> int:
     body32 = default_body("low")
     ref = json.loads((Path(__file__).parent / "results" / "sip_tables.json").read_text()) if (
         Path(__file__).parent / "results" / "sip_tables.json").is_file() else None  # fmt: skip
-    same = ref is not None and ref.get("config", {}).get("frames") == args.frames and ref["config"].get("seed") == args.seed
+    same = (
+        ref is not None
+        and ref.get("config", {}).get("frames") == args.frames
+        and ref["config"].get("seed") == args.seed
+    )
     ref_sip = {r["clip"]: r["methods"]["SIP"] for r in ref.get("per_clip", [])} if same else {}
     for label, th in (("thesis", np.zeros(len(LEARNED))), ("learned", theta_best)):
         for name in CLIPS:
             st = setups[name]
             st32 = jax.tree_util.tree_map(lambda x: x.astype(jnp.float32) if eqx.is_inexact_array(x) else x, st)
-            r = I.sparse_inertial_poser(st32, sip_weights(th), init=clips[name].params0["pose"].astype(jnp.float32), max_steps=20)
+            r = I.sparse_inertial_poser(
+                st32, sip_weights(th), init=clips[name].params0["pose"].astype(jnp.float32), max_steps=20
+            )
             e = metrics.pose_errors(body32, r.poses, clips[name].truth_poses.astype(jnp.float32))
             tables[label][name] = {"mpjpe": float(e["mpjpe"].mean()), "mpjae": float(e["mpjae"].mean()), "_frames": e}
     seconds = time.perf_counter() - t_start
@@ -370,44 +381,60 @@ def main(argv=None) -> int:
         "thesis_mpjae_deg": pooled(ev["thesis"], TEST, "mpjae"),
         "learned_mpjae_deg": pooled(ev["learned"], TEST, "mpjae"),
         "train": {
-            "thesis_mpjpe_mm": pooled(ev["thesis"], TRAIN, "mpjpe"), "learned_mpjpe_mm": pooled(ev["learned"], TRAIN, "mpjpe"),
-            "thesis_mpjae_deg": pooled(ev["thesis"], TRAIN, "mpjae"), "learned_mpjae_deg": pooled(ev["learned"], TRAIN, "mpjae"),
+            "thesis_mpjpe_mm": pooled(ev["thesis"], TRAIN, "mpjpe"),
+            "learned_mpjpe_mm": pooled(ev["learned"], TRAIN, "mpjpe"),
+            "thesis_mpjae_deg": pooled(ev["thesis"], TRAIN, "mpjae"),
+            "learned_mpjae_deg": pooled(ev["learned"], TRAIN, "mpjae"),
         },  # fmt: skip
         "tables_protocol_test": {
             "what": "the same weights run as in sip_tables.py: sparse_inertial_poser, 20 LM steps, float32 "
-                    "(factorisation float64 since x64 is on), same SOP start",
-            "thesis_mpjpe_mm": pooled(tables["thesis"], TEST, "mpjpe"), "learned_mpjpe_mm": pooled(tables["learned"], TEST, "mpjpe"),
-            "thesis_mpjae_deg": pooled(tables["thesis"], TEST, "mpjae"), "learned_mpjae_deg": pooled(tables["learned"], TEST, "mpjae"),
+            "(factorisation float64 since x64 is on), same SOP start",
+            "thesis_mpjpe_mm": pooled(tables["thesis"], TEST, "mpjpe"),
+            "learned_mpjpe_mm": pooled(tables["learned"], TEST, "mpjpe"),
+            "thesis_mpjae_deg": pooled(tables["thesis"], TEST, "mpjae"),
+            "learned_mpjae_deg": pooled(tables["learned"], TEST, "mpjae"),
         },  # fmt: skip
         "learned_weights": vars(learned_w),
         "thesis_weights": vars(thesis),
         "learned_log_ratio": dict(zip(LEARNED, theta_best.tolist())),
         "final_iterate_weights": vars(sip_weights(np.asarray(history[-1]["theta"]))),
         "kept_iteration": best["iteration"],
-        "clips": {"train": list(TRAIN), "test": list(TEST),
-                  "rule": "three development-subject clips (02) train; six clips of the evaluated subjects 05, 06, 07 "
-                          "test (interleaved by subject); no test subject chooses anything"},  # fmt: skip
+        "clips": {
+            "train": list(TRAIN),
+            "test": list(TEST),
+            "rule": "three development-subject clips (02) train; six clips of the evaluated subjects 05, 06, 07 "
+            "test (interleaved by subject); no test subject chooses anything",
+        },  # fmt: skip
         "per_clip": per_clip,
         "gradient_check": check,
         "history": history,
         "settings": {
-            "frames": args.frames, "fps": 30.0, "seed": args.seed, "body": "default_body('low'), mean shape",
-            "imu_set": "sip6", "imu_errors": "IMUErrorModel.xsens()", "scenario": "sip_tables' sc6: all 9 CLIPS in order",
-            "dtype": "float64 (jax_enable_x64)", "lm_max_steps": args.max_steps, "lm_rtol": args.rtol, "lm_atol": args.atol,
+            "frames": args.frames,
+            "fps": 30.0,
+            "seed": args.seed,
+            "body": "default_body('low'), mean shape",
+            "imu_set": "sip6",
+            "imu_errors": "IMUErrorModel.xsens()",
+            "scenario": "sip_tables' sc6: all 9 CLIPS in order",
+            "dtype": "float64 (jax_enable_x64)",
+            "lm_max_steps": args.max_steps,
+            "lm_rtol": args.rtol,
+            "lm_atol": args.atol,
             "init": "evaluation (thesis and learned) and gradient check: SIP from SOP with thesis weights (20 LM "
-                    "steps per frame), max lm_max_steps LM steps; training: warm start from each clip's previous "
-                    "solution (iteration 0 from SOP), lm_max_steps more LM steps per iteration",
+            "steps per frame), max lm_max_steps LM steps; training: warm start from each clip's previous "
+            "solution (iteration 0 from SOP), lm_max_steps more LM steps per iteration",
             "lm_result_codes": "0 converged (rtol/atol), 7 max steps reached (optimistix RESULTS index)",
-            "learned_parameters": "theta = log(w / w_thesis) for " + ", ".join(f"w_{k}" for k in LEARNED)
-                                  + "; w_ori = w_anthro = 1 fixed (common scale leaves the minimiser unchanged)",
+            "learned_parameters": "theta = log(w / w_thesis) for "
+            + ", ".join(f"w_{k}" for k in LEARNED)
+            + "; w_ori = w_anthro = 1 fixed (common scale leaves the minimiser unchanged)",
             "loss": "mean over training clips of metrics.mpjpe (mm, per-frame Procrustes, TotalCapture joints) of the SIP solution",
             "gradient": "jax.value_and_grad through jaxmocap.solve.solve (implicit adjoint), exact at convergence",
             "optimizer": {"name": "Adam", "lr": args.lr, "b1": 0.9, "b2": 0.999, "eps": 1e-8, "iterations": args.iters},
             "selection": "iterate with the lowest training loss (iteration 0 = thesis weights included)",
             "problem": "jaxmocap.methods.inertial.inertial_problem unchanged (ori, acc, mahal, limit; pose and trans "
-                       "unknowns), term weights replaced by jaxmocap.solve.batch.with_weights",
+            "unknowns), term weights replaced by jaxmocap.solve.batch.with_weights",
             "metrics": "metrics.pose_errors: MPJPE Procrustes on totalcapture_mpjpe joints (mm), MPJAE on "
-                       "totalcapture_mpjae joints (deg); pooled over frames and joints of the test clips",
+            "totalcapture_mpjae joints (deg); pooled over frames and joints of the test clips",
             "seconds": seconds,
             "git_head": commit(),
         },  # fmt: skip

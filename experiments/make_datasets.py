@@ -51,7 +51,7 @@ def set_specs(scale: float, cmu: list[str]) -> dict:
     library = ["walk", "run", "jumping_jacks", "arm_raises", "leg_raises", "squats", "sit_stand", "static_hold"]
     n = lambda k: max(1, int(round(k * scale)))  # noqa: E731
     # Alternate real and procedural motion so that every set gets both.
-    mixed = [m for pair in zip(cmu, library) for m in pair] + cmu[len(library):] + library[len(cmu):]
+    mixed = [m for pair in zip(cmu, library) for m in pair] + cmu[len(library) :] + library[len(cmu) :]
     return {
         "imu6": (mixed, n(len(mixed)), ScenarioConfig(
             fps=60.0, max_frames=n(300), imu_set="sip6", imu_errors=IMUErrorModel.xsens())),

@@ -134,7 +134,9 @@ def _run(t: Table, log: Path) -> dict:
     t0 = time.perf_counter()
     with log.open("w") as f:
         for c in cmds:
-            rc = subprocess.run(["nice", "-n", "10", *c], cwd=ROOT, env=env, stdout=f, stderr=subprocess.STDOUT).returncode
+            rc = subprocess.run(
+                ["nice", "-n", "10", *c], cwd=ROOT, env=env, stdout=f, stderr=subprocess.STDOUT
+            ).returncode
             if rc:
                 break
     return {"name": t.name, "returncode": rc, "minutes": round((time.perf_counter() - t0) / 60, 1), "log": str(log)}
@@ -161,13 +163,18 @@ def main(argv=None) -> int:
         import jax
 
         if jax.default_backend() != "gpu":
-            raise SystemExit(f"the GPU tables need a GPU; JAX's backend here is {jax.default_backend()!r} (see --list).")
+            raise SystemExit(
+                f"the GPU tables need a GPU; JAX's backend here is {jax.default_backend()!r} (see --list)."
+            )
     args.logs.mkdir(parents=True, exist_ok=True)
     done = []
     for t in run:
         print(f"{t.name}: {t.command}", flush=True)
         r = _run(t, args.logs / f"{t.name}.log")
-        print(f"  -> {'ok' if r['returncode'] == 0 else 'FAILED (see ' + r['log'] + ')'} in {r['minutes']} min", flush=True)
+        print(
+            f"  -> {'ok' if r['returncode'] == 0 else 'FAILED (see ' + r['log'] + ')'} in {r['minutes']} min",
+            flush=True,
+        )
         done.append(r)
     left = [t for t in TABLES if t not in run]
     if left:

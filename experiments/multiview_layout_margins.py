@@ -63,8 +63,10 @@ def main(out: Path) -> dict:
                 s = layout_scores(subject[:views], P[:views], body, [true, other])
                 rows.append({"true": true, "case": case, "views": views, "score_true": s[true],
                              "score_other": s[other], "ratio": s[other] / s[true]})  # fmt: skip
-                print(f"{true:8s} {case:12s} {views} views: true {s[true]:.3f}, other {s[other]:.3f} "
-                      f"(x{s[other] / s[true]:.1f})")
+                print(
+                    f"{true:8s} {case:12s} {views} views: true {s[true]:.3f}, other {s[other]:.3f} "
+                    f"(x{s[other] / s[true]:.1f})"
+                )
     result = {"description": __doc__.split("\n\n")[2].strip(), "rows": rows,
               "min_ratio": min(r["ratio"] for r in rows)}  # fmt: skip
     import sys
@@ -75,8 +77,12 @@ def main(out: Path) -> dict:
     from jaxmocap.motion.splits import Split
 
     # The procedural walk belongs to no CMU subject: nothing is tuned, trained or evaluated on one.
-    write_json(out, result, split=Split("multiview_layout_margins", tuning=(), training=(), evaluation=()),
-               data={"motions": ["jaxmocap.motion.library.walk"], "subjects": []})
+    write_json(
+        out,
+        result,
+        split=Split("multiview_layout_margins", tuning=(), training=(), evaluation=()),
+        data={"motions": ["jaxmocap.motion.library.walk"], "subjects": []},
+    )
     return result
 
 

@@ -155,15 +155,23 @@ def analyse(report, fit_dir: Path, calib: Path, window: int) -> dict:
         "views": list(recording.views),
         "points_compared": int(both.sum()),
         "min_confidence": MIN_CONFIDENCE,
-        "reprojection_px": {"fit_median": med_fit, "triangulation_median": med_tri,
-                            "fit": _stats(err_fit[both]), "triangulation": _stats(err_tri[both]),
-                            "per_view": per_view, "per_keypoint": per_keypoint},  # fmt: skip
+        "reprojection_px": {
+            "fit_median": med_fit,
+            "triangulation_median": med_tri,
+            "fit": _stats(err_fit[both]),
+            "triangulation": _stats(err_tri[both]),
+            "per_view": per_view,
+            "per_keypoint": per_keypoint,
+        },  # fmt: skip
         "fit_over_triangulation": med_fit / med_tri,
         "limb_lengths": lengths,
         "limb_length_error_max_pct": 100 * max(abs(v["fit_over_triangulated"] - 1) for v in lengths.values()),
         "jitter_per_window": windows,
-        "jitter_m_s2": {"fit_limb_keypoints": _stats(acc_fit)["mean"], "triangulated_limb_keypoints": _stats(acc_tri)["mean"],
-                        "fit_smpl_joints": _stats(acc_joints)["mean"]},  # fmt: skip
+        "jitter_m_s2": {
+            "fit_limb_keypoints": _stats(acc_fit)["mean"],
+            "triangulated_limb_keypoints": _stats(acc_tri)["mean"],
+            "fit_smpl_joints": _stats(acc_joints)["mean"],
+        },  # fmt: skip
     }
 
 
@@ -243,8 +251,11 @@ def markdown(result: dict) -> str:
 def main(argv=None) -> dict:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--pose2sim", default=None, help="pose2sim's package folder (default: the installed package)")
-    p.add_argument("--detector-python", default=None, help="the Python with mediapipe 0.10.21 (default: "
-                   "$JAXMOCAP_VIDEO_PYTHON, else this one)")
+    p.add_argument(
+        "--detector-python",
+        default=None,
+        help="the Python with mediapipe 0.10.21 (default: $JAXMOCAP_VIDEO_PYTHON, else this one)",
+    )
     p.add_argument("--frames", type=int, default=100, help="first frames of each recording (default: 100, all)")
     p.add_argument("--out", type=Path, default=Path("experiments/results/multiview_real.json"))
     p.add_argument("--work", type=Path, default=None, help="where fits are written (default: a temporary folder)")

@@ -92,8 +92,11 @@ def main(argv=None):
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--view", type=int, default=0)
     ap.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=VARIANTS)
-    ap.add_argument("--development", action="store_true",
-                    help="the development clips (tuning only: never published to experiments/results)")
+    ap.add_argument(
+        "--development",
+        action="store_true",
+        help="the development clips (tuning only: never published to experiments/results)",
+    )
     ap.add_argument("--out", type=Path, default=Path("out/muvs_monocular"))
     ap.add_argument("--weights", nargs="*", default=[], metavar="NAME=VALUE", help="MuVSWeights overrides")
     args = ap.parse_args(argv)
@@ -132,21 +135,44 @@ def main(argv=None):
         print(f"{variant}: " + "  ".join(f"{k} {r['unaligned_mm']:.0f}/{r['aligned_mm']:.0f} ({r['ratio']:.2f})"
                                          for k, r in table.items()) + f"  [{timing[variant + '_s']:.0f} s]", flush=True)  # fmt: skip
     result["timing_s"] = timing
-    data_rec = {"clips": result["clips"], "subjects": subjects_of(result["clips"]), "frames": args.frames, "views": [args.view]}
+    data_rec = {
+        "clips": result["clips"],
+        "subjects": subjects_of(result["clips"]),
+        "frames": args.frames,
+        "views": [args.view],
+    }
     split = SPLIT  # a --development run records its clips in "data" and stays out of experiments/results
     write_json(args.out / "muvs_monocular.json", result, split=split, data=data_rec, argv=argv, indent=2, default=float)
-    md = ["| variant | row | " + " | ".join(f"{n} unaligned / aligned (ratio)" for n in result["clips"])
-          + " | mean unaligned / aligned (ratio) |", "|---|---|" + "---|" * (len(result["clips"]) + 1)]
+    md = [
+        "| variant | row | "
+        + " | ".join(f"{n} unaligned / aligned (ratio)" for n in result["clips"])
+        + " | mean unaligned / aligned (ratio) |",
+        "|---|---|" + "---|" * (len(result["clips"]) + 1),
+    ]
     for variant, v in result["variants"].items():
         for key, r in v["mpjpe"].items():
             cells = [f"{c['unaligned_mm']:.0f} / {c['aligned_mm']:.0f} ({c['ratio']:.2f})" for c in r["clips"].values()]
-            md.append(f"| {variant} | {key.replace('_', ',')} | " + " | ".join(cells)
-                      + f" | {r['unaligned_mm']:.0f} / {r['aligned_mm']:.0f} ({r['ratio']:.2f}) |")
-    md += ["", "Depth after stage 2 (`monocular_depth`, m): fit / truth, 1σ, |error| in σ", "",
-           "| variant | " + " | ".join(result["clips"]) + " |", "|---|" + "---|" * len(result["clips"])]
+            md.append(
+                f"| {variant} | {key.replace('_', ',')} | "
+                + " | ".join(cells)
+                + f" | {r['unaligned_mm']:.0f} / {r['aligned_mm']:.0f} ({r['ratio']:.2f}) |"
+            )
+    md += [
+        "",
+        "Depth after stage 2 (`monocular_depth`, m): fit / truth, 1σ, |error| in σ",
+        "",
+        "| variant | " + " | ".join(result["clips"]) + " |",
+        "|---|" + "---|" * len(result["clips"]),
+    ]
     for variant, v in result["variants"].items():
-        md.append(f"| {variant} | " + " | ".join(f"{s['depth_m']:.2f} / {s['true_m']:.2f}, {s['sigma_m']:.2f}, "
-                                                 f"{s['truth_in_sigma']:.1f}σ" for s in v["depth_after_stage2"].values()) + " |")
+        md.append(
+            f"| {variant} | "
+            + " | ".join(
+                f"{s['depth_m']:.2f} / {s['true_m']:.2f}, {s['sigma_m']:.2f}, {s['truth_in_sigma']:.1f}σ"
+                for s in v["depth_after_stage2"].values()
+            )
+            + " |"
+        )
     write_text(args.out / "muvs_monocular.md", split=split, data=data_rec, argv=argv, text=
                f"# MuVS with one view of four ({args.frames} frames; MPJPE mm, 24 joints, unaligned / per-frame "
                "similarity-aligned)\n\n" + "\n".join(md) + "\n")  # fmt: skip

@@ -69,8 +69,13 @@ def main(argv=None) -> int:
         print(f"{key:28s} MPJPE stage 1 {rows[key]['stage1']:.1f}  stage 2 {rows[key]['stage2']:.1f} mm", flush=True)
     result = {"clips": [c.name for c in clips], "frames": args.frames, "scale": args.scale, "image_low": [256, 192],
               "reference_focal": mv.REFERENCE_FOCAL, "weights_tuned": tuned_from, "mpjpe_mm": rows}  # fmt: skip
-    write_json(args.out / "muvs_resolution.json", result, split=SPLIT, argv=argv,
-               data={"clips": result["clips"], "subjects": subjects_of(result["clips"]), "frames": args.frames})
+    write_json(
+        args.out / "muvs_resolution.json",
+        result,
+        split=SPLIT,
+        argv=argv,
+        data={"clips": result["clips"], "subjects": subjects_of(result["clips"]), "frames": args.frames},
+    )
     return 0
 
 

@@ -81,8 +81,11 @@ SPLIT = Split("muvs_tables", tuning=DEVELOPMENT, training="leave-subject-out")
 
 
 TUNING_FILE = Path(__file__).resolve().parent / "results" / "muvs_tuning.json"
-SILHOUETTE_VARIANTS = {"default": {}, "slack_4px": {"silhouette_slack": 4.0},
-                       "weight_0.03": {"silhouette_model": 0.03, "silhouette_mask": 0.03}}  # as muvs_tuning.py
+SILHOUETTE_VARIANTS = {
+    "default": {},
+    "slack_4px": {"silhouette_slack": 4.0},
+    "weight_0.03": {"silhouette_model": 0.03, "silhouette_mask": 0.03},
+}  # as muvs_tuning.py
 
 
 def tuned_weights(path: Path = TUNING_FILE) -> tuple[mv.MuVSWeights, dict]:
@@ -92,10 +95,14 @@ def tuned_weights(path: Path = TUNING_FILE) -> tuple[mv.MuVSWeights, dict]:
     seed's λ_θ = 20 had been chosen on the subjects these tables evaluate."""
     tuned = json.loads(Path(path).read_text())
     if tuned.get("split", {}).get("tuning") != list(DEVELOPMENT):
-        raise SystemExit(f"{path} was not tuned on the development subjects {DEVELOPMENT}: run experiments/muvs_tuning.py.")
-    change = {"pose_prior": float(tuned["best_pose_prior"]),
-              "shape": float(tuned.get("best_shape", mv.PRESETS["thesis"].shape)),  # absent: tuned before λ_β was
-              **SILHOUETTE_VARIANTS[tuned.get("best_silhouettes", "default")]}
+        raise SystemExit(
+            f"{path} was not tuned on the development subjects {DEVELOPMENT}: run experiments/muvs_tuning.py."
+        )
+    change = {
+        "pose_prior": float(tuned["best_pose_prior"]),
+        "shape": float(tuned.get("best_shape", mv.PRESETS["thesis"].shape)),  # absent: tuned before λ_β was
+        **SILHOUETTE_VARIANTS[tuned.get("best_silhouettes", "default")],
+    }
     return mv.MuVSWeights(**change), {"from": str(Path(path).name), "changed": change, "clips": tuned["clips"]}
 
 
@@ -103,7 +110,12 @@ def pick_clips(n: int, frames: int) -> list[Path]:
     """The first `n` cmu_cc clips of the split's evaluated subjects with at least `frames`
     frames at 30 fps, subjects interleaved."""
     rows = list(csv.DictReader(open(CC / "index.csv")))
-    ok = [r for r in rows if int(r["Frames 60fps"]) >= 2 * frames and (CC / f"{int(r['Subject']):03d}_{int(r['Trial #']):02d}.bvh").exists()]
+    ok = [
+        r
+        for r in rows
+        if int(r["Frames 60fps"]) >= 2 * frames
+        and (CC / f"{int(r['Subject']):03d}_{int(r['Trial #']):02d}.bvh").exists()
+    ]
     paths = [CC / f"{int(r['Subject']):03d}_{int(r['Trial #']):02d}.bvh" for r in ok]
     paths = [p for p in paths if subject_of(p) in SPLIT.evaluation]
     return interleave(paths, n, key=lambda p: p.name.split("_")[0])
@@ -137,8 +149,18 @@ def build(clips, frames, seed, body, cameras=CAMERAS, detector=DETECTOR, silhoue
         kp, swapped = person_track(s["det_keypoints"], s["det_person"], 0, s["det_swapped"])
         masks = segmentation_errors(np.moveaxis(s["labels"] == 0, 0, 1), np.random.default_rng(seed + 1000 + i)) \
             if silhouettes else None  # fmt: skip
-        datas.append(mv.camera_data(body, s["cam_K"], s["cam_R"][:, 0], s["cam_t"][:, 0], kp, "body25", masks=masks,
-                                    prior=evaluation_prior(clip)))  # the bundled prior has seen every CMU clip
+        datas.append(
+            mv.camera_data(
+                body,
+                s["cam_K"],
+                s["cam_R"][:, 0],
+                s["cam_t"][:, 0],
+                kp,
+                "body25",
+                masks=masks,
+                prior=evaluation_prior(clip),
+            )
+        )  # the bundled prior has seen every CMU clip
         truth.append({"poses": s["poses"][0], "trans": s["trans"][0], "betas": s["betas"][0], "swapped": swapped,
                       "kp_true": s["kp_true"][0], "name": clip.stem})  # fmt: skip
     return mv.stack(datas), truth
@@ -154,7 +176,9 @@ def shape_error(body, betas, true_betas):
     est = forward(body, jnp.zeros((24, 3)), jnp.asarray(betas, jnp.float32)).vertices
     tb = np.zeros(body.num_betas)
     tb[: len(true_betas)] = true_betas
-    true = forward(body, jnp.zeros((24, 3)), jnp.asarray(tb[: max(nb, np.flatnonzero(tb).max() + 1)], jnp.float32)).vertices
+    true = forward(
+        body, jnp.zeros((24, 3)), jnp.asarray(tb[: max(nb, np.flatnonzero(tb).max() + 1)], jnp.float32)
+    ).vertices
     return float(jnp.mean(jnp.linalg.norm(est - true, axis=-1))) * 1000
 
 
@@ -195,10 +219,18 @@ def main(argv=None):
     ap.add_argument("--views", type=int, nargs="+", default=[1, 2, 3, 4])
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", type=Path, default=Path("out/muvs_tables"))
-    ap.add_argument("--keep-swaps", action="store_true",
-                    help="MuVS as written: no resolve_left_right before stage 1; writes muvs_tables_as_written.*")
-    ap.add_argument("--weights", nargs="*", default=[], metavar="NAME=VALUE",
-                    help="MuVSWeights overrides, e.g. sigma=100 silhouette_points=None steps=50,50,30")
+    ap.add_argument(
+        "--keep-swaps",
+        action="store_true",
+        help="MuVS as written: no resolve_left_right before stage 1; writes muvs_tables_as_written.*",
+    )
+    ap.add_argument(
+        "--weights",
+        nargs="*",
+        default=[],
+        metavar="NAME=VALUE",
+        help="MuVSWeights overrides, e.g. sigma=100 silhouette_points=None steps=50,50,30",
+    )
     args = ap.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
     body = default_body("low")
@@ -218,7 +250,9 @@ def main(argv=None):
 
     def publish():
         def rate(ks, kind=""):  # the share of swap events repaired after stage 2, pooled over view counts ks
-            return sum(swaps[k]["S_T"][kind + "repaired"] for k in ks) / max(sum(swaps[k]["S_T"][kind + "events"] for k in ks), 1)
+            return sum(swaps[k]["S_T"][kind + "repaired"] for k in ks) / max(
+                sum(swaps[k]["S_T"][kind + "events"] for k in ks), 1
+            )
 
         multi = [k for k in swaps if k != "views_1"]
         directions = {k: {"S_lowers": r["S"] < r["stage1"], "T_lowers": r["S_T"] < r["S"], "H_lowers": r["S_T_H"] < r["S_T"]}
@@ -245,10 +279,15 @@ def main(argv=None):
             for row_name, r in ((k.split("_")[1], tables[k]), (k.split("_")[1] + " (Sim)", sim[k])):
                 md.append(f"| {row_name} | {r['stage1']:.1f} | {r['S']:.1f} | {r['S_T']:.1f} | {r['S_T_H']:.1f} | "
                           f"{shapes[k]['stage1']:.1f} / {shapes[k]['S']:.1f} | {swaps[k]['S_T']['rate']:.1%} |")  # fmt: skip
-        write_text(args.out / f"{name}.md", split=SPLIT, data=data, argv=argv, text=
-            "# Multi-view SMPLify on unseen CMU clips, " + ("MuVS as written" if args.keep_swaps else "swapped views flipped back first")
+        write_text(
+            args.out / f"{name}.md",
+            split=SPLIT,
+            data=data,
+            argv=argv,
+            text="# Multi-view SMPLify on unseen CMU clips, "
+            + ("MuVS as written" if args.keep_swaps else "swapped views flipped back first")
             + " (MPJPE mm, 24 joints; no alignment, and (Sim) after per-frame "
-            "similarity alignment, Table 4.5's protocol for one view)\n\n" + "\n".join(md) + "\n"
+            "similarity alignment, Table 4.5's protocol for one view)\n\n" + "\n".join(md) + "\n",
         )
         # one view: only the aligned error means anything (depth is not observed)
         _plot({**tables, **({"views_1": sim["views_1"]} if "views_1" in sim else {})}, args.out / f"{name}.png")
@@ -299,10 +338,15 @@ def main(argv=None):
                 for c, kind_name in enumerate(votes):
                     votes[kind_name][0] += int((swapped & (kind == c)).sum())
                     votes[kind_name][1] += int((swapped & (kind == c) & ok[:, None]).sum())
-            wrow[key] = {"events": events, "repaired": repaired, "rate": repaired / max(events, 1),
-                         "visible_events": visible_events, "visible_repaired": visible_repaired,
-                         "legs_correct_all_frames": legs_ok[key] / max(legs_n[key], 1),
-                         "by_vote": {c: {"events": e, "repaired": r} for c, (e, r) in votes.items()}}
+            wrow[key] = {
+                "events": events,
+                "repaired": repaired,
+                "rate": repaired / max(events, 1),
+                "visible_events": visible_events,
+                "visible_repaired": visible_repaired,
+                "legs_correct_all_frames": legs_ok[key] / max(legs_n[key], 1),
+                "by_vote": {c: {"events": e, "repaired": r} for c, (e, r) in votes.items()},
+            }
         tables[f"views_{n}"], shapes[f"views_{n}"], swaps[f"views_{n}"], sim[f"views_{n}"] = row, srow, wrow, mrow
         print(f"{n} view(s): MPJPE " + "  ".join(f"{k} {v:.1f}" for k, v in row.items())
               + f"  | shape {srow['S']:.1f} mm | swaps repaired after T: {wrow['S_T']['rate']:.1%}"
@@ -314,7 +358,7 @@ def main(argv=None):
 
 
 def _override(text: str):
-    """"name=value" -> (name, value): None, ints, floats, or comma-separated tuples of them."""
+    """ "name=value" -> (name, value): None, ints, floats, or comma-separated tuples of them."""
     name, _, value = text.partition("=")
     if name not in mv.MuVSWeights.__dataclass_fields__:
         raise SystemExit(f"--weights: MuVSWeights has no field {name!r}")

@@ -46,11 +46,21 @@ TUNING = ("02_04.amc", "02_07.amc", "131_01.bvh")  # jump, swordplay, walk
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--frames", type=int, default=40)
-    ap.add_argument("--priors", type=float, nargs="+", default=[5.0, 1.0, 0.3],
-                    help="pose-prior weights λ_θ tried (20 lost by 18 mm at λ_β = 50 on 2026-12-05; "
-                         "the seed's pair (20, 50) is always tried beside the grid)")
-    ap.add_argument("--shapes", type=float, nargs="+", default=[2.0, 10.0, 50.0],
-                    help="shape weights λ_β tried (λ_β = 50 kept β short of a synthetic walk's: limbs 2-4 %% short)")
+    ap.add_argument(
+        "--priors",
+        type=float,
+        nargs="+",
+        default=[5.0, 1.0, 0.3],
+        help="pose-prior weights λ_θ tried (20 lost by 18 mm at λ_β = 50 on 2026-12-05; "
+        "the seed's pair (20, 50) is always tried beside the grid)",
+    )
+    ap.add_argument(
+        "--shapes",
+        type=float,
+        nargs="+",
+        default=[2.0, 10.0, 50.0],
+        help="shape weights λ_β tried (λ_β = 50 kept β short of a synthetic walk's: limbs 2-4 %% short)",
+    )
     ap.add_argument("--out", type=Path, default=Path("out/muvs_tuning"))
     args = ap.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
@@ -71,7 +81,9 @@ def main(argv=None):
         return {
             "mpjpe_mm": float(np.linalg.norm(pred - true_joints, axis=-1).mean() * 1000),
             "legs_correct": float(sum(ok[a].sum() for ok, a in legs) / max(sum(a.sum() for _, a in legs), 1)),
-            "shape_error_mm": float(np.mean([shape_error(body, np.median(betas[b], 0), truth[b]["betas"]) for b in range(B)])),
+            "shape_error_mm": float(
+                np.mean([shape_error(body, np.median(betas[b], 0), truth[b]["betas"]) for b in range(B)])
+            ),
         }
 
     seed = mv.PRESETS["thesis"]
@@ -91,8 +103,11 @@ def main(argv=None):
             result["prior"][str(prior)] = row
         if prior == best:
             result["shape"][str(shape)] = row
-    variants = {"default": {}, "slack_4px": {"silhouette_slack": 4.0},
-                "weight_0.03": {"silhouette_model": 0.03, "silhouette_mask": 0.03}}
+    variants = {
+        "default": {},
+        "slack_4px": {"silhouette_slack": 4.0},
+        "weight_0.03": {"silhouette_model": 0.03, "silhouette_mask": 0.03},
+    }
     for name, change in variants.items():
         w = mv.MuVSWeights(pose_prior=best, shape=best_shape, anneal=(), **change)
         ps, _ = mv.stage_one(data, fits[best, best_shape], w, silhouettes=True)
@@ -105,15 +120,36 @@ def main(argv=None):
     result["defaults_agree"] = {
         "pose_prior": default.pose_prior == best,
         "shape": default.shape == best_shape,
-        "silhouettes": all(getattr(default, k) == getattr(seed.replace(**variants[result["best_silhouettes"]]), k)
-                           for change in variants.values() for k in change),
+        "silhouettes": all(
+            getattr(default, k) == getattr(seed.replace(**variants[result["best_silhouettes"]]), k)
+            for change in variants.values()
+            for k in change
+        ),
         "note": "whether the default preset mv.PRESETS['validated'] holds this run's choice "
-                "(tests/test_presets.py); the tables take the choice from this file either way",
+        "(tests/test_presets.py); the tables take the choice from this file either way",
     }
-    print("best pose prior", best, "shape", best_shape, "silhouettes", result["best_silhouettes"], result["defaults_agree"], flush=True)
-    write_json(args.out / "muvs_tuning.json", result, split=SPLIT, argv=argv, indent=2,
-               data={"clips": list(TUNING), "subjects": sorted({clips[f].name.split("_")[0] for f in TUNING}),
-                     "frames": args.frames})
+    print(
+        "best pose prior",
+        best,
+        "shape",
+        best_shape,
+        "silhouettes",
+        result["best_silhouettes"],
+        result["defaults_agree"],
+        flush=True,
+    )
+    write_json(
+        args.out / "muvs_tuning.json",
+        result,
+        split=SPLIT,
+        argv=argv,
+        indent=2,
+        data={
+            "clips": list(TUNING),
+            "subjects": sorted({clips[f].name.split("_")[0] for f in TUNING}),
+            "frames": args.frames,
+        },
+    )
 
 
 if __name__ == "__main__":

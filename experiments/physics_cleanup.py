@@ -112,20 +112,30 @@ def main(argv=None) -> int:
     fun = lambda x: tuple(np.asarray(a, np.float64) for a in vg(jnp.asarray(x)))  # noqa: E731
     x0 = np.concatenate([poses.ravel(), trans.ravel()])
     sol = minimize(fun, x0, jac=True, method="L-BFGS-B", options={"maxiter": args.iterations})
-    cleaned = truth.replace(poses=sol.x[: T * 72].reshape(T, 24, 3), trans=sol.x[T * 72 :].reshape(T, 3), name="cleaned")
+    cleaned = truth.replace(
+        poses=sol.x[: T * 72].reshape(T, 24, 3), trans=sol.x[T * 72 :].reshape(T, 3), name="cleaned"
+    )
 
     scene = make_scene(body, ground=ground)
-    rows = [stats(m.name or "truth", body, m, truth_joints, ground, scene) for m in (truth.replace(name="truth"), noisy, cleaned)]
+    rows = [
+        stats(m.name or "truth", body, m, truth_joints, ground, scene)
+        for m in (truth.replace(name="truth"), noisy, cleaned)
+    ]
     print(f"{'':10s}" + "".join(f"{k:>32s}" for k in rows[0] if k != "motion"))
     for r in rows:
         print(f"{r['motion']:10s}" + "".join(f"{v:>32.3f}" for k, v in r.items() if k != "motion"))
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     payload = {
-        "setup": {"clip": clip.name, "frames": T, "fps": truth.fps, "ground_height": float(ground.height),
-                  "noise": "pose N(0, 0.02 rad), root y -3 cm, horizontal root random walk 4 mm/frame",
-                  "weights": {"data_pose": w_d, "data_trans": w_t, "ground": w_g, "contact": w_c},
-                  "optimizer": f"L-BFGS-B {sol.nit} iterations, {sol.message}"},
+        "setup": {
+            "clip": clip.name,
+            "frames": T,
+            "fps": truth.fps,
+            "ground_height": float(ground.height),
+            "noise": "pose N(0, 0.02 rad), root y -3 cm, horizontal root random walk 4 mm/frame",
+            "weights": {"data_pose": w_d, "data_trans": w_t, "ground": w_g, "contact": w_c},
+            "optimizer": f"L-BFGS-B {sol.nit} iterations, {sol.message}",
+        },
         "rows": rows,
     }
     import sys
@@ -133,8 +143,14 @@ def main(argv=None) -> int:
     sys.path.insert(0, str(Path(__file__).resolve().parent))
     from _provenance import write_json
 
-    write_json(out, payload, split=split, argv=argv, indent=2,
-               data={"clips": [clip.name], "subjects": [clip.subject], "frames": T})
+    write_json(
+        out,
+        payload,
+        split=split,
+        argv=argv,
+        indent=2,
+        data={"clips": [clip.name], "subjects": [clip.subject], "frames": T},
+    )
     print(f"wrote {out}")
     return 0
 

@@ -135,8 +135,16 @@ def grid_of(args, K: int) -> tuple:
 
 
 def config_key(args) -> str:
-    cfg = [list(args.forms), list(args.grid), list(args.mixture_grid), args.clips, args.frames, args.steps, args.seed,
-           "inner: development subjects"]  # the folds before the splits are not reused
+    cfg = [
+        list(args.forms),
+        list(args.grid),
+        list(args.mixture_grid),
+        args.clips,
+        args.frames,
+        args.steps,
+        args.seed,
+        "inner: development subjects",
+    ]  # the folds before the splits are not reused
     return hashlib.sha1(json.dumps(cfg).encode()).hexdigest()[:10]
 
 
@@ -160,7 +168,12 @@ def fit_padded(method, it, w_mahal: float, length: int, args):
     dtype = stacked.pose0.dtype
     w = {k: jnp.asarray([w_mahal if k == "mahal" else v], dtype) for k, v in method.defaults.items()}
     S = len(stacked.bones)
-    term_w = {"ori": w["ori"] / S, "acc": w["acc"] / S, "mahal": w["anthro"] * w["mahal"], "limit": w["anthro"] * w["limit"]}
+    term_w = {
+        "ori": w["ori"] / S,
+        "acc": w["acc"] / S,
+        "mahal": w["anthro"] * w["mahal"],
+        "limit": w["anthro"] * w["limit"],
+    }
     init = np.concatenate([it.init, np.repeat(it.init[-1:], length - it.length, 0)])[None]
     sol = solve_batch(I.inertial_problem(stacked, acceleration=True),
                       {"pose": jnp.asarray(init, dtype), "trans": jnp.broadcast_to(stacked.trans0[:, None], (1, length, 3))},
@@ -215,7 +228,7 @@ def run_fold(s: str, args) -> dict:
     # IMU readings per subject (sip_tables' `scenarios`, cached), each under a lock: concurrent folds
     # start with their own subject, so each synthesises one and reads the others' files.
     subjects = sorted({c.subject for c in clips})
-    order = subjects[subjects.index(s):] + subjects[: subjects.index(s)]
+    order = subjects[subjects.index(s) :] + subjects[: subjects.index(s)]
     per_subject = {}
     for u in order:
         with locked(cache / f"scenario_{u}.lock"):
@@ -360,7 +373,13 @@ def verdict(res: dict) -> str:
     out = []
     for f, v in res["vs_single_gaussian"].items():
         d, p, m, se = v["pooled_delta"], v["pooled_delta_percent"], v["window_delta_mean"], v["window_delta_stderr"]
-        sign = "helps" if d["mpjpe"] < 0 and d["mpjae"] < 0 else "hurts" if d["mpjpe"] > 0 and d["mpjae"] > 0 else "is mixed"
+        sign = (
+            "helps"
+            if d["mpjpe"] < 0 and d["mpjae"] < 0
+            else "hurts"
+            if d["mpjpe"] > 0 and d["mpjae"] > 0
+            else "is mixed"
+        )
         resolved = [k for k in ("mpjpe", "mpjae") if np.isfinite(se[k]) and abs(m[k]) > 2 * se[k]]
         out.append(f"K = {f} {sign} (pooled vs one Gaussian: MPJPE {d['mpjpe']:+.1f} mm, {p['mpjpe']:+.1f} %; MPJAE "
                    f"{d['mpjae']:+.2f}°, {p['mpjae']:+.1f} %); better on {v['windows_better']['mpjae']}/{v['windows']} "
@@ -412,14 +431,25 @@ def markdown(res: dict) -> str:
                      f"{v['pooled_delta']['mpjae']:+.2f}° ({v['pooled_delta_percent']['mpjae']:+.1f} %) | "
                      f"{m['mpjpe']:+.1f} ± {se['mpjpe']:.1f} mm / {m['mpjae']:+.2f} ± {se['mpjae']:.2f}° | "
                      f"{v['windows_better']['mpjae']}/{v['windows']} |")  # fmt: skip
-    L += ["", "## Error against w_mahal (MPJPE mm / MPJAE °): inner (chooses), outer (reported at the choice)", "",
-          "| prior | w_mahal | outer, pooled over subjects | inner, mean over folds |", "| --- | --- | --- | --- |"]
+    L += [
+        "",
+        "## Error against w_mahal (MPJPE mm / MPJAE °): inner (chooses), outer (reported at the choice)",
+        "",
+        "| prior | w_mahal | outer, pooled over subjects | inner, mean over folds |",
+        "| --- | --- | --- | --- |",
+    ]
     for f in forms:
         for w, v in res["forms"][f]["outer_by_w"].items():
             inner = res["forms"][f]["inner_by_w_mean"].get(w)
-            L.append(f"| K = {f} | {float(w):g} | {v['mpjpe']:.1f} / {v['mpjae']:.2f} | "
-                     + (f"{inner['mpjpe']:.1f} / {inner['mpjae']:.2f} |" if inner else " |"))
-    L += ["", f"Fold run times (s): {', '.join(f'{s}: {t:.0f}' for s, t in c['fold_seconds'].items())}; {c['device']}.", ""]
+            L.append(
+                f"| K = {f} | {float(w):g} | {v['mpjpe']:.1f} / {v['mpjae']:.2f} | "
+                + (f"{inner['mpjpe']:.1f} / {inner['mpjae']:.2f} |" if inner else " |")
+            )
+    L += [
+        "",
+        f"Fold run times (s): {', '.join(f'{s}: {t:.0f}' for s, t in c['fold_seconds'].items())}; {c['device']}.",
+        "",
+    ]
     return "\n".join(L)
 
 
@@ -428,21 +458,31 @@ def main(argv=None) -> int:
     p.add_argument("--only", metavar="SUBJECT", help="compute one outer fold (e.g. 05) and cache it; no summary")
     p.add_argument("--forms", default=",".join(map(str, FORMS)), help="numbers of components, e.g. 1,4,8")
     p.add_argument("--grid", default=",".join(map(repr, GRID)), help="w_mahal candidates of the single Gaussian")
-    p.add_argument("--mixture-grid", default=",".join(map(repr, MIXTURE_GRID)), help="w_mahal candidates of the mixtures")
+    p.add_argument(
+        "--mixture-grid", default=",".join(map(repr, MIXTURE_GRID)), help="w_mahal candidates of the mixtures"
+    )
     p.add_argument("--clips", type=int, default=1, help="windows (longest clips) per subject")
     p.add_argument("--frames", type=int, default=300, help="window length (frames at 30 fps)")
     p.add_argument("--steps", type=int, default=20, help="LM step limit of the SIP solves")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--cache", default=str(ROOT / "out" / "prior_forms" / "cache"),
-                   help="scenarios, priors and fold results (shared by concurrent --only runs)")
-    p.add_argument("--out", default=str(ROOT / "out" / "prior_forms"),
-                   help="where prior_forms.json and .md go (the committed ones: experiments/results)")
+    p.add_argument(
+        "--cache",
+        default=str(ROOT / "out" / "prior_forms" / "cache"),
+        help="scenarios, priors and fold results (shared by concurrent --only runs)",
+    )
+    p.add_argument(
+        "--out",
+        default=str(ROOT / "out" / "prior_forms"),
+        help="where prior_forms.json and .md go (the committed ones: experiments/results)",
+    )
     args = p.parse_args(argv)
     args.forms = tuple(sorted({int(k) for k in args.forms.split(",")}))
     args.grid = tuple(float(w) for w in args.grid.split(","))
     args.mixture_grid = tuple(float(w) for w in args.mixture_grid.split(","))
     if min(args.forms) < 1 or min(args.grid + args.mixture_grid) < 0 or args.clips < 1 or args.frames < 3:
-        raise SystemExit("--forms must be positive integers, the grids non-negative weights, --clips >= 1, --frames >= 3.")
+        raise SystemExit(
+            "--forms must be positive integers, the grids non-negative weights, --clips >= 1, --frames >= 3."
+        )
     Path(args.cache).mkdir(parents=True, exist_ok=True)
     if args.only:
         s = f"{int(args.only):02d}" if args.only.isdigit() else args.only

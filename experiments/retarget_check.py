@@ -64,9 +64,14 @@ def compare_ranges(a: dict | None, b: dict | None) -> str:
 
 def residual_sentence(P: dict, rows, own_subjects, cc_subjects) -> str:
     """The comparison of the CC walks with CMU's own, measured: one clause per kind of relation."""
-    words = {"inside": "fall inside the range of CMU's own walks", "wider": "span a wider range than CMU's own walks",
-             "above": "lie entirely above CMU's own walks", "below": "lie entirely below CMU's own walks",
-             "higher": "overlap CMU's own walks but reach higher", "lower": "overlap CMU's own walks but reach lower"}
+    words = {
+        "inside": "fall inside the range of CMU's own walks",
+        "wider": "span a wider range than CMU's own walks",
+        "above": "lie entirely above CMU's own walks",
+        "below": "lie entirely below CMU's own walks",
+        "higher": "overlap CMU's own walks but reach higher",
+        "lower": "overlap CMU's own walks but reach lower",
+    }
     groups: dict = {}
     for label, key, fmt in rows:
         a, b = P["cc_rig"][key], P["cmu_own_skeleton"][key]
@@ -77,8 +82,10 @@ def residual_sentence(P: dict, rows, own_subjects, cc_subjects) -> str:
         span = lambda s, fmt=fmt: f"{fmt.format(s['min'])}–{fmt.format(s['max'])}"  # noqa: E731
         groups.setdefault(rel, []).append(f"{name} {span(a)} against {span(b)}")
     clauses = [f"{words[rel]} for {'; '.join(items)}" for rel, items in groups.items()]
-    return (f"The CC walks (subjects {', '.join(cc_subjects)}) against CMU's own skeleton (subjects "
-            f"{', '.join(own_subjects)}), min–max over clips: they " + "; they ".join(clauses) + ".")
+    return (
+        f"The CC walks (subjects {', '.join(cc_subjects)}) against CMU's own skeleton (subjects "
+        f"{', '.join(own_subjects)}), min–max over clips: they " + "; they ".join(clauses) + "."
+    )
 
 
 def gait(motion, body) -> dict:
@@ -119,7 +126,10 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     body = jaxmocap.default_body()
     rest_joints = smpl_rest(body)[0]
-    index = {f"{int(r['Subject']):03d}_{int(r['Trial #']):02d}": r["Motion Description"] for r in csv.DictReader(open(args.cc / "index.csv"))}
+    index = {
+        f"{int(r['Subject']):03d}_{int(r['Trial #']):02d}": r["Motion Description"]
+        for r in csv.DictReader(open(args.cc / "index.csv"))
+    }
 
     # 1. Every clip of the folder.
     clips, motions = {}, {}
@@ -209,7 +219,8 @@ def main(argv=None) -> int:
         "| --- | --- | --- |",
         *[f"| {label} | {cell('cc_rig', k, f)} | {cell('cmu_own_skeleton', k, f)} |" for label, k, f in rows],
         "",
-        "Residual differences. " + residual_sentence(P, rows, subjects_of(own), subjects_of(f"{k}.bvh" for k in cc_walks))
+        "Residual differences. "
+        + residual_sentence(P, rows, subjects_of(own), subjects_of(f"{k}.bvh" for k in cc_walks))
         + " (131_01 includes a start and a stop.) "
         f"{len(wide)} clips ({', '.join(sorted({clips[k]['description'].split(' - ')[0].strip().lower() for k in wide}))}) have "
         "frames with a local angle over 150°, "
@@ -217,8 +228,11 @@ def main(argv=None) -> int:
         f"at {sorted({c['joint_of_max'] for c in clips.values() if c['frames_over_150_deg'] > 0})}: "
         "raised arms and pointed feet whose twist about the bone the rig carries (positions are "
         "exact, the twist is the source's); "
-        + (f"walks among them: {', '.join(k for k in wide if k in cc_walks)}." if any(k in cc_walks for k in wide)
-           else "no walk has any."),
+        + (
+            f"walks among them: {', '.join(k for k in wide if k in cc_walks)}."
+            if any(k in cc_walks for k in wide)
+            else "no walk has any."
+        ),
         "",
         f"Pictures: {', '.join(str(p.relative_to(args.out)) for p in pictures)} and "
         "`retarget_dance/meshes/sequence.glb` (every third frame at 30 fps).",

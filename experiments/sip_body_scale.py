@@ -129,7 +129,9 @@ def chosen_w_mahal(subject: str) -> float:
 def window(setup: I.InertialSetup, T: int) -> I.InertialSetup:
     """The first T frames of a calibrated sequence."""
     d = setup.data
-    return eqx.tree_at(lambda s: (s.data.orientation, s.data.acceleration), setup, (d.orientation[:T], d.acceleration[:T]))
+    return eqx.tree_at(
+        lambda s: (s.data.orientation, s.data.acceleration), setup, (d.orientation[:T], d.acceleration[:T])
+    )
 
 
 def errors(model_body, true_body, poses, it: InertialItem) -> dict:
@@ -174,7 +176,10 @@ def run_clip(clip, args, body, folds, true_scales) -> dict:
         options["refine"] = args.refine
     ests = []
     for sc, k in scs:
-        make = lambda s, sc=sc, k=k: window(inertial_setup(sc, 0, scaled_body(body, s), start=k, prior=prior, dtype=DTYPE), T)  # noqa: E731
+
+        def make(s, sc=sc, k=k):
+            return window(inertial_setup(sc, 0, scaled_body(body, s), start=k, prior=prior, dtype=DTYPE), T)
+
         ests.append(I.estimate_body_scale(make, items[len(ests)].init, criterion=args.criterion, **options))
     t2 = time.perf_counter()
     final = None
@@ -210,7 +215,12 @@ def run_clip(clip, args, body, folds, true_scales) -> dict:
         it, est = items[true_scales.index(1.0)], rec["true_scales"][repr(1.0)]["scale_estimated"]
         rec["table_3_2"] = {name: {"model_size_known": errors(scaled_body(body, m), body, pose_at(e, m), it), "scale_estimated": est}
                             for name, m in models}  # fmt: skip
-    rec["seconds"] = {"synthesis_and_sop": t1 - t0, "estimates": t2 - t1, "refits": t3 - t2, "total": time.perf_counter() - t0}
+    rec["seconds"] = {
+        "synthesis_and_sop": t1 - t0,
+        "estimates": t2 - t1,
+        "refits": t3 - t2,
+        "total": time.perf_counter() - t0,
+    }
     scales = "  ".join(f"{t}→{v['estimate']:.3f}" for t, v in rec["true_scales"].items())
     print(f"{clip.name:11s} {clip.subject:>3s} true→estimated: {scales}  ({rec['seconds']['total']:.0f} s)", flush=True)
     return rec
@@ -291,7 +301,9 @@ def tuning_table(ok: list[dict]) -> dict:
             for r in ok:
                 for t, v in r["true_scales"].items():
                     fine = np.asarray(v["candidates"])
-                    e, edge = replay(fine, I._profile({k: np.asarray(x) for k, x in v["costs"].items()}, crit), step, refine)
+                    e, edge = replay(
+                        fine, I._profile({k: np.asarray(x) for k, x in v["costs"].items()}, crit), step, refine
+                    )
                     rel.append(e / float(t) - 1)
                     edges += edge
             rel = np.asarray(rel)
@@ -310,14 +322,21 @@ def markdown(res: dict) -> str:
          f"{', '.join(res['split']['tuning'])}), {p['imu']}, criterion `{p['criterion']}`, candidates {p['candidates']}, "
          f"{p['refine']} bisection round(s).", ""]  # fmt: skip
     if res.get("tuning") is not None:
-        L += ["## Criteria and searches on the development subjects (read off the 0.05 grid)", "",
-              "| criterion, search | mean abs error | bias | max abs error | at a bound |", "| --- | --- | --- | --- | --- |"]
+        L += [
+            "## Criteria and searches on the development subjects (read off the 0.05 grid)",
+            "",
+            "| criterion, search | mean abs error | bias | max abs error | at a bound |",
+            "| --- | --- | --- | --- | --- |",
+        ]
         L += [f"| {k} | {v['mean_abs_error_percent']:.2f} % | {v['bias_percent']:+.2f} % | {v['max_abs_error_percent']:.1f} % | "
               f"{v['at_edge']} of {v['cases']} |" for k, v in res["tuning"].items()]  # fmt: skip
         L.append("")
     if mae is not None:
-        L += [f"**Mean absolute error of the estimate: {mae:.2f} %** over {p['clips']} clips × {len(p['true_scales'])} "
-              f"true scales; estimates at a search bound: {res['body_scale_at_edge']}.", ""]
+        L += [
+            f"**Mean absolute error of the estimate: {mae:.2f} %** over {p['clips']} clips × {len(p['true_scales'])} "
+            f"true scales; estimates at a search bound: {res['body_scale_at_edge']}.",
+            "",
+        ]
     L += ["## Estimated scale (subject = true scale × the model)", "",
           "| true scale | mean | std over clips | mean relative error | mean abs error | max abs error | at a search bound | "
           + " | ".join(f"{c} (mean ± std)" for c in crits) + " |",
@@ -327,13 +346,27 @@ def markdown(res: dict) -> str:
                  f"{v['abs_error_mean_percent']:.1f} % | {v['abs_error_max_percent']:.1f} % | {v['at_edge']} | "
                  + " | ".join(f"{b['mean']:.3f} ± {b['std']:.3f}" for b in v["by_criterion"].values()) + " |")  # fmt: skip
     if all(len(v) == 2 for v in res["errors_by_true_scale"].values()):
-        L += _paired_table("Errors by true scale: default-size model / estimated scale", "true scale",
-                           res["errors_by_true_scale"], "default_size", "scale_estimated")
+        L += _paired_table(
+            "Errors by true scale: default-size model / estimated scale",
+            "true scale",
+            res["errors_by_true_scale"],
+            "default_size",
+            "scale_estimated",
+        )
     if res["table_3_2_with_scale_estimate"] is not None:
-        L += _paired_table("Table 3.2 with the scale estimate (true body = model at 100 %): model size as given / estimated", "",
-                           res["table_3_2_with_scale_estimate"], "model_size_known", "scale_estimated")
-        L += ["", "The estimate does not depend on the size the user assumed (the candidates are the same bodies), "
-              "so the three rows share one estimate.", ""]
+        L += _paired_table(
+            "Table 3.2 with the scale estimate (true body = model at 100 %): model size as given / estimated",
+            "",
+            res["table_3_2_with_scale_estimate"],
+            "model_size_known",
+            "scale_estimated",
+        )
+        L += [
+            "",
+            "The estimate does not depend on the size the user assumed (the candidates are the same bodies), "
+            "so the three rows share one estimate.",
+            "",
+        ]
     L.append("")
     return "\n".join(L)
 
@@ -356,24 +389,43 @@ def cache_key(args) -> str:
 
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--role", default="evaluation", choices=("tuning", "evaluation"),
-                   help="the split's subjects: tuning (development, to choose settings) or evaluation (the table)")
+    p.add_argument(
+        "--role",
+        default="evaluation",
+        choices=("tuning", "evaluation"),
+        help="the split's subjects: tuning (development, to choose settings) or evaluation (the table)",
+    )
     p.add_argument("--frames", type=int, default=90, help="window length in frames at 30 fps (default 90)")
     p.add_argument("--clips", type=int, help="only N of the eligible clips, spread over the subjects")
-    p.add_argument("--candidates", type=lambda x: tuple(float(v) for v in x.split(",")),
-                   help="comma-separated candidate scales (default inertial.SCALE_CANDIDATES)")
-    p.add_argument("--refine", type=int, help="bisection rounds of the estimate (default inertial.estimate_body_scale's)")
+    p.add_argument(
+        "--candidates",
+        type=lambda x: tuple(float(v) for v in x.split(",")),
+        help="comma-separated candidate scales (default inertial.SCALE_CANDIDATES)",
+    )
+    p.add_argument(
+        "--refine", type=int, help="bisection rounds of the estimate (default inertial.estimate_body_scale's)"
+    )
     p.add_argument("--no-refit", dest="refit", action="store_false", help="skip SIP refitted on the estimated body")
-    p.add_argument("--no-placement-error", dest="placement_error", action="store_false",
-                   help="sensors exactly where the model puts them (IMUErrorModel.xsens() with placement_offset=0)")
+    p.add_argument(
+        "--no-placement-error",
+        dest="placement_error",
+        action="store_false",
+        help="sensors exactly where the model puts them (IMUErrorModel.xsens() with placement_offset=0)",
+    )
     p.add_argument("--only", help="comma-separated clip indices (see --list): compute and cache those, no summary")
-    p.add_argument("--true-scales", help="comma-separated true scales of TRUE_SCALES to compute (default all; no summary)")
+    p.add_argument(
+        "--true-scales", help="comma-separated true scales of TRUE_SCALES to compute (default all; no summary)"
+    )
     p.add_argument("--list", action="store_true", help="print the clips and their indices")
     p.add_argument("--steps", type=int, default=60, help="LM step limit of every SIP solve (default 60)")
     p.add_argument("--criterion", default="ori", choices=CRITERIA, help="the cost compared between candidates")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--out", default=str(ROOT / "out" / "sip_body_scale"), help="summary folder (default out/sip_body_scale)")
-    p.add_argument("--cache", default=str(ROOT / "out" / "sip_body_scale" / "cache"), help="per-clip results and priors")
+    p.add_argument(
+        "--out", default=str(ROOT / "out" / "sip_body_scale"), help="summary folder (default out/sip_body_scale)"
+    )
+    p.add_argument(
+        "--cache", default=str(ROOT / "out" / "sip_body_scale" / "cache"), help="per-clip results and priors"
+    )
     args = p.parse_args(argv)
     out, cache = Path(args.out), Path(args.cache)
     cache.mkdir(parents=True, exist_ok=True)
@@ -426,7 +478,11 @@ def main(argv=None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     data = {"clips": [c.name for c in clips], "role": args.role}
     res["split"] = SPLIT.record()
-    name = "sip_body_scale" + ("" if args.role == "evaluation" else "_tuning") + ("" if args.placement_error else "_no_placement_error")
+    name = (
+        "sip_body_scale"
+        + ("" if args.role == "evaluation" else "_tuning")
+        + ("" if args.placement_error else "_no_placement_error")
+    )
     write_json(out / f"{name}.json", res, split=SPLIT, data=data, argv=argv)
     write_text(out / f"{name}.md", markdown(res), split=SPLIT, data=data, argv=argv)
     print(markdown(res))

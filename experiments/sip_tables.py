@@ -125,9 +125,13 @@ class Fold:
                 k = f"_k{self.components}" if self.components != 1 else ""
                 path = self.cache / f"prior_without_{'_'.join(key)}{k}.npz"
                 if not path.is_file():
-                    mean, cov, meta = fit_prior([c.path for c in training_clips(self.clips, key)], components=self.components)
+                    mean, cov, meta = fit_prior(
+                        [c.path for c in training_clips(self.clips, key)], components=self.components
+                    )
                     extra = {"weights": np.asarray(meta["weights"])} if self.components != 1 else {}
-                    tmp = path.with_name(f"{path.stem}.{os.getpid()}.tmp.npz")  # per process: folds may run concurrently
+                    tmp = path.with_name(
+                        f"{path.stem}.{os.getpid()}.tmp.npz"
+                    )  # per process: folds may run concurrently
                     np.savez(tmp, mean=mean, covariance=cov, **extra)
                     tmp.replace(path)
                 self.made[key] = PosePrior.load(path, DTYPE)
@@ -216,7 +220,9 @@ def run(args) -> dict:
     folds = Fold(corpus(), cache)  # priors always from the whole corpus minus the excluded subjects
     if args.long_only:  # SIP on the long clips alone (GPU), cached for the main run
         chosen = {s: w for s, w in json.loads(args.long_only).items()}
-        long = long_windows(args, body, folds, chosen, InertialMethod("sop"), InertialMethod("sip"), dict(rtol=TOL, atol=TOL))
+        long = long_windows(
+            args, body, folds, chosen, InertialMethod("sop"), InertialMethod("sip"), dict(rtol=TOL, atol=TOL)
+        )
         (cache / f"long_windows_{args.steps}.json").write_text(json.dumps(long))
         return None
     sc6, sc13, starts = scenarios(clips, args.frames, args.seed, body, cache)
@@ -333,14 +339,19 @@ def run(args) -> dict:
         rec["table_3_2"] = {}
         T = base[j].length
         tj = forward(body, padded(base[j].truth, L)).joints
-        mm = lambda pj, align="procrustes", tj=tj, T=T: float(np.asarray(metrics.position_errors(pj, tj, align=align))[:T].mean() * 1000)  # noqa: E731
+
+        def mm(pj, align="procrustes", tj=tj, T=T):
+            return float(np.asarray(metrics.position_errors(pj, tj, align=align))[:T].mean() * 1000)
+
         for s in (1.1, 1.2):
             name, poses = f"SIP-{round(s * 100)}", runs[f"SIP-{round(s * 100)}"][j][0]
             pj = forward(scaled_body(body, s), padded(poses, L)).joints
             on_true = mean_errors(body, poses, base[j], length=L)
             rec["table_3_2"][name] = {
-                "mpjpe_rigid": mm(pj), "mpjpe_scaled_procrustes": mm(pj, "procrustes_scaled"),
-                "mpjpe_pose_on_true_body": float(on_true["mpjpe"].mean()), "mpjae": float(on_true["mpjae"].mean()),
+                "mpjpe_rigid": mm(pj),
+                "mpjpe_scaled_procrustes": mm(pj, "procrustes_scaled"),
+                "mpjpe_pose_on_true_body": float(on_true["mpjpe"].mean()),
+                "mpjae": float(on_true["mpjae"].mean()),
                 "result": runs[name][j][1],
             }
         rec["table_3_2"]["SIP"] = {
@@ -362,6 +373,7 @@ def run(args) -> dict:
     else:
         long = long_windows(args, body, folds, chosen, sop, sip, tol)
         long_file.write_text(json.dumps(long))
+
     def rows_of(subjects):
         js = [j for j, r in enumerate(per_clip) if r["subject"] in subjects]
         pick = lambda d: {k: [v[j] for j in js] for k, v in d.items()}  # noqa: E731
@@ -371,7 +383,9 @@ def run(args) -> dict:
     res = tables(*rows_of(SPLIT.evaluation), selection, held_out_curve)
     if any(r["subject"] in SPLIT.tuning for r in per_clip):
         dev = tables(*rows_of(SPLIT.tuning), selection, held_out_curve)
-        res["development_subjects"] = {k: dev[k] for k in ("table_3_3", "per_subject", "sip_vs_sop_relative_change_percent")}
+        res["development_subjects"] = {
+            k: dev[k] for k in ("table_3_3", "per_subject", "sip_vs_sop_relative_change_percent")
+        }
     res["long_windows"] = long
     res["protocol"] = {
         "prior_overlap": False,
@@ -410,7 +424,9 @@ def table_solves(row, args, base, held, keep, starts, clips, body, folds, sc6, w
 
     def in_sample_items():
         if not in_sample:
-            in_sample.extend(with_starts([item(sc6, i, starts[i], body, folds.prior(None), clips[i].name) for i in keep], sop))
+            in_sample.extend(
+                with_starts([item(sc6, i, starts[i], body, folds.prior(None), clips[i].name) for i in keep], sop)
+            )
         return in_sample
 
     row("SIP in-sample prior", lambda: sip_fit(in_sample_items(), {}))
@@ -418,7 +434,10 @@ def table_solves(row, args, base, held, keep, starts, clips, body, folds, sc6, w
     row("SIP in-sample prior, chosen w_mahal", lambda: sip_fit(in_sample_items(), {"mahal": w_star}))
     for s in (1.1, 1.2):
         b = scaled_body(body, s)
-        row(f"SIP-{round(s * 100)}", lambda b=b: sip_fit(with_starts([held(sc6, i, b) for i in keep], sop), {"mahal": w_star}))
+        row(
+            f"SIP-{round(s * 100)}",
+            lambda b=b: sip_fit(with_starts([held(sc6, i, b) for i in keep], sop), {"mahal": w_star}),
+        )
 
 
 def long_windows(args, body, folds, chosen, sop, sip, tol) -> dict:
@@ -433,7 +452,9 @@ def long_windows(args, body, folds, chosen, sop, sip, tol) -> dict:
             continue
         it = item(sc6, i, starts[i], body, folds.prior((c.subject,)), c.name)
         with_starts([it], sop)
-        r = fit(sip, [it], {"mahal": np.asarray([chosen.get(c.subject, THESIS_W_MAHAL)])}, max_steps=args.steps, **tol)[0]
+        r = fit(sip, [it], {"mahal": np.asarray([chosen.get(c.subject, THESIS_W_MAHAL)])}, max_steps=args.steps, **tol)[
+            0
+        ]
         e, e0 = mean_errors(body, r[0], it), mean_errors(body, it.init, it)
         out[c.name] = {"frames": it.length, "fps": 60.0, "SIP": {"mpjpe": float(e["mpjpe"].mean()), "mpjae": float(e["mpjae"].mean()),
                        "result": r[1], "steps": r[2]}, "SOP": {"mpjpe": float(e0["mpjpe"].mean()), "mpjae": float(e0["mpjae"].mean())}}  # fmt: skip
@@ -447,7 +468,12 @@ def _pool(per_clip, frames_err, method, key, where=lambda r: True) -> dict:
         return {"mean": float("nan"), "std_frames": float("nan"), "std_clips": float("nan"), "clips": 0}
     x = np.concatenate([frames_err[method][j][key].reshape(-1) for j in idx])
     clip_means = [frames_err[method][j][key].mean() for j in idx]
-    return {"mean": float(x.mean()), "std_frames": float(x.std()), "std_clips": float(np.std(clip_means)), "clips": len(idx)}
+    return {
+        "mean": float(x.mean()),
+        "std_frames": float(x.std()),
+        "std_clips": float(np.std(clip_means)),
+        "clips": len(idx),
+    }
 
 
 def tables(per_clip, frames_err, runs, selection, held_out_curve) -> dict:
@@ -457,9 +483,20 @@ def tables(per_clip, frames_err, runs, selection, held_out_curve) -> dict:
                  for m in ("SOP", "IT", "SIP", "SIP no-prior")} for k in ("mpjpe", "mpjae")}  # fmt: skip
     subjects = sorted({r["subject"] for r in per_clip})
     activities = sorted({r["activity"] for r in per_clip})
-    by = lambda field, vals: {v: {m: {k: _pool(per_clip, frames_err, m, k, lambda r, v=v: r[field] == v)  # noqa: E731
-                                      for k in ("mpjpe", "mpjae")} for m in ("SOP", "IT", "SIP")} for v in vals}
-    rel = {k: 100.0 * (overall["SIP"][k]["mean"] - overall["SOP"][k]["mean"]) / overall["SOP"][k]["mean"] for k in ("mpjpe", "mpjae")}
+
+    def by(field, vals):
+        return {
+            v: {
+                m: {k: _pool(per_clip, frames_err, m, k, lambda r, v=v: r[field] == v) for k in ("mpjpe", "mpjae")}
+                for m in ("SOP", "IT", "SIP")
+            }
+            for v in vals
+        }
+
+    rel = {
+        k: 100.0 * (overall["SIP"][k]["mean"] - overall["SOP"][k]["mean"]) / overall["SOP"][k]["mean"]
+        for k in ("mpjpe", "mpjae")
+    }
     rel_in = {k: 100.0 * (overall["SIP in-sample prior"][k]["mean"] - overall["SOP in-sample prior"][k]["mean"])
               / overall["SOP in-sample prior"][k]["mean"] for k in ("mpjpe", "mpjae")}  # fmt: skip
     n = len(per_clip)
@@ -523,8 +560,17 @@ def plots(per_clip, frames_err, res, out: Path, runs, base, body):
         plot_per_joint(per_joint, names[key], out / f"sip_tables_joints_{key}.png", unit, "all held-out clips")
     curve = res["held_out_error_by_w_mahal"]
     ws = [float(w) for w in curve["mpjae"]]
-    plot_lines({"MPJAE [°]": (ws, list(curve["mpjae"].values())), "MPJPE [cm]": (ws, [v / 10 for v in curve["mpjpe"].values()])},
-               out / "sip_tables_prior_weight.png", "w_mahal", "error", "SIP on held-out subjects vs prior weight", logx=True)
+    plot_lines(
+        {
+            "MPJAE [°]": (ws, list(curve["mpjae"].values())),
+            "MPJPE [cm]": (ws, [v / 10 for v in curve["mpjpe"].values()]),
+        },
+        out / "sip_tables_prior_weight.png",
+        "w_mahal",
+        "error",
+        "SIP on held-out subjects vs prior weight",
+        logx=True,
+    )
     st = res["lm_steps_study"]
     xs = [float(k) if k != "converged" else st[k]["mean_steps"] for k in st]
     plot_lines({"MPJAE [°]": (xs, [v["mpjae"] for v in st.values()]), "MPJPE [cm]": (xs, [v["mpjpe"] / 10 for v in st.values()])},
@@ -548,19 +594,30 @@ def markdown(res: dict) -> str:
          "| | SOP | SIP | SIP vs SOP (MPJPE, MPJAE) |", "| --- | --- | --- | --- |"]  # fmt: skip
     io = res["in_sample_vs_no_overlap"]
     r_in, r = io["sip_vs_sop_relative_change_percent_in_sample"], res["sip_vs_sop_relative_change_percent"]
-    L.append(f"| old protocol (9 cmu clips × 72 frames, prior built from them, 20 steps) | {res['old_protocol']['SOP']['mpjpe']} / "
-             f"{res['old_protocol']['SOP']['mpjae']} | {res['old_protocol']['SIP']['mpjpe']} / {res['old_protocol']['SIP']['mpjae']} | "
-             f"{old_rel[0]:+.1f} %, {old_rel[1]:+.1f} % |")
-    L.append(f"| bundled prior (all clips, in-sample), thesis weights | {fmt(io['in_sample']['SOP'])} | {fmt(io['in_sample']['SIP'])} | "
-             f"{r_in['mpjpe']:+.1f} %, {r_in['mpjae']:+.1f} % |")
+    L.append(
+        f"| old protocol (9 cmu clips × 72 frames, prior built from them, 20 steps) | {res['old_protocol']['SOP']['mpjpe']} / "
+        f"{res['old_protocol']['SOP']['mpjae']} | {res['old_protocol']['SIP']['mpjpe']} / {res['old_protocol']['SIP']['mpjae']} | "
+        f"{old_rel[0]:+.1f} %, {old_rel[1]:+.1f} % |"
+    )
+    L.append(
+        f"| bundled prior (all clips, in-sample), thesis weights | {fmt(io['in_sample']['SOP'])} | {fmt(io['in_sample']['SIP'])} | "
+        f"{r_in['mpjpe']:+.1f} %, {r_in['mpjae']:+.1f} % |"
+    )
     L.append(f"| **held-out prior, chosen w_mahal** | {fmt(io['no_overlap']['SOP'])} | {fmt(io['no_overlap']['SIP'])} | "
              f"{r['mpjpe']:+.1f} %, {r['mpjae']:+.1f} % |")  # fmt: skip
-    L += ["", "## Table 3.3 (overall), thesis TotalCapture in parentheses", "",
-          "| method | MPJPE [mm] | MPJAE [°] | spread over clips (mm / °) |", "| --- | --- | --- | --- |"]
+    L += [
+        "",
+        "## Table 3.3 (overall), thesis TotalCapture in parentheses",
+        "",
+        "| method | MPJPE [mm] | MPJAE [°] | spread over clips (mm / °) |",
+        "| --- | --- | --- | --- |",
+    ]
     for m in ("SOP", "IT", "SIP"):
         o, t = res["table_3_3"][m], T["table_3_3_totalcapture"][m]
-        L.append(f"| {m} | {o['mpjpe']['mean']:.1f} ({t['mpjpe']}) | {o['mpjae']['mean']:.1f} ({t['mpjae']}) | "
-                 f"± {o['mpjpe']['std_clips']:.1f} / ± {o['mpjae']['std_clips']:.1f} |")
+        L.append(
+            f"| {m} | {o['mpjpe']['mean']:.1f} ({t['mpjpe']}) | {o['mpjae']['mean']:.1f} ({t['mpjae']}) | "
+            f"± {o['mpjpe']['std_clips']:.1f} / ± {o['mpjae']['std_clips']:.1f} |"
+        )
     L += ["", f"SIP vs SOP: MPJPE {r['mpjpe']:+.1f} %, MPJAE {r['mpjae']:+.1f} % (thesis {r['thesis_totalcapture']['mpjpe']:+.1f} %, {r['thesis_totalcapture']['mpjae']:+.1f} %). "
           f"SIP better on {res['sip_beats_sop_clips']['mpjpe']}/{res['sip_beats_sop_clips']['of']} clips (MPJPE), "
           f"{res['sip_beats_sop_clips']['mpjae']}/{res['sip_beats_sop_clips']['of']} (MPJAE). "
@@ -570,27 +627,57 @@ def markdown(res: dict) -> str:
     for m in ("SOP", "SIP"):
         o, t = res["table_3_1"][m], T["table_3_1_tnt15"][m]
         L.append(f"| {m} | {o['mpjpe']['mean']:.1f} | {o['mpjae']['mean']:.1f} | {t['mpjpe']} / {t['mpjae']} |")
-    for key, title in (("table_3_4_mpjpe", "Table 3.4: MPJPE [mm] per group"), ("table_3_5_mpjae", "Table 3.5: MPJAE [°] per group")):
-        L += ["", f"## {title} (thesis in parentheses)", "", "| method | " + " | ".join(GROUPS) + " |",
-              "| --- |" + " --- |" * len(GROUPS)]
+    for key, title in (
+        ("table_3_4_mpjpe", "Table 3.4: MPJPE [mm] per group"),
+        ("table_3_5_mpjae", "Table 3.5: MPJAE [°] per group"),
+    ):
+        L += [
+            "",
+            f"## {title} (thesis in parentheses)",
+            "",
+            "| method | " + " | ".join(GROUPS) + " |",
+            "| --- |" + " --- |" * len(GROUPS),
+        ]
         for m, row in res[key].items():
             t = T[key].get(m, {})
-            L.append(f"| {m} | " + " | ".join(f"{row[g]:.1f}" + (f" ({t[g]})" if g in t else "") for g in GROUPS) + " |")
-    L += ["", "## Per subject and per activity (MPJPE mm / MPJAE °, clips)", "", "| | SOP | SIP | IT | clips |", "| --- | --- | --- | --- | --- |"]
+            L.append(
+                f"| {m} | " + " | ".join(f"{row[g]:.1f}" + (f" ({t[g]})" if g in t else "") for g in GROUPS) + " |"
+            )
+    L += [
+        "",
+        "## Per subject and per activity (MPJPE mm / MPJAE °, clips)",
+        "",
+        "| | SOP | SIP | IT | clips |",
+        "| --- | --- | --- | --- | --- |",
+    ]
     for field in ("per_subject", "per_activity"):
         for v, row in res[field].items():
-            L.append(f"| {field[4:]} {v} | {fmt(row['SOP'])} | {fmt(row['SIP'])} | {fmt(row['IT'])} | {row['SIP']['mpjpe']['clips']} |")
+            L.append(
+                f"| {field[4:]} {v} | {fmt(row['SOP'])} | {fmt(row['SIP'])} | {fmt(row['IT'])} | {row['SIP']['mpjpe']['clips']} |"
+            )
     for v, row in res.get("development_subjects", {}).get("per_subject", {}).items():
-        L.append(f"| subject {v} (development: chose w_mahal, not in the tables) | {fmt(row['SOP'])} | {fmt(row['SIP'])} | "
-                 f"{fmt(row['IT'])} | {row['SIP']['mpjpe']['clips']} |")
+        L.append(
+            f"| subject {v} (development: chose w_mahal, not in the tables) | {fmt(row['SOP'])} | {fmt(row['SIP'])} | "
+            f"{fmt(row['IT'])} | {row['SIP']['mpjpe']['clips']} |"
+        )
     t32 = ", ".join(f"{m} {v['mpjpe']}" for m, v in T["table_3_2_tnt15"].items())
     L += ["", f"## Table 3.2: body scaled, size and pose error separated (thesis TNT15 MPJPE: {t32} mm)", "",
           "| | MPJPE rigid Procrustes (size + pose) | MPJPE Procrustes with scale | pose on the true body | MPJAE [°] |",
           "| --- | --- | --- | --- | --- |"]  # fmt: skip
     for m, o in res["table_3_2"].items():
-        L.append(f"| {m} | {o['mpjpe_rigid']:.1f} | {o['mpjpe_scaled_procrustes']:.1f} | {o['mpjpe_pose_on_true_body']:.1f} | {o['mpjae']:.1f} |")
-    L += ["", "## Prior weight and ablations (held-out)", "", "| variant | MPJPE [mm] | MPJAE [°] |", "| --- | --- | --- |"]
-    L.append(f"| SIP (chosen w_mahal) | {res['table_3_3']['SIP']['mpjpe']['mean']:.1f} | {res['table_3_3']['SIP']['mpjae']['mean']:.1f} |")
+        L.append(
+            f"| {m} | {o['mpjpe_rigid']:.1f} | {o['mpjpe_scaled_procrustes']:.1f} | {o['mpjpe_pose_on_true_body']:.1f} | {o['mpjae']:.1f} |"
+        )
+    L += [
+        "",
+        "## Prior weight and ablations (held-out)",
+        "",
+        "| variant | MPJPE [mm] | MPJAE [°] |",
+        "| --- | --- | --- |",
+    ]
+    L.append(
+        f"| SIP (chosen w_mahal) | {res['table_3_3']['SIP']['mpjpe']['mean']:.1f} | {res['table_3_3']['SIP']['mpjae']['mean']:.1f} |"
+    )
     for m, o in res["ablations"].items():
         L.append(f"| {m} | {o['mpjpe']['mean']:.1f} | {o['mpjae']['mean']:.1f} |")
     ph = res["prior_no_worse_than_no_prior"]
@@ -603,29 +690,51 @@ def markdown(res: dict) -> str:
           "", "## Convergence (SIP, chosen weights, float64)", "",
           "| LM steps | MPJPE [mm] | MPJAE [°] | cost | result 0 | mean steps |", "| --- | --- | --- | --- | --- | --- |"]  # fmt: skip
     for k, v in res["lm_steps_study"].items():
-        L.append(f"| {k} | {v['mpjpe']:.1f} | {v['mpjae']:.2f} | {v['cost']:.3f} | {100 * v['fraction_result_0']:.0f} % | {v['mean_steps']:.0f} |")
+        L.append(
+            f"| {k} | {v['mpjpe']:.1f} | {v['mpjae']:.2f} | {v['cost']:.3f} | {100 * v['fraction_result_0']:.0f} % | {v['mean_steps']:.0f} |"
+        )
     L += ["", "## Metrics of the learned-poser literature (held-out, frame-weighted)", "",
           "| method | SIP error [°] | angular error [°] | joint position error, root-aligned [cm] | mesh error [cm] | jitter root-relative [km/s³] |",
           "| --- | --- | --- | --- | --- | --- |"]  # fmt: skip
     for m, o in res["literature_metrics"].items():
-        L.append(f"| {m} | {o['sip_error_deg']:.1f} | {o['angular_error_deg']:.1f} | {o['position_error_cm']:.1f} | "
-                 f"{o['mesh_error_cm']:.1f} | {o['jitter_root_km_s3']:.2f} |")
+        L.append(
+            f"| {m} | {o['sip_error_deg']:.1f} | {o['angular_error_deg']:.1f} | {o['position_error_cm']:.1f} | "
+            f"{o['mesh_error_cm']:.1f} | {o['jitter_root_km_s3']:.2f} |"
+        )
     L.append("| SIP, real DIP-IMU (published, context only) | 21.0 | 8.8 | 6.7 | 7.7 | |")
     if res.get("long_windows"):
-        L += ["", "## Long windows (≥ 1000 frames at 60 fps)", "", "| clip | frames | SOP mm / ° | SIP mm / ° | SIP steps, code |",
-              "| --- | --- | --- | --- | --- |"]
+        L += [
+            "",
+            "## Long windows (≥ 1000 frames at 60 fps)",
+            "",
+            "| clip | frames | SOP mm / ° | SIP mm / ° | SIP steps, code |",
+            "| --- | --- | --- | --- | --- |",
+        ]
         for c, o in res["long_windows"].items():
-            L.append(f"| {c} | {o['frames']} | {o['SOP']['mpjpe']:.1f} / {o['SOP']['mpjae']:.1f} | {o['SIP']['mpjpe']:.1f} / "
-                     f"{o['SIP']['mpjae']:.1f} | {o['SIP']['steps']}, {o['SIP']['result']} |")
-    L += ["", "## Per clip", "", "| clip | subject | activity | frames | w_mahal | SOP mm / ° | SIP mm / ° | IT mm / ° | SIP steps, code |",
-          "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+            L.append(
+                f"| {c} | {o['frames']} | {o['SOP']['mpjpe']:.1f} / {o['SOP']['mpjae']:.1f} | {o['SIP']['mpjpe']:.1f} / "
+                f"{o['SIP']['mpjae']:.1f} | {o['SIP']['steps']}, {o['SIP']['result']} |"
+            )
+    L += [
+        "",
+        "## Per clip",
+        "",
+        "| clip | subject | activity | frames | w_mahal | SOP mm / ° | SIP mm / ° | IT mm / ° | SIP steps, code |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- |",
+    ]
     for r in res["per_clip"]:
         m = r["methods"]
-        L.append(f"| {r['clip']} | {r['subject']} | {r['activity']} | {r['frames']} | {r['w_mahal']:g} | "
-                 + " | ".join(f"{m[k]['mpjpe']:.1f} / {m[k]['mpjae']:.1f}" for k in ("SOP", "SIP", "IT"))
-                 + f" | {m['SIP']['steps']}, {m['SIP']['result']} |")
-    L += ["", "Plots: `sip_tables_curve_mpjae.png`, `sip_tables_curve_mpjpe.png`, `sip_tables_joints_mpjae.png`, "
-          "`sip_tables_joints_mpjpe.png`, `sip_tables_prior_weight.png`, `sip_tables_lm_steps.png`.", ""]
+        L.append(
+            f"| {r['clip']} | {r['subject']} | {r['activity']} | {r['frames']} | {r['w_mahal']:g} | "
+            + " | ".join(f"{m[k]['mpjpe']:.1f} / {m[k]['mpjae']:.1f}" for k in ("SOP", "SIP", "IT"))
+            + f" | {m['SIP']['steps']}, {m['SIP']['result']} |"
+        )
+    L += [
+        "",
+        "Plots: `sip_tables_curve_mpjae.png`, `sip_tables_curve_mpjpe.png`, `sip_tables_joints_mpjae.png`, "
+        "`sip_tables_joints_mpjpe.png`, `sip_tables_prior_weight.png`, `sip_tables_lm_steps.png`.",
+        "",
+    ]
     return "\n".join(L)
 
 
@@ -637,12 +746,23 @@ def main(argv=None) -> int:
     p.add_argument("--grid-steps", type=int, default=50, help="LM step limit of the weight-grid solves")
     p.add_argument("--clips", type=int, help="use N clips spread over the subjects (smoke runs)")
     p.add_argument("--no-long", action="store_true", help="leave out the long windows (unless cached)")
-    p.add_argument("--long-only", metavar="JSON", help="only the long windows, with w_mahal per subject as JSON "
-                   "(e.g. '{\"02\": 0.0001}'); cached in --out/cache for the main run")
-    p.add_argument("--prepare", action="store_true", help="only read the clips, synthesise the IMUs and build the "
-                   "held-out priors into --out/cache (CPU work), e.g. before carrying the cache to a GPU machine")
-    p.add_argument("--out", default=str(Path(__file__).resolve().parents[1] / "out" / "sip_tables"),
-                   help="output folder (default: out/sip_tables; the committed tables: experiments/results)")
+    p.add_argument(
+        "--long-only",
+        metavar="JSON",
+        help="only the long windows, with w_mahal per subject as JSON "
+        "(e.g. '{\"02\": 0.0001}'); cached in --out/cache for the main run",
+    )
+    p.add_argument(
+        "--prepare",
+        action="store_true",
+        help="only read the clips, synthesise the IMUs and build the "
+        "held-out priors into --out/cache (CPU work), e.g. before carrying the cache to a GPU machine",
+    )
+    p.add_argument(
+        "--out",
+        default=str(Path(__file__).resolve().parents[1] / "out" / "sip_tables"),
+        help="output folder (default: out/sip_tables; the committed tables: experiments/results)",
+    )
     args = p.parse_args(argv)
     out = Path(args.out)
     res = run(args)

@@ -280,12 +280,24 @@ def main(argv=None) -> int:
                   "cross_tracks: a wearer takes at most one of any 2D tracks that share a frame (a constraint)",
         "seconds": {"scenes": round(t1 - t0, 1), "training": round(time.time() - t1, 1)},
     }  # fmt: skip
-    model = A.AssociationModel(**{**model.to_dict(), "pair_scale": scale, "assignment_cost": cost,
-                                  "penalty_window": reach, "provenance": provenance})
+    model = A.AssociationModel(
+        **{
+            **model.to_dict(),
+            "pair_scale": scale,
+            "assignment_cost": cost,
+            "penalty_window": reach,
+            "provenance": provenance,
+        }
+    )
     Path(a.out).write_text(json.dumps(model.to_dict(), indent=1) + "\n")
     names = sorted({n for s in scenes for n in map(str, s["names"])})
-    record(a.out, split=SPLIT, argv=argv, provenance=RESULTS / "provenance.json",
-           data={"clips": names, "scenes": a.scenes, "frames": a.frames, "seed": a.seed})
+    record(
+        a.out,
+        split=SPLIT,
+        argv=argv,
+        provenance=RESULTS / "provenance.json",
+        data={"clips": names, "scenes": a.scenes, "frames": a.frames, "seed": a.seed},
+    )
     print(json.dumps({k: v for k, v in model.to_dict().items() if k != "provenance"}))
     return 0
 

@@ -149,7 +149,9 @@ def main(argv=None):
         keep = data.group != fold
         train_sets.append(data.take(keep & ~val))
         val_sets.append(data.take(keep & val))
-        print(f"fold {fold}: {len(train_sets[-1])} training windows, {len(val_sets[-1])} validation windows", flush=True)
+        print(
+            f"fold {fold}: {len(train_sets[-1])} training windows, {len(val_sets[-1])} validation windows", flush=True
+        )
     config, train = DIPConfig(hidden=args.hidden), TrainConfig(steps=args.steps, batch=args.batch, seed=args.seed)
     t1 = time.perf_counter()
     networks, curves = train_dip(train_sets, val_sets, config, train)
@@ -159,9 +161,17 @@ def main(argv=None):
         "device": str(jax.devices()[0]),
         "jax": jax.__version__,
         "training_seconds_all_folds": round(seconds, 1),
-        "config": {"hidden": args.hidden, "input_keep": config.input_keep, **train.__dict__,
-                   "fps": args.fps, "window": args.window, "stride": args.stride, "speeds": SPEEDS,
-                   "error_presets": ["off", "xsens"], "betas_std": 1.0},  # fmt: skip
+        "config": {
+            "hidden": args.hidden,
+            "input_keep": config.input_keep,
+            **train.__dict__,
+            "fps": args.fps,
+            "window": args.window,
+            "stride": args.stride,
+            "speeds": SPEEDS,
+            "error_presets": ["off", "xsens"],
+            "betas_std": 1.0,
+        },  # fmt: skip
     }
     for fold, net, curve, tr in zip(folds, networks, curves, train_sets):
         seen = sorted(set(tr.group))
@@ -174,10 +184,17 @@ def main(argv=None):
     sys.path.insert(0, str(Path(__file__).resolve().parent))
     from _provenance import write_json
 
-    write_json(out / "curves.json", {"curves": named, **info}, split=SPLIT, argv=argv,
-               data={"subjects": subjects, "folds": folds, "windows": int(len(data))})
+    write_json(
+        out / "curves.json",
+        {"curves": named, **info},
+        split=SPLIT,
+        argv=argv,
+        data={"subjects": subjects, "folds": folds, "windows": int(len(data))},
+    )
     plot(named, out / "training_curves.png")
-    print(f"done: {len(folds)} networks in {seconds:.0f} s of training ({time.perf_counter() - t0:.0f} s in all) -> {out}")
+    print(
+        f"done: {len(folds)} networks in {seconds:.0f} s of training ({time.perf_counter() - t0:.0f} s in all) -> {out}"
+    )
 
 
 if __name__ == "__main__":

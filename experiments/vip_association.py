@@ -123,19 +123,43 @@ def main(argv=None) -> int:
     p.add_argument("--cmu-cc", default=str(find_cmu_cc_dir() or ROOT.parent / "shared" / "data" / "cmu_cc"))
     p.add_argument("--out", default=str(ROOT / "experiments" / "results"))
     p.add_argument("--cache", default=str(ROOT / "out" / "vip_association"))
-    p.add_argument("--fusion", action="store_true", help="run the whole method (association, fusion, association "
-                   "again: `video_inertial_scene`) and score its final association; a GPU job")
-    p.add_argument("--penalty-window", type=int, default=None,
-                   help="override the shipped model's penalty_window (frames; results cached apart)")
-    p.add_argument("--dev-seed", type=int, default=None, help="also summarise the cached whole-method results of "
-                   "this development seed, for the models in --dev-models (tags; cached results only)")
-    p.add_argument("--dev-models", default="",
-                   help="model tags of the development summary besides the run's own (cached results); see "
-                        "DEV_MODELS; earlier ones, measured on another machine, are in DEV_RECORDED")
-    p.add_argument("--development", action="store_true", help="development scenes: clips of the development "
-                   "subjects (02, 131) instead of the evaluated ones (cached apart, tagged 'dev')")
-    p.add_argument("--only", default="", help="comma-separated scene indices: compute and cache only these (e.g. one "
-                   "process per scene); a run without it then gathers the cached scenes into the tables")
+    p.add_argument(
+        "--fusion",
+        action="store_true",
+        help="run the whole method (association, fusion, association "
+        "again: `video_inertial_scene`) and score its final association; a GPU job",
+    )
+    p.add_argument(
+        "--penalty-window",
+        type=int,
+        default=None,
+        help="override the shipped model's penalty_window (frames; results cached apart)",
+    )
+    p.add_argument(
+        "--dev-seed",
+        type=int,
+        default=None,
+        help="also summarise the cached whole-method results of "
+        "this development seed, for the models in --dev-models (tags; cached results only)",
+    )
+    p.add_argument(
+        "--dev-models",
+        default="",
+        help="model tags of the development summary besides the run's own (cached results); see "
+        "DEV_MODELS; earlier ones, measured on another machine, are in DEV_RECORDED",
+    )
+    p.add_argument(
+        "--development",
+        action="store_true",
+        help="development scenes: clips of the development "
+        "subjects (02, 131) instead of the evaluated ones (cached apart, tagged 'dev')",
+    )
+    p.add_argument(
+        "--only",
+        default="",
+        help="comma-separated scene indices: compute and cache only these (e.g. one "
+        "process per scene); a run without it then gathers the cached scenes into the tables",
+    )
     a = p.parse_args(argv)
     only = {int(i) for i in a.only.split(",") if i.strip()}
     body = default_body("low")
@@ -260,7 +284,12 @@ def main(argv=None) -> int:
 
 
 #: Blocks written by experiments/vip_association_unseen.py, kept when this script rewrites the file.
-UNSEEN_BLOCKS = ("defaults_unseen", "defaults_development", "defaults_unseen_same_clip", "defaults_development_same_clip")
+UNSEEN_BLOCKS = (
+    "defaults_unseen",
+    "defaults_development",
+    "defaults_unseen_same_clip",
+    "defaults_development_same_clip",
+)
 
 
 def scenes(seeds, counts, clips):
@@ -274,15 +303,25 @@ def scenes(seeds, counts, clips):
 
 def rates(per_scene) -> dict:
     n = {k: sum(s[k] for s in per_scene) for k in ("assigned", "right", "wrong", "wearer_detections", "detections")}
-    return {"scenes": len(per_scene), "precision": n["right"] / max(n["assigned"], 1),
-            "recall": n["right"] / max(n["wearer_detections"], 1), **n}
+    return {
+        "scenes": len(per_scene),
+        "precision": n["right"] / max(n["assigned"], 1),
+        "recall": n["right"] / max(n["wearer_detections"], 1),
+        **n,
+    }
 
 
 # The previous model's test (penalty window 90, no cross_tracks; `--seed 50`, 2026-11-25):
 # examined afterwards, so no longer a test.
-EARLIER_TEST = {"seed": 50, "model": "pw90", "precision": 0.983, "recall": 0.969, "wrong": 59,
-                "note": "55 of the 59 wrong in one scene: a wearer who left the view was replaced by a bystander "
-                        "seen beside them before; cross_tracks was built against it"}
+EARLIER_TEST = {
+    "seed": 50,
+    "model": "pw90",
+    "precision": 0.983,
+    "recall": 0.969,
+    "wrong": 59,
+    "note": "55 of the 59 wrong in one scene: a wearer who left the view was replaced by a bystander "
+    "seen beside them before; cross_tracks was built against it",
+}
 
 
 # The test of the model before the wearer exchanges (`--seed 51,52`, 2026-11-26): seed 51's
@@ -314,30 +353,40 @@ IDENTITY_CHECK_TRIED = {
 
 
 # What the development tags are (AssociationModel.tag).
-DEV_MODELS = {"pw30": "the thesis's 30-frame window, no cross_tracks",
-              "pw90": "penalties up to 90 frames apart, no cross_tracks",
-              "pw90_d8990f": "90 frames and cross_tracks as -1e4 pair penalties within them (before the frame cliques)",
-              "pw90_151a14": "90 frames, cross_tracks as frame cliques",
-              "pw90_fa2ab0": "90 frames, cross_tracks as frame cliques, wearer exchanges after the chunks"}
+DEV_MODELS = {
+    "pw30": "the thesis's 30-frame window, no cross_tracks",
+    "pw90": "penalties up to 90 frames apart, no cross_tracks",
+    "pw90_d8990f": "90 frames and cross_tracks as -1e4 pair penalties within them (before the frame cliques)",
+    "pw90_151a14": "90 frames, cross_tracks as frame cliques",
+    "pw90_fa2ab0": "90 frames, cross_tracks as frame cliques, wearer exchanges after the chunks",
+}
 
 # Development results of earlier models, measured 2026-11-24/26 on the device (their caches
 # are not kept): scenes, precision, recall, assigned, right, wrong, wearer_detections.
 DEV_SCENES = 12  # development seed 0's scenes
 
-DEV_RECORDED = {"pw30": (12, 0.9843269821757836, 0.9726692985119951, 3254, 3203, 51, 3293),
-                "pw90": (12, 0.9962674961119751, 0.9726692985119951, 3215, 3203, 12, 3293),
-                "pw90_d8990f": (12, 0.9981132075471698, 0.9638627391436381, 3180, 3174, 6, 3293),
-                "pw90_151a14": (12, 0.9981132075471698, 0.9638627391436381, 3180, 3174, 6, 3293)}
+DEV_RECORDED = {
+    "pw30": (12, 0.9843269821757836, 0.9726692985119951, 3254, 3203, 51, 3293),
+    "pw90": (12, 0.9962674961119751, 0.9726692985119951, 3215, 3203, 12, 3293),
+    "pw90_d8990f": (12, 0.9981132075471698, 0.9638627391436381, 3180, 3174, 6, 3293),
+    "pw90_151a14": (12, 0.9981132075471698, 0.9638627391436381, 3180, 3174, 6, 3293),
+}
 
 
 def development(cache: Path, a, tags) -> dict:
     """Precision and recall of the cached whole-method results of seed `a.dev_seed`, per model tag."""
-    out = {"seed": a.dev_seed, "note": "development scenes: they chose the shipped penalty_window "
-           "(experiments/train_association.py, PENALTY_WINDOW) and checked cross_tracks; the headline numbers are "
-           "the test seed's"}
+    out = {
+        "seed": a.dev_seed,
+        "note": "development scenes: they chose the shipped penalty_window "
+        "(experiments/train_association.py, PENALTY_WINDOW) and checked cross_tracks; the headline numbers are "
+        "the test seed's",
+    }
     for w in tags:  # development scenes (--development): clips of the development subjects
-        rs = [json.loads(f.read_text()) for i in range(DEV_SCENES)
-              if (f := cache / f"result_dev_{a.dev_seed}_{i}_{a.frames}_fusion_{w}.json").exists()]
+        rs = [
+            json.loads(f.read_text())
+            for i in range(DEV_SCENES)
+            if (f := cache / f"result_dev_{a.dev_seed}_{i}_{a.frames}_fusion_{w}.json").exists()
+        ]
         if rs:  # the shipped model's development scenes are run with --seed 0 --fusion
             out[f"model_{w}"] = {"model": DEV_MODELS.get(w, "shipped" if w == tags[-1] else w), **rates(rs)}
     return out

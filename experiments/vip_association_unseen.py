@@ -211,12 +211,22 @@ def main(argv=None) -> int:
     p.add_argument("--weights", default=None, help="association weights file (default: the shipped ones)")
     p.add_argument("--fusion", action="store_true", help="also the whole method's final association")
     p.add_argument("--only", default="", help="bystander counts to run (comma-separated); results cached")
-    p.add_argument("--same-clip", action="store_true", help="bystanders perform the wearer's clip (vip_tables' "
-                   "scenes); written as defaults_unseen_same_clip")
-    p.add_argument("--inputs-only", action="store_true", help="only simulate and cache the scenes' Inertial "
-                   "Tracker hypotheses (no association, no result)")
-    p.add_argument("--install", action="store_true", help="with --grid: write the chosen setting of --weights "
-                   "to jaxmocap/methods/association_weights.json (the library's default)")
+    p.add_argument(
+        "--same-clip",
+        action="store_true",
+        help="bystanders perform the wearer's clip (vip_tables' scenes); written as defaults_unseen_same_clip",
+    )
+    p.add_argument(
+        "--inputs-only",
+        action="store_true",
+        help="only simulate and cache the scenes' Inertial Tracker hypotheses (no association, no result)",
+    )
+    p.add_argument(
+        "--install",
+        action="store_true",
+        help="with --grid: write the chosen setting of --weights "
+        "to jaxmocap/methods/association_weights.json (the library's default)",
+    )
     p.add_argument("--cache", default=str(ROOT / "out" / "vip_association_unseen"))
     p.add_argument("--out", default=str(ROOT / "experiments" / "results" / "vip_association.json"))
     a = p.parse_args(argv)
@@ -294,8 +304,10 @@ def main(argv=None) -> int:
     if a.grid:
         out["grid"] = {k: block(k) for k in GRID} | {"defaults": block("defaults")}
         out["chosen"] = choose(out["grid"])
-        out["rule"] = ("the most recall at a development precision >= 99.5 % (ties: the more precise, then the "
-                       "trained model unchanged)")
+        out["rule"] = (
+            "the most recall at a development precision >= 99.5 % (ties: the more precise, then the "
+            "trained model unchanged)"
+        )
         if a.install:
             m = models[out["chosen"]]
             values = {k: getattr(m, k) for k in ("penalty_window", "cross_tracks", "pair_scale", "assignment_cost")}
@@ -346,10 +358,20 @@ def markdown(r: dict) -> str:
               + (" final round precision | final round recall |" if "final_round" in u else ""),
               "| --- | --- | --- | --- | --- | --- | --- |" + (" --- | --- |" if "final_round" in u else "")]  # fmt: skip
         for k, v in [*u["per_bystanders"].items(), ("all", u)]:
-            f = (u["final_round"] if k == "all" else u["final_round"]["per_bystanders"].get(k)) if "final_round" in u else None
-            L.append(f"| {k} | {v['scenes']} | {v['wearer_detections']} | {v['assigned']} | {v['wrong']} "
-                     f"| {_pct(v['precision'])} | {_pct(v['recall'])} |"
-                     + (f" {_pct(f['precision'])} | {_pct(f['recall'])} |" if f else ("" if "final_round" not in u else " | |")))
+            f = (
+                (u["final_round"] if k == "all" else u["final_round"]["per_bystanders"].get(k))
+                if "final_round" in u
+                else None
+            )
+            L.append(
+                f"| {k} | {v['scenes']} | {v['wearer_detections']} | {v['assigned']} | {v['wrong']} "
+                f"| {_pct(v['precision'])} | {_pct(v['recall'])} |"
+                + (
+                    f" {_pct(f['precision'])} | {_pct(f['recall'])} |"
+                    if f
+                    else ("" if "final_round" not in u else " | |")
+                )
+            )
         if r.get("config", {}).get("model") and r["config"]["model"] != u["model"]:
             L += ["", f"The headline above is of association model {r['config']['model']} (two wearers, "
                   f"{r['config']['bystanders']} bystanders, seeds {r['config']['seeds']}); the library's default is now "

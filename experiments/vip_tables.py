@@ -118,8 +118,9 @@ def run_clip(scenario, i: int, body, rng, steps: int, prior=None) -> dict:
     cam = np.concatenate([np.asarray(matrix_to_axis_angle(Rc)), centre], -1)
     r = vip.video_inertial_poser(data, bones, camera=cam, free_camera=False, init=it, max_steps=steps)
     row("VIP-Cam", r.poses)
-    data6, _, bones6 = vip_sequence(scenario, i, body, x0=x0, sensors=six, prior=prior,
-                                         keypoints=scene.associations[-1].keypoints[0])
+    data6, _, bones6 = vip_sequence(
+        scenario, i, body, x0=x0, sensors=six, prior=prior, keypoints=scene.associations[-1].keypoints[0]
+    )
     row("VIP-6IMU", vip.video_inertial_poser(data6, bones6, max_steps=steps).poses)
     setup = inertial.calibrate(
         body, bones6, np.asarray(seq["imu_vertices"])[six], seq["imu_ori"][0][:, six], seq["imu_acc"][0][:, six],
@@ -146,7 +147,9 @@ def _R(pose):
     return np.asarray(axis_angle_to_matrix(np.asarray(pose)))
 
 
-def run(clips: int, frames: int, seed: int, steps: int, folder: Path, out: Path, shard=(0, 1), finished_only=False) -> dict:
+def run(
+    clips: int, frames: int, seed: int, steps: int, folder: Path, out: Path, shard=(0, 1), finished_only=False
+) -> dict:
     body = default_body("low")
     files = held_out_clips(folder)[:clips]
     per_clip = []
@@ -180,17 +183,36 @@ def run(clips: int, frames: int, seed: int, steps: int, folder: Path, out: Path,
     it, v = rows["IT"]["mpjpe_mm"], rows["VIP"]["mpjpe_mm"]
     assigned, right, visible = (sum(c["association"][k] for c in per_clip) for k in ("assigned", "right", "visible"))
     return {
-        "config": {"clips": len(per_clip), "requested_clips": clips, "frames": frames, "seed": seed, "lm_steps": steps, "body": "low",
-                   "weights": vars(vip.VIPWeights()), "association_penalty_window": model.penalty_window, "association_model": model.tag, "data": str(folder)},  # fmt: skip
+        "config": {
+            "clips": len(per_clip),
+            "requested_clips": clips,
+            "frames": frames,
+            "seed": seed,
+            "lm_steps": steps,
+            "body": "low",
+            "weights": vars(vip.VIPWeights()),
+            "association_penalty_window": model.penalty_window,
+            "association_model": model.tag,
+            "data": str(folder),
+        },  # fmt: skip
         "rows": rows,
-        "vip_vs_it_relative_change_percent": {"mpjpe": 100.0 * (v - it) / it,
-                                              "mpjae": 100.0 * (rows["VIP"]["mpjae_deg"] / rows["IT"]["mpjae_deg"] - 1)},
+        "vip_vs_it_relative_change_percent": {
+            "mpjpe": 100.0 * (v - it) / it,
+            "mpjae": 100.0 * (rows["VIP"]["mpjae_deg"] / rows["IT"]["mpjae_deg"] - 1),
+        },
         "heading_error_deg": float(np.mean([c["heading_error_deg"] for c in per_clip])),
-        "association": {"precision": right / max(assigned, 1), "recall": right / max(visible, 1),
-                        "assigned": assigned, "right": right, "visible": visible,
-                        "note": "the wearer's detections (person 0) among 0-3 bystanders, final round"},
-        "orderings_hold": {"VIP-2D < VIP < VIP-vanilla": rows["VIP-2D"]["mpjpe_mm"] < v < rows["VIP-vanilla"]["mpjpe_mm"],
-                           "VIP-6IMU > VIP": rows["VIP-6IMU"]["mpjpe_mm"] > v},
+        "association": {
+            "precision": right / max(assigned, 1),
+            "recall": right / max(visible, 1),
+            "assigned": assigned,
+            "right": right,
+            "visible": visible,
+            "note": "the wearer's detections (person 0) among 0-3 bystanders, final round",
+        },
+        "orderings_hold": {
+            "VIP-2D < VIP < VIP-vanilla": rows["VIP-2D"]["mpjpe_mm"] < v < rows["VIP-vanilla"]["mpjpe_mm"],
+            "VIP-6IMU > VIP": rows["VIP-6IMU"]["mpjpe_mm"] > v,
+        },
         "per_clip": per_clip,
     }
 
@@ -211,8 +233,11 @@ def markdown(res: dict) -> str:
          f"{c['lm_steps']} LM steps. Thesis numbers are TotalCapture's (real data).", "",
          "| method | MPJPE [mm] | MPJAE [°] | thesis MPJPE [mm] |", "| --- | --- | --- | --- |"]  # fmt: skip
     if c["clips"] < c.get("requested_clips", c["clips"]):
-        L[2:2] = [f"**Partial: {c['clips']} of the {c['requested_clips']} requested clips have finished**; a re-run "
-                  "with the same arguments resumes from the per-clip files.", ""]
+        L[2:2] = [
+            f"**Partial: {c['clips']} of the {c['requested_clips']} requested clips have finished**; a re-run "
+            "with the same arguments resumes from the per-clip files.",
+            "",
+        ]
     for m, r in res["rows"].items():
         L.append(f"| {m} | {r['mpjpe_mm']:.1f} | {r['mpjae_deg']:.1f} | {r['thesis_mpjpe_mm']:.1f} |")
     L += ["", f"VIP vs IT, MPJPE: {res['vip_vs_it_relative_change_percent']['mpjpe']:+.1f} % "
@@ -231,11 +256,20 @@ def main(argv=None) -> int:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--steps", type=int, default=30, help="LM steps of each VIP solve")
     p.add_argument("--cmu-cc", default=str(find_cmu_cc_dir() or ROOT.parent / "shared" / "data" / "cmu_cc"))
-    p.add_argument("--out", default=str(ROOT / "out" / "vip_tables"),
-                   help="output folder (the committed tables: experiments/results)")
-    p.add_argument("--shard", default="0/1", help="k/n: this process runs clips i with i %% n == k (several "
-                   "processes on one machine); a last run with --finished-only writes the tables")
-    p.add_argument("--finished-only", action="store_true", help="tables from the clips already in OUT/vip_tables_per_clip")
+    p.add_argument(
+        "--out",
+        default=str(ROOT / "out" / "vip_tables"),
+        help="output folder (the committed tables: experiments/results)",
+    )
+    p.add_argument(
+        "--shard",
+        default="0/1",
+        help="k/n: this process runs clips i with i %% n == k (several "
+        "processes on one machine); a last run with --finished-only writes the tables",
+    )
+    p.add_argument(
+        "--finished-only", action="store_true", help="tables from the clips already in OUT/vip_tables_per_clip"
+    )
     a = p.parse_args(argv)
     shard = tuple(int(x) for x in a.shard.split("/"))
     out = Path(a.out)

@@ -12,7 +12,16 @@ import math
 import jax
 import numpy as np
 
-__all__ = ["concrete", "check_rate", "check_weight", "check_frames", "check_rotations", "check_finite", "output_folder", "output_npz"]
+__all__ = [
+    "concrete",
+    "check_rate",
+    "check_weight",
+    "check_frames",
+    "check_rotations",
+    "check_finite",
+    "output_folder",
+    "output_npz",
+]
 
 
 def concrete(x) -> np.ndarray | None:
@@ -60,9 +69,7 @@ def check_weight(name: str, value) -> None:
 def check_frames(name: str, T: int, at_least: int = 1) -> None:
     """A frame count T >= `at_least`."""
     if T < at_least:
-        raise ValueError(
-            f"{name} has {T} frames; at least {at_least} needed (an empty slice or a T = 0 array?)."
-        )
+        raise ValueError(f"{name} has {T} frames; at least {at_least} needed (an empty slice or a T = 0 array?).")
 
 
 def check_finite(name: str, x) -> None:
@@ -126,7 +133,9 @@ def output_folder(path, name: str = "out_dir (--out)", create: bool = True):
     try:
         path.mkdir(parents=True, exist_ok=True)
     except OSError as e:
-        raise ValueError(f"{name} {str(path)!r} cannot be created ({e.strerror}); give a folder you can write to.") from None
+        raise ValueError(
+            f"{name} {str(path)!r} cannot be created ({e.strerror}); give a folder you can write to."
+        ) from None
     if not os.access(path, os.W_OK | os.X_OK):
         raise ValueError(f"{name} {str(path)!r} is not writable; give a folder you can write to.")
     return path
@@ -146,5 +155,7 @@ def output_npz(path, who: str = "save_motion", example: str = "motion.npz"):
         raise ValueError(f"{who}: path {str(path)!r} would be written as {str(target)!r}, which is a folder; "
                          "give another file name.")  # fmt: skip
     if not target.parent.is_dir():
-        raise ValueError(f"{who}: the folder {str(target.parent)!r} of path {str(path)!r} does not exist; create it first.")
+        raise ValueError(
+            f"{who}: the folder {str(target.parent)!r} of path {str(path)!r} does not exist; create it first."
+        )
     return target

@@ -14,7 +14,18 @@ from __future__ import annotations
 import numpy as np
 import optimistix as optx
 
-__all__ = ["DIVERGENCE", "MAX_STEPS", "SUCCESSFUL", "TESTED_WITH", "cpu_backend_started", "damped_operator", "distributed_client", "mjx_contacts", "result_code", "result_message"]
+__all__ = [
+    "DIVERGENCE",
+    "MAX_STEPS",
+    "SUCCESSFUL",
+    "TESTED_WITH",
+    "cpu_backend_started",
+    "damped_operator",
+    "distributed_client",
+    "mjx_contacts",
+    "result_code",
+    "result_message",
+]
 
 #: The versions whose internals these hooks were written against.
 TESTED_WITH = {"optimistix": "0.1.0", "mujoco-mjx": "3.17.0"}

@@ -36,7 +36,9 @@ class _ArrayUnpickler(pickle._Unpickler):
 
     def find_class(self, module, name):
         if module.split(".")[0] == "numpy" or (module, name) in (
-            ("copyreg", "_reconstructor"), ("_codecs", "encode"), ("builtins", "object"),
+            ("copyreg", "_reconstructor"),
+            ("_codecs", "encode"),
+            ("builtins", "object"),
         ):
             return super().find_class(module, name)
         raise pickle.UnpicklingError(f"refusing to load {module}.{name}")

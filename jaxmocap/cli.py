@@ -144,7 +144,11 @@ def _describe_rig(path: Path, mapping) -> list[str]:
         f"rig          {label} ({len(src.names)} source joints, {len(used)}/24 SMPL joints mapped"
         + (f"; at rest: {', '.join(left)})" if left else ")"),
         f"rest         {rest}: "
-        + ("the all-zero pose stands like SMPL's" if rest == "zero" else "bones carry their own frames; rest taken from the clip"),
+        + (
+            "the all-zero pose stands like SMPL's"
+            if rest == "zero"
+            else "bones carry their own frames; rest taken from the clip"
+        ),
     ]
 
 
@@ -195,12 +199,19 @@ def _run_export(args) -> int:
     body = resolve_body(args.body)
     motion = _load_motion(args.motion, fps=args.fps, body=body)
     result = export_motion(
-        motion, body, args.outdir, fmt=args.format, every=args.every, pictures=args.png,
+        motion,
+        body,
+        args.outdir,
+        fmt=args.format,
+        every=args.every,
+        pictures=args.png,
         progress=sys.stderr.isatty(),
     )
     where = result.meshes[0].parent if result.meshes else Path(args.outdir)
-    print(f"wrote {len(result.meshes)} {args.format.upper()} file(s) to {where} "
-          f"({motion.num_frames} frames, every {args.every})")
+    print(
+        f"wrote {len(result.meshes)} {args.format.upper()} file(s) to {where} "
+        f"({motion.num_frames} frames, every {args.every})"
+    )
     for png in result.pictures:
         print(f"wrote {png}")
     return 0
@@ -212,8 +223,12 @@ def _run_export(args) -> int:
 def _configure_demo(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", default="out/demo", help="output folder (default: out/demo)")
     _add_body_option(p, default="default-full")
-    p.add_argument("--seconds", type=_positive(float), default=None,
-                   help="length of the clip (default: all of it, 2.83 s of CMU 02_01)")
+    p.add_argument(
+        "--seconds",
+        type=_positive(float),
+        default=None,
+        help="length of the clip (default: all of it, 2.83 s of CMU 02_01)",
+    )
     p.add_argument("--every", type=_positive(int), default=5, metavar="N", help="PLY every N frames (default: 5)")
     p.add_argument("--no-fit", action="store_true", help="skip the IMU simulation and the SOP/SIP fits")
 
@@ -225,14 +240,22 @@ def _mesh_lines(meshes) -> list[str]:
     for p in meshes:
         if p.suffix == ".ply":
             folders.setdefault(p.parent, []).append(p)
-    return [f"meshes   {len(set(ps))} PLY in {folder} ({ps[0].name} .. {ps[-1].name})" for folder, ps in folders.items()]
+    return [
+        f"meshes   {len(set(ps))} PLY in {folder} ({ps[0].name} .. {ps[-1].name})" for folder, ps in folders.items()
+    ]
 
 
 def _run_demo(args) -> int:
     from .app.demo import run_demo
 
-    result = run_demo(args.out, body=args.body, seconds=args.seconds, every=args.every,
-                      progress=sys.stderr.isatty(), fit=not args.no_fit)
+    result = run_demo(
+        args.out,
+        body=args.body,
+        seconds=args.seconds,
+        every=args.every,
+        progress=sys.stderr.isatty(),
+        fit=not args.no_fit,
+    )
     glbs = [p for p in result.meshes if p.suffix == ".glb"]
     print(f"motion   {result.source}: {result.num_frames} frames at {result.fps:g} fps")
     for line in _mesh_lines(result.meshes):
@@ -244,13 +267,17 @@ def _run_demo(args) -> int:
     if result.errors:
         print("fit      6 simulated IMUs (Xsens-like errors), calibrated on the true first pose")
         for name, e in result.errors.items():
-            print(f"  {name:4s} MPJPE {e['mpjpe']:6.1f} mm (Procrustes)  MPJAE {e['mpjae']:5.1f}°  "
-                  f"({result.fit_seconds[name]:.1f} s incl. compilation)")
+            print(
+                f"  {name:4s} MPJPE {e['mpjpe']:6.1f} mm (Procrustes)  MPJAE {e['mpjae']:5.1f}°  "
+                f"({result.fit_seconds[name]:.1f} s incl. compilation)"
+            )
         sop, sip = result.errors.get("SOP"), result.errors.get("SIP")
         if sop and sip:
             gain = lambda k: 100.0 * (sip[k] - sop[k]) / sop[k]  # noqa: E731
-            print(f"  SIP vs SOP: MPJPE {gain('mpjpe'):+.0f} %, MPJAE {gain('mpjae'):+.0f} % "
-                  "(thesis, TotalCapture: -31 %, -26 %)")
+            print(
+                f"  SIP vs SOP: MPJPE {gain('mpjpe'):+.0f} %, MPJAE {gain('mpjae'):+.0f} % "
+                "(thesis, TotalCapture: -31 %, -26 %)"
+            )
     print(f"done in {result.seconds:.1f} s")
     return 0
 
@@ -286,40 +313,79 @@ def _frame_slice(text: str) -> slice:
 
 
 def _configure_multiview(p: argparse.ArgumentParser) -> None:
-    p.add_argument("source", nargs="?", metavar="PROJECT|demo",
-                   help="a Pose2Sim-style project folder (Config.toml, calibration/, pose/camNN_json/), read with no "
-                   "other flags; or 'demo': write a small synthetic recording in that layout into --out and fit it "
-                   "(a folder named demo: ./demo)")
-    p.add_argument("--keypoints", metavar="DIR",
-                   help="folder with one OpenPose JSON folder per camera (default: the project's pose/)")
-    p.add_argument("--calib", metavar="FILE", help="calibration: Pose2Sim .toml, Qualisys .qca.txt, EasyMocap "
-                   "intri/extri.yml (folder), .npz (default: the project's calibration/)")
-    p.add_argument("--out", metavar="DIR",
-                   help="output folder (default: PROJECT/multiview for a project, multiview-demo for the demo)")
-    p.add_argument("--videos", metavar="DIR",
-                   help="one video per camera (cam01.mp4, ...): detect the person with MediaPipe Pose (an "
-                   "environment of its own: --detector-python) instead of reading --keypoints")
-    p.add_argument("--detector-python", metavar="PYTHON", default=None,
-                   help="the Python with mediapipe 0.10.21 for --videos (default: $JAXMOCAP_VIDEO_PYTHON, else "
-                   "this one)")
-    p.add_argument("--layout", default=None, choices=("body25", "body25b", "coco18", "halpe26", "mediapipe33"),
-                   help="the model the keypoints come from (OpenPose's; halpe26: RTMPose's, Pose2Sim >= 0.9's; "
-                   "mediapipe33: MediaPipe Pose's, what --videos writes) (default: Config.toml's pose_model, else "
-                   "detected from the skeleton); checked against the skeleton either way")
+    p.add_argument(
+        "source",
+        nargs="?",
+        metavar="PROJECT|demo",
+        help="a Pose2Sim-style project folder (Config.toml, calibration/, pose/camNN_json/), read with no "
+        "other flags; or 'demo': write a small synthetic recording in that layout into --out and fit it "
+        "(a folder named demo: ./demo)",
+    )
+    p.add_argument(
+        "--keypoints",
+        metavar="DIR",
+        help="folder with one OpenPose JSON folder per camera (default: the project's pose/)",
+    )
+    p.add_argument(
+        "--calib",
+        metavar="FILE",
+        help="calibration: Pose2Sim .toml, Qualisys .qca.txt, EasyMocap "
+        "intri/extri.yml (folder), .npz (default: the project's calibration/)",
+    )
+    p.add_argument(
+        "--out",
+        metavar="DIR",
+        help="output folder (default: PROJECT/multiview for a project, multiview-demo for the demo)",
+    )
+    p.add_argument(
+        "--videos",
+        metavar="DIR",
+        help="one video per camera (cam01.mp4, ...): detect the person with MediaPipe Pose (an "
+        "environment of its own: --detector-python) instead of reading --keypoints",
+    )
+    p.add_argument(
+        "--detector-python",
+        metavar="PYTHON",
+        default=None,
+        help="the Python with mediapipe 0.10.21 for --videos (default: $JAXMOCAP_VIDEO_PYTHON, else this one)",
+    )
+    p.add_argument(
+        "--layout",
+        default=None,
+        choices=("body25", "body25b", "coco18", "halpe26", "mediapipe33"),
+        help="the model the keypoints come from (OpenPose's; halpe26: RTMPose's, Pose2Sim >= 0.9's; "
+        "mediapipe33: MediaPipe Pose's, what --videos writes) (default: Config.toml's pose_model, else "
+        "detected from the skeleton); checked against the skeleton either way",
+    )
     _add_body_option(p)
-    p.add_argument("--views", type=lambda s: [v for v in s.split(",") if v], metavar="A,B",
-                   help="camera folders to use (default: all)")
+    p.add_argument(
+        "--views",
+        type=lambda s: [v for v in s.split(",") if v],
+        metavar="A,B",
+        help="camera folders to use (default: all)",
+    )
     p.add_argument("--frames", type=_frame_slice, metavar="START:STOP", help="frame numbers to fit (default: all)")
-    p.add_argument("--fps", type=_positive(float), default=None,
-                   help="frame rate of the recording (default: Config.toml's frame_rate, else 30)")
+    p.add_argument(
+        "--fps",
+        type=_positive(float),
+        default=None,
+        help="frame rate of the recording (default: Config.toml's frame_rate, else 30)",
+    )
     p.add_argument("--no-temporal", action="store_true", help="stop after stage 1 (no DCT temporal prior)")
-    p.add_argument("--keep-swaps", action="store_true",
-                   help="do not flip back views whose detector swapped the legs (MuVS as written)")
+    p.add_argument(
+        "--keep-swaps",
+        action="store_true",
+        help="do not flip back views whose detector swapped the legs (MuVS as written)",
+    )
     p.add_argument("--masks", metavar="DIR", help="person masks: one folder of PNGs per camera (adds silhouettes)")
-    p.add_argument("--weights", default="validated", choices=("validated", "thesis"),
-                   help="MuVS's weights (methods.multiview.PRESETS): validated, chosen on the development subjects "
-                   "(pose prior λ_θ 1, shape prior λ_β 50; experiments/results/muvs_tuning.json), or thesis, the "
-                   "values this implementation started with (λ_θ 20, λ_β 50) (default: validated)")
+    p.add_argument(
+        "--weights",
+        default="validated",
+        choices=("validated", "thesis"),
+        help="MuVS's weights (methods.multiview.PRESETS): validated, chosen on the development subjects "
+        "(pose prior λ_θ 1, shape prior λ_β 50; experiments/results/muvs_tuning.json), or thesis, the "
+        "values this implementation started with (λ_θ 20, λ_β 50) (default: validated)",
+    )
 
 
 def _say(line: str) -> None:
@@ -368,18 +434,26 @@ def _run_multiview(args) -> int:
     final = r["reprojection"]["final"]
     num = lambda x, spec: "-" if x is None else format(x, spec)  # noqa: E731 (None: nothing to measure)
     per_view = ", ".join(f"{v} {num(s['median_px'], '.1f')}" for v, s in final["per_view"].items())
-    print(f"fitted   {r['frames']['count']} frames x {len(r['views'])} views ({r['layout']}) in "
-          f"{r['timings_s']['total']:.1f} s")
-    print(f"reproj   median {num(final['overall']['median_px'], '.1f')} px, "
-          f"mean {num(final['overall']['mean_px'], '.1f')} px "
-          f"(per view median: {per_view})")
+    print(
+        f"fitted   {r['frames']['count']} frames x {len(r['views'])} views ({r['layout']}) in "
+        f"{r['timings_s']['total']:.1f} s"
+    )
+    print(
+        f"reproj   median {num(final['overall']['median_px'], '.1f')} px, "
+        f"mean {num(final['overall']['mean_px'], '.1f')} px "
+        f"(per view median: {per_view})"
+    )
     jitter = r["jitter_mm_s2"]
     print(f"jitter   stage 1 {num(jitter['stage1'], '.0f')} mm/s^2, final {num(jitter['final'], '.0f')} mm/s^2")
-    print(f"wrote    {out / r['outputs']['smpl']}, {len(r['outputs']['overlays'])} overlays in {out / 'overlays'}, "
-          f"meshes in {out / 'meshes'}, {out / 'report.md'}")
+    print(
+        f"wrote    {out / r['outputs']['smpl']}, {len(r['outputs']['overlays'])} overlays in {out / 'overlays'}, "
+        f"meshes in {out / 'meshes'}, {out / 'report.md'}"
+    )
     if "demo" in r:
-        print(f"demo     MPJPE {r['demo']['mpjpe_mm']:.0f} mm against the simulated walk; {r['demo']['seconds']:.0f} s "
-              f"in all. Your own: jaxmocap multiview PROJECT (a folder laid out as {out.parent / 'recording'})")
+        print(
+            f"demo     MPJPE {r['demo']['mpjpe_mm']:.0f} mm against the simulated walk; {r['demo']['seconds']:.0f} s "
+            f"in all. Your own: jaxmocap multiview PROJECT (a folder laid out as {out.parent / 'recording'})"
+        )
     return 0
 
 
@@ -388,19 +462,28 @@ def _run_multiview(args) -> int:
 
 def _configure_interaction(p: argparse.ArgumentParser) -> None:
     sub = p.add_subparsers(dest="interaction_action", metavar="ACTION", required=True)
-    d = sub.add_parser("demo", help="simulate a person carrying an object (RGB-D views), fit it with InterCap, score it",
-                       description="Simulate a person walking with an object (library walk, bundled meshes, no "
-                       "downloads) seen by static RGB-D cameras, fit it with InterCap (Huang ch. 5: object "
-                       "tracking, human fit, contact detection, joint fit) and write result.npz, metrics.json, "
-                       "a contact heat map (PLY, PNG), a penetration histogram and the middle frame as GLB.")
+    d = sub.add_parser(
+        "demo",
+        help="simulate a person carrying an object (RGB-D views), fit it with InterCap, score it",
+        description="Simulate a person walking with an object (library walk, bundled meshes, no "
+        "downloads) seen by static RGB-D cameras, fit it with InterCap (Huang ch. 5: object "
+        "tracking, human fit, contact detection, joint fit) and write result.npz, metrics.json, "
+        "a contact heat map (PLY, PNG), a penetration histogram and the middle frame as GLB.",
+    )
     d.add_argument("--out", required=True, metavar="DIR", help="output folder")
     d.add_argument("--frames", type=_positive(int), default=30, metavar="N", help="frames to simulate (default: 30)")
     d.add_argument("--object", default="box", choices=("box", "bottle", "chair"), help="the object (default: box)")
     d.add_argument("--views", type=_positive(int), default=3, metavar="V", help="RGB-D cameras (default: 3)")
-    d.add_argument("--size", type=_image_size, default=(160, 120), metavar="WxH",
-                   help="image size in pixels (default: 160x120)")
-    d.add_argument("--depth-points", type=_positive(int), default=512, metavar="M",
-                   help="depth points per view and frame (default: 512)")
+    d.add_argument(
+        "--size", type=_image_size, default=(160, 120), metavar="WxH", help="image size in pixels (default: 160x120)"
+    )
+    d.add_argument(
+        "--depth-points",
+        type=_positive(int),
+        default=512,
+        metavar="M",
+        help="depth points per view and frame (default: 512)",
+    )
     d.add_argument("--seed", type=int, default=0, help="seed of the simulation (default: 0)")
     _add_body_option(d)
 
@@ -422,12 +505,16 @@ def _run_interaction(args) -> int:
                              height=args.size[1], depth_points=args.depth_points, seed=args.seed, body=args.body,
                              progress=sys.stderr.isatty())  # fmt: skip
     num = lambda x, spec: "-" if x is None else format(x, spec)  # noqa: E731 (None: nothing to measure)
-    print(f"object   ADD-S {num(r['add_s_mm'], '.1f')} mm (separate fit {num(r['separate']['add_s_mm'], '.1f')} mm), "
-          f"rotation {num(r['rotation_deg'], '.1f')} deg modulo its symmetry (raw {num(r.get('rotation_raw_deg'), '.1f')})")
+    print(
+        f"object   ADD-S {num(r['add_s_mm'], '.1f')} mm (separate fit {num(r['separate']['add_s_mm'], '.1f')} mm), "
+        f"rotation {num(r['rotation_deg'], '.1f')} deg modulo its symmetry (raw {num(r.get('rotation_raw_deg'), '.1f')})"
+    )
     print(f"body     MPJPE {num(r['mpjpe_mm'], '.1f')} mm (separate fit {num(r['separate']['mpjpe_mm'], '.1f')} mm)")
-    print(f"contact  F1 {r['contact_f1']:.2f} ({r['contact_part']}), penetration mean "
-          f"{num(r['penetration_mean_mm'], '.1f')} mm, <= 5 mm in {100 * r['penetration_le_5mm']:.0f} % of the "
-          "true contact frames")
+    print(
+        f"contact  F1 {r['contact_f1']:.2f} ({r['contact_part']}), penetration mean "
+        f"{num(r['penetration_mean_mm'], '.1f')} mm, <= 5 mm in {100 * r['penetration_le_5mm']:.0f} % of the "
+        "true contact frames"
+    )
     print(f"wrote    {', '.join(str(Path(args.out) / f) for f in r['outputs'])}")
     print(f"done in {r['timings_s']['total']:.1f} s")
     return 0
@@ -440,32 +527,46 @@ def _people(text: str) -> list[int]:
     try:
         return [int(v) for v in text.split(",") if v.strip()]
     except ValueError:
-        raise argparse.ArgumentTypeError(f"expected person indices separated by commas (e.g. 0,1), got {text!r}") from None
+        raise argparse.ArgumentTypeError(
+            f"expected person indices separated by commas (e.g. 0,1), got {text!r}"
+        ) from None
 
 
 def _configure_vip(p: argparse.ArgumentParser) -> None:
     sub = p.add_subparsers(dest="vip_action", metavar="ACTION", required=True)
-    d = sub.add_parser("demo", help="simulate IMU wearers and bystanders filmed by a hand-held camera; fit with VIP",
-                       description="Simulate a scene from the procedural motion library (no downloads): IMU wearers "
-                       "(13 IMUs each) and bystanders filmed by a hand-held camera with an IMU, OpenPose-like "
-                       "detections. Fit it with the Video Inertial Poser (Inertial Tracker, association, fusion, "
-                       "twice) and write per-wearer npz, overlays, errors over time, a GLB scene and report.json.")
+    d = sub.add_parser(
+        "demo",
+        help="simulate IMU wearers and bystanders filmed by a hand-held camera; fit with VIP",
+        description="Simulate a scene from the procedural motion library (no downloads): IMU wearers "
+        "(13 IMUs each) and bystanders filmed by a hand-held camera with an IMU, OpenPose-like "
+        "detections. Fit it with the Video Inertial Poser (Inertial Tracker, association, fusion, "
+        "twice) and write per-wearer npz, overlays, errors over time, a GLB scene and report.json.",
+    )
     d.add_argument("--out", required=True, metavar="DIR", help="output folder")
     d.add_argument("--frames", type=_positive(int), default=60, metavar="N", help="frames to simulate (default: 60)")
     d.add_argument("--wearers", type=_positive(int), default=2, metavar="P", help="people wearing IMUs (default: 2)")
     d.add_argument("--bystanders", type=int, default=2, metavar="B", help="people without IMUs (default: 2)")
     d.add_argument("--seed", type=int, default=0, help="seed of the simulation (default: 0)")
-    f = sub.add_parser("fit", help="fit a 3DPW sequence file (IMUs simulated from its reference poses)",
-                       description="Fit the Video Inertial Poser to a 3DPW sequence pickle: the chosen people wear "
-                       "13 IMUs simulated from the file's reference poses, the file's OpenPose detections of "
-                       "everyone are associated with them; the outputs are those of `jaxmocap vip demo`.")
+    f = sub.add_parser(
+        "fit",
+        help="fit a 3DPW sequence file (IMUs simulated from its reference poses)",
+        description="Fit the Video Inertial Poser to a 3DPW sequence pickle: the chosen people wear "
+        "13 IMUs simulated from the file's reference poses, the file's OpenPose detections of "
+        "everyone are associated with them; the outputs are those of `jaxmocap vip demo`.",
+    )
     f.add_argument("file", help="3DPW sequence file (sequenceFiles/*/name.pkl)")
     f.add_argument("--out", required=True, metavar="DIR", help="output folder")
     f.add_argument("--people", type=_people, metavar="A,B", help="the IMU wearers (default: everyone in the file)")
-    f.add_argument("--frames", type=_frame_slice, metavar="START:STOP",
-                   help="frames to fit (default: the longest run with a valid camera pose for every wearer)")
+    f.add_argument(
+        "--frames",
+        type=_frame_slice,
+        metavar="START:STOP",
+        help="frames to fit (default: the longest run with a valid camera pose for every wearer)",
+    )
     for q in (d, f):
-        q.add_argument("--steps", type=_positive(int), default=30, metavar="N", help="LM steps per fusion (default: 30)")
+        q.add_argument(
+            "--steps", type=_positive(int), default=30, metavar="N", help="LM steps per fusion (default: 30)"
+        )
         _add_body_option(q)
 
 
@@ -480,9 +581,13 @@ def _run_vip(args) -> int:
         r = run_vip_fit(args.file, args.out, people=args.people, frames=args.frames, body=args.body,
                         max_steps=args.steps, log=log)  # fmt: skip
     for k, e in enumerate(r["people"]):
-        errors = f", MPJPE IT {e['it_mpjpe_mm']:.1f} mm -> VIP {e['vip_mpjpe_mm']:.1f} mm" if "vip_mpjpe_mm" in e else ""
-        print(f"wearer {k} (person {e['person']}): {r['association'][-1]['assigned'][k]}/{r['frames']} frames "
-              f"assigned{errors}")
+        errors = (
+            f", MPJPE IT {e['it_mpjpe_mm']:.1f} mm -> VIP {e['vip_mpjpe_mm']:.1f} mm" if "vip_mpjpe_mm" in e else ""
+        )
+        print(
+            f"wearer {k} (person {e['person']}): {r['association'][-1]['assigned'][k]}/{r['frames']} frames "
+            f"assigned{errors}"
+        )
     print(f"wrote    {', '.join(str(Path(args.out) / f) for f in r['outputs'])}")
     print(f"done in {r['seconds']['total']:.1f} s")
     return 0
@@ -525,13 +630,28 @@ COMMANDS: list[Command] = [
     Command("export", "pose a body with a motion; write meshes (and pictures)", _configure_export, _run_export),
     Command("demo", "walk → posed body → meshes and pictures (the `make demo` job)", _configure_demo, _run_demo),
     Command("check", "physical plausibility: ground penetration, floating, foot skating", _configure_check, _run_check),
-    Command("multiview", "fit SMPL to multi-camera OpenPose keypoints (Multi-view SMPLify): jaxmocap multiview "
-            "PROJECT | demo | --keypoints DIR --calib FILE --out DIR | --videos DIR --calib FILE --out DIR", _configure_multiview, _run_multiview),
-    Command("interaction", "a person handling an object, from RGB-D views (InterCap): jaxmocap interaction demo",
-            _configure_interaction, _run_interaction),
-    Command("vip", "IMU wearers + a hand-held camera (Video Inertial Poser): jaxmocap vip demo | fit FILE.pkl",
-            _configure_vip, _run_vip),
-    Command("prior", "build a pose prior from your own motion (jaxmocap prior build DIR)", _configure_prior, _run_prior),
+    Command(
+        "multiview",
+        "fit SMPL to multi-camera OpenPose keypoints (Multi-view SMPLify): jaxmocap multiview "
+        "PROJECT | demo | --keypoints DIR --calib FILE --out DIR | --videos DIR --calib FILE --out DIR",
+        _configure_multiview,
+        _run_multiview,
+    ),
+    Command(
+        "interaction",
+        "a person handling an object, from RGB-D views (InterCap): jaxmocap interaction demo",
+        _configure_interaction,
+        _run_interaction,
+    ),
+    Command(
+        "vip",
+        "IMU wearers + a hand-held camera (Video Inertial Poser): jaxmocap vip demo | fit FILE.pkl",
+        _configure_vip,
+        _run_vip,
+    ),
+    Command(
+        "prior", "build a pose prior from your own motion (jaxmocap prior build DIR)", _configure_prior, _run_prior
+    ),
     Command("sweep", "grid of methods × weights × sensor errors × datasets, resumable", _configure_sweep, _run_sweep),
 ]
 

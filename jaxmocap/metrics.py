@@ -111,7 +111,9 @@ def _same_shape(name_a, a, name_b, b, expected: str, trailing: int, idx) -> None
     if a.ndim < trailing + 1 or a.shape[-trailing + 1 :] != (3,) * (trailing - 1) or a.shape[-1] != 3:
         raise ValueError(f"{name_a} has shape {a.shape}; expected {expected}.")
     if len(idx) and a.shape[-trailing] <= int(np.max(idx)):
-        raise ValueError(f"{name_a} has shape {a.shape}: {a.shape[-trailing]} joints, but joint {int(np.max(idx))} is evaluated.")
+        raise ValueError(
+            f"{name_a} has shape {a.shape}: {a.shape[-trailing]} joints, but joint {int(np.max(idx))} is evaluated."
+        )
 
 
 def position_errors(pred_joints, true_joints, joints="totalcapture_mpjpe", align: str = "procrustes") -> Array:
@@ -201,8 +203,16 @@ def _static_joints(joints):
     return joints if isinstance(joints, str) or joints is None else tuple(int(i) for i in joint_indices(joints))
 
 
-def pose_errors(body, pred_poses, true_poses, betas=None, pred_trans=None, true_trans=None,
-                position_joints="totalcapture_mpjpe", angle_joints="totalcapture_mpjae") -> dict:
+def pose_errors(
+    body,
+    pred_poses,
+    true_poses,
+    betas=None,
+    pred_trans=None,
+    true_trans=None,
+    position_joints="totalcapture_mpjpe",
+    angle_joints="totalcapture_mpjae",
+) -> dict:
     """Per-frame errors of a pose trajectory against the truth on `body` (forward kinematics).
 
     Returns a dict of NumPy arrays: "mpjpe" (T, N_J) mm after Procrustes, "mpjpe_root"
@@ -258,8 +268,9 @@ def _frame_mean(per_frame, mask):
     return (per_frame * m).sum(axis=-1) / m.sum(axis=-1)
 
 
-def literature_metrics(body, pred_poses, true_poses, fps: float, betas=None, pred_trans=None, true_trans=None,
-                       mask=None) -> dict:
+def literature_metrics(
+    body, pred_poses, true_poses, fps: float, betas=None, pred_trans=None, true_trans=None, mask=None
+) -> dict:
     """The learned-poser papers' metrics of a (T, 24, 3) pose trajectory against the truth.
 
     Returns floats: "sip_error_deg" (global rotation error of upper arms and upper legs),
@@ -317,9 +328,23 @@ def object_pose_errors(pred_R, pred_t, true_R, true_t, vertices, mask=None, symm
             "rotation_deg": float(modulo.mean()), "rotation_raw_deg": float(raw.mean())}  # fmt: skip
 
 
-def interaction_metrics(body_vertices, joints, true_joints, object_R, object_t, sdf, contact, body_points=None,
-                        body_valid=None, object_points=None, object_valid=None, contact_vertices=None,
-                        object_vertices=None, floor: float = 0.0, thresholds=(0.005, 0.007, 0.020)) -> dict:
+def interaction_metrics(
+    body_vertices,
+    joints,
+    true_joints,
+    object_R,
+    object_t,
+    sdf,
+    contact,
+    body_points=None,
+    body_valid=None,
+    object_points=None,
+    object_valid=None,
+    contact_vertices=None,
+    object_vertices=None,
+    floor: float = 0.0,
+    thresholds=(0.005, 0.007, 0.020),
+) -> dict:
     """The InterCap numbers of one fitted sequence (Huang §5.4; lengths in mm).
 
     Args:

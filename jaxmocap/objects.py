@@ -47,7 +47,9 @@ class RigidObject:
             raise ValueError(f"decompose must be 'auto', 'hull' or 'decompose', got {self.decompose!r}.")
         v, f = np.asarray(self.vertices), np.asarray(self.faces)
         if v.ndim != 2 or v.shape[1] != 3 or f.ndim != 2 or f.shape[1] != 3 or len(v) == 0:
-            raise ValueError(f"object {self.name!r}: vertices must be (N, 3) and faces (F, 3); got {v.shape} and {f.shape}.")
+            raise ValueError(
+                f"object {self.name!r}: vertices must be (N, 3) and faces (F, 3); got {v.shape} and {f.shape}."
+            )
 
     @classmethod
     def from_trimesh(cls, mesh, name: str = "object", decompose: str = "auto") -> RigidObject:
@@ -58,7 +60,9 @@ class RigidObject:
             hulls = [m.convex_hull for m in mesh]
             whole = trimesh.util.concatenate(list(mesh))
             parts = tuple((np.asarray(h.vertices, np.float64), np.asarray(h.faces, np.int64)) for h in hulls)
-            return cls(np.asarray(whole.vertices, np.float64), np.asarray(whole.faces, np.int64), name, decompose, parts)
+            return cls(
+                np.asarray(whole.vertices, np.float64), np.asarray(whole.faces, np.int64), name, decompose, parts
+            )
         return cls(np.asarray(mesh.vertices, np.float64), np.asarray(mesh.faces, np.int64), name, decompose)
 
     @classmethod
@@ -114,12 +118,16 @@ class RigidObject:
 
         def block(lo, hi):
             lo, hi = np.asarray(lo, float), np.asarray(hi, float)
-            return trimesh.creation.box(extents=hi - lo, transform=trimesh.transformations.translation_matrix((lo + hi) / 2))
+            return trimesh.creation.box(
+                extents=hi - lo, transform=trimesh.transformations.translation_matrix((lo + hi) / 2)
+            )
 
         w, d, s, c = width / 2, depth / 2, seat_height, height / 2
         leg_top = s - thickness - gap
-        boxes = [block((-w, s - thickness, -d), (w, s, d)),  # seat
-                 block((-w, s + gap, -d), (w, height, -d + thickness))]  # backrest on the seat's back edge
+        boxes = [
+            block((-w, s - thickness, -d), (w, s, d)),  # seat
+            block((-w, s + gap, -d), (w, height, -d + thickness)),
+        ]  # backrest on the seat's back edge
         for x in (-w, w - thickness):
             for z in (-d, d - thickness):
                 boxes.append(block((x, 0.0, z), (x + thickness, leg_top, z + thickness)))
@@ -217,7 +225,9 @@ def _symmetry(obj: RigidObject, rel_tol: float = 0.01) -> Symmetry:
     continuous = [a for a in axes if all(_maps_onto(mesh, points, centre, _about(a, x), tol) for x in odd)]
     if len(continuous) >= 2 and abs(continuous[0] @ continuous[-1]) < 0.99:
         return Symmetry(centre, np.eye(3)[None], None, True)
-    flips = [_about(a, np.pi) for a in axes] + [_about(a, np.pi / 2) for a in axes] + [_about(a, -np.pi / 2) for a in axes]
+    flips = (
+        [_about(a, np.pi) for a in axes] + [_about(a, np.pi / 2) for a in axes] + [_about(a, -np.pi / 2) for a in axes]
+    )
     if continuous:
         axis = continuous[0]
         reverse = [S for S in flips if S @ axis @ axis < -0.99 and _maps_onto(mesh, points, centre, S, tol)]

@@ -154,9 +154,7 @@ def matrix_to_quaternion(matrix: Array) -> Array:
     m00, m11, m22 = m[..., 0, 0], m[..., 1, 1], m[..., 2, 2]
     trace = m00 + m11 + m22
     # 4 q_k² for k = w, x, y, z.
-    four_sq = jnp.stack(
-        [1.0 + trace, 1.0 + m00 - m11 - m22, 1.0 - m00 + m11 - m22, 1.0 - m00 - m11 + m22], -1
-    )
+    four_sq = jnp.stack([1.0 + trace, 1.0 + m00 - m11 - m22, 1.0 - m00 + m11 - m22, 1.0 - m00 - m11 + m22], -1)
     best = jnp.argmax(four_sq, axis=-1)
     # Clamp so the branches not taken have finite gradients too.
     r = jnp.sqrt(jnp.maximum(four_sq, 1e-12))  # 2|q_k|

@@ -1,7 +1,7 @@
 """Sum up a `JAXMOCAP_COMPILE_REPORT` file (see conftest.py): where the suite's time goes.
 
-    JAXMOCAP_COMPILE_REPORT=/tmp/c.jsonl make test
-    python tests/compile_report.py /tmp/c.jsonl [--top 30]
+JAXMOCAP_COMPILE_REPORT=/tmp/c.jsonl make test
+python tests/compile_report.py /tmp/c.jsonl [--top 30]
 """
 
 import argparse

@@ -73,7 +73,12 @@ def random_body(smpl_dict):
 
     d = smpl_dict
     return make_body(
-        d["v_template"], d["f"], d["shapedirs"], d["posedirs"], d["J_regressor"], d["weights"],
+        d["v_template"],
+        d["f"],
+        d["shapedirs"],
+        d["posedirs"],
+        d["J_regressor"],
+        d["weights"],
         dtype=np.float64,
     )
 
@@ -169,4 +174,6 @@ def assert_picture(path, min_bytes=10_000, min_colour_fraction=0.0, min_drawn_fr
     drawn = (image.min(-1) < 0.9).mean()
     assert drawn >= min_drawn_fraction, f"{path}: {drawn:.4f} of its pixels drawn, expected >= {min_drawn_fraction}"
     colour = (image.max(-1) - image.min(-1) > 0.3).mean()
-    assert colour >= min_colour_fraction, f"{path}: {colour:.4f} of its pixels coloured, expected >= {min_colour_fraction}"
+    assert colour >= min_colour_fraction, (
+        f"{path}: {colour:.4f} of its pixels coloured, expected >= {min_colour_fraction}"
+    )

@@ -5,7 +5,6 @@ variants with per-sequence and per-window unknowns (tests/test_solve.py and
 tests/test_solve_gradients.py).
 """
 
-
 import jax.numpy as jnp
 import numpy as np
 
@@ -118,7 +117,10 @@ def _variants(T, seed=1):
               Term("offset", e_offset, weight=0.2, reads=(("trans", None), ("offset", None)))]  # fmt: skip
     windows = [Term("window", e_window, weight=0.4, reads=(("trans", None), ("coef", None)))]
     # 9 + 2 coupling rows per frame against 12 coupled unknowns: the "rows" factorisation.
-    narrow = list(CHAIN.terms) + [Term("prior", e_prior, weight=0.5), Term("smooth2", e_smooth2_root, weight=0.3, bandwidth=2)]
+    narrow = list(CHAIN.terms) + [
+        Term("prior", e_prior, weight=0.5),
+        Term("smooth2", e_smooth2_root, weight=0.3, bandwidth=2),
+    ]
     seq = {"heading": jnp.asarray(rng.normal(0, 0.2, 3)), "offset": jnp.asarray(rng.normal(0, 0.1, 3))}
     coef = {"coef": jnp.asarray(rng.normal(0, 0.3, (W, 2, 3)))}
     u_seq = {"heading": sequence("angle"), "offset": sequence()}

@@ -62,9 +62,7 @@ def test_forward_algorithm_equals_enumeration(x64, seed):
     # log-likelihood of every sequence = score - log Z, and the probabilities sum to 1
     seqs = jnp.asarray(list(scores))
     ll = jax.jit(jax.vmap(lambda s: A.crf_log_likelihood(unary, transitions, s)))(seqs)
-    np.testing.assert_allclose(
-        np.asarray(ll), np.array(list(scores.values())) - brute, rtol=1e-10, atol=1e-12
-    )
+    np.testing.assert_allclose(np.asarray(ll), np.array(list(scores.values())) - brute, rtol=1e-10, atol=1e-12)
     np.testing.assert_allclose(np.exp(np.asarray(ll)).sum(), 1.0, rtol=1e-10)
 
 
@@ -73,9 +71,7 @@ def test_masked_frames_are_skipped(x64):
     mask = np.array([True, False, True, True, False])
     frames, scores = _brute_scores(unary, transitions, mask)
     brute = np.logaddexp.reduce(np.array(list(scores.values())))
-    np.testing.assert_allclose(
-        float(A.crf_log_partition(unary, transitions, jnp.asarray(mask))), brute, rtol=1e-12
-    )
+    np.testing.assert_allclose(float(A.crf_log_partition(unary, transitions, jnp.asarray(mask))), brute, rtol=1e-12)
     best = max(scores, key=scores.get)
     path = np.asarray(A.viterbi(unary, transitions, jnp.asarray(mask)))
     np.testing.assert_array_equal(path[frames], best)
@@ -125,9 +121,7 @@ def test_train_crf_increases_the_likelihood():
     crf0 = A.init_crf([np.zeros(2, int)], 3)  # a poor start
     crf, curve = A.train_crf(crf0, log_probs, labels, steps=40, learning_rate=0.1, prior_weight=0.0)
     assert curve.loss[-1] < curve.loss[0] - 0.05
-    assert float(crf.transitions[0, 0] - crf.transitions[0, 1]) > float(
-        crf0.transitions[0, 0] - crf0.transitions[0, 1]
-    )
+    assert float(crf.transitions[0, 0] - crf.transitions[0, 1]) > float(crf0.transitions[0, 0] - crf0.transitions[0, 1])
 
 
 # --- labelling rule ---------------------------------------------------------------------
@@ -156,10 +150,7 @@ def test_labelling_rule_on_procedural_motions(name, expected, share):
 def test_labelling_rule_squats_bend_and_segments_are_long_enough():
     motion = library.squats(num_frames=150, fps=30.0)
     labels = A.activity_labels(motion)
-    assert (
-        set(np.unique(labels)) <= {C_IDX["still"], C_IDX["bend"]}
-        and (labels == C_IDX["bend"]).any()
-    )
+    assert set(np.unique(labels)) <= {C_IDX["still"], C_IDX["bend"]} and (labels == C_IDX["bend"]).any()
     change = np.flatnonzero(np.diff(labels)) + 1
     runs = np.diff(np.concatenate([[0], change, [len(labels)]]))
     assert runs.min() >= int(round(A.LabelRule().min_segment * motion.fps))
@@ -201,12 +192,8 @@ def test_window_features_layout_and_start_padding():
     x = np.asarray(A.window_features(readings, window=3))
     assert x.shape == (4, 18)
     # frame 1: window frames (0, 0, 1): accelerations first, then rates
-    np.testing.assert_array_equal(
-        x[1, :9], np.concatenate([readings[0, :3], readings[0, :3], readings[1, :3]])
-    )
-    np.testing.assert_array_equal(
-        x[1, 9:], np.concatenate([readings[0, 3:], readings[0, 3:], readings[1, 3:]])
-    )
+    np.testing.assert_array_equal(x[1, :9], np.concatenate([readings[0, :3], readings[0, :3], readings[1, :3]]))
+    np.testing.assert_array_equal(x[1, 9:], np.concatenate([readings[0, 3:], readings[0, 3:], readings[1, 3:]]))
     np.testing.assert_array_equal(x[3, :9], readings[1:4, :3].reshape(-1))
     assert A.window_features(np.zeros((5, 6))).shape == (5, 360)
 
@@ -234,10 +221,7 @@ def test_bad_readings_are_rejected():
 def _tiny_problem(seed=0, n=64, window=4, C=3):
     rng = np.random.default_rng(seed)
     y = rng.integers(0, C, n).astype(np.int32)
-    x = (
-        rng.normal(size=(n, 6 * window)).astype(np.float32)
-        + 2.0 * np.eye(C, 6 * window, dtype=np.float32)[y]
-    )
+    x = rng.normal(size=(n, 6 * window)).astype(np.float32) + 2.0 * np.eye(C, 6 * window, dtype=np.float32)[y]
     return x, y
 
 
@@ -301,9 +285,7 @@ def test_save_load_round_trip(tmp_path):
         np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-6)  # stored as float32
     readings = np.random.default_rng(1).normal(size=(9, 6)).astype(np.float32)
     np.testing.assert_array_equal(clf.predict(readings), loaded.predict(readings))
-    np.testing.assert_array_equal(
-        clf.predict(readings, use_crf=False), np.asarray(clf.log_probs(readings)).argmax(1)
-    )
+    np.testing.assert_array_equal(clf.predict(readings, use_crf=False), np.asarray(clf.log_probs(readings)).argmax(1))
 
 
 def test_mismatched_files_fail_clearly(tmp_path):

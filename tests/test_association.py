@@ -60,6 +60,7 @@ def test_pair_features_match_a_numpy_derivation(exact):
     keep[0, :, 0] = keep[1, :, 1] = True
     inter, intra = A.pair_features(hyp, keep, J, K, exact["det"], window=30)
     shape = keep.shape
+
     def root(l, t):  # eq. 4.15: mid-hip in camera coordinates
         return R[t] @ (0.5 * (J[l, t, 8] + J[l, t, 11])) + exact["t"][t]
 
@@ -106,7 +107,9 @@ def test_binary_program_matches_brute_force(seed):
     unary = rng.normal(size=n)
     pairs = np.array([(a, b) for a in range(n) for b in range(a + 1, n) if rng.random() < 0.5])
     pair_costs = rng.normal(scale=1.5, size=len(pairs))
-    chosen, objective, status = A.solve_labelling(shape, np.arange(n), unary, pairs, pair_costs, chunk=10, mip_rel_gap=0.0)
+    chosen, objective, status = A.solve_labelling(
+        shape, np.arange(n), unary, pairs, pair_costs, chunk=10, mip_rel_gap=0.0
+    )
     x = np.zeros(n)
     x[chosen] = 1
     value = unary @ x + pair_costs @ (x[pairs[:, 0]] * x[pairs[:, 1]])
@@ -126,8 +129,9 @@ def test_track_constraint_matches_brute_force(seed, chunk):
     unary = rng.normal(loc=-1.0, size=n)
     pairs = np.array([(a, b) for a in range(n) for b in range(a + 1, n) if rng.random() < 0.4])
     pair_costs = rng.normal(scale=1.5, size=len(pairs))
-    chosen, _, _ = A.solve_labelling(shape, np.arange(n), unary, pairs, pair_costs, chunk=chunk, tracks=tracks,
-                                      mip_rel_gap=0.0)
+    chosen, _, _ = A.solve_labelling(
+        shape, np.arange(n), unary, pairs, pair_costs, chunk=chunk, tracks=tracks, mip_rel_gap=0.0
+    )
     x = np.zeros(n)
     x[chosen] = 1
     value = unary @ x + pair_costs @ (x[pairs[:, 0]] * x[pairs[:, 1]])

@@ -128,6 +128,7 @@ def _shift_term(p, d):
 SIMPLE = Problem([Term("fit", lambda p, d: p["x"] - 1.0)])
 WRONG_BAND = Problem([Term("fit", lambda p, d: p["x"] - 1.0), Term("shift", _shift_term)])
 
+
 def _sweep(edit=None, raw=None, **sweep):
     """A valid toy sweep config (tests/sweep_toy.py), one entry spoilt by `edit` (dataset
     keys) or `raw(config)` (anything), validated."""
@@ -495,17 +496,45 @@ CLI_CASES = [
     ("convert-output-suffix", ["convert", str(CMU / "02_01.amc"), "{dir}/out.txt"], r"out\.txt.*\.npz"),
     ("check-body-name", ["check", "{dir}/nope.amc", "--body", "default-medium"], r"default-medium.*default-low"),
     ("check-ground", ["check", "{dir}/nope.amc", "--ground", "floor"], r"--ground"),
-    ("demo-cmu-nowhere", ["demo", "--out", "{dir}/demo", "--body", "default-low", "--no-fit"], r"\$JAXMOCAP_CMU='/no/such/cmu' is not a folder"),
-    ("multiview-out-file", ["multiview", "--keypoints", "{dir}/nope", "--calib", "{dir}/nope.toml", "--out", "{dir}/cli_text.npz"], r"--out.*cli_text\.npz' is a file, not a folder"),
-    ("multiview-out-uncreatable", ["multiview", "--keypoints", "{dir}/nope", "--calib", "{dir}/nope.toml", "--out", "{dir}/cli_text.npz/sub"], r"--out.*cli_text\.npz/sub' cannot be created"),
-    ("export-out-file", ["export", str(CMU / "02_01.amc"), "{dir}/cli_text.npz"], r"OUTDIR '.*cli_text\.npz' is a file, not a folder"),
-    ("demo-out-file", ["demo", "--out", "{dir}/cli_text.npz", "--body", "default-low", "--no-fit"], r"out_dir \(--out\) '.*cli_text\.npz' is a file"),
+    (
+        "demo-cmu-nowhere",
+        ["demo", "--out", "{dir}/demo", "--body", "default-low", "--no-fit"],
+        r"\$JAXMOCAP_CMU='/no/such/cmu' is not a folder",
+    ),
+    (
+        "multiview-out-file",
+        ["multiview", "--keypoints", "{dir}/nope", "--calib", "{dir}/nope.toml", "--out", "{dir}/cli_text.npz"],
+        r"--out.*cli_text\.npz' is a file, not a folder",
+    ),
+    (
+        "multiview-out-uncreatable",
+        ["multiview", "--keypoints", "{dir}/nope", "--calib", "{dir}/nope.toml", "--out", "{dir}/cli_text.npz/sub"],
+        r"--out.*cli_text\.npz/sub' cannot be created",
+    ),
+    (
+        "export-out-file",
+        ["export", str(CMU / "02_01.amc"), "{dir}/cli_text.npz"],
+        r"OUTDIR '.*cli_text\.npz' is a file, not a folder",
+    ),
+    (
+        "demo-out-file",
+        ["demo", "--out", "{dir}/cli_text.npz", "--body", "default-low", "--no-fit"],
+        r"out_dir \(--out\) '.*cli_text\.npz' is a file",
+    ),
     ("inspect-folder", ["inspect", "{dir}"], r"is a folder; give a motion file inside it"),
     ("vip-demo-seed", ["vip", "demo", "--out", "{dir}/vip", "--seed", "-1"], r"seed must be an integer in 0"),
-    ("vip-demo-bystanders", ["vip", "demo", "--out", "{dir}/vip", "--bystanders", "5"], r"bystanders must be an integer in 0 \.\. 3"),
+    (
+        "vip-demo-bystanders",
+        ["vip", "demo", "--out", "{dir}/vip", "--bystanders", "5"],
+        r"bystanders must be an integer in 0 \.\. 3",
+    ),
     ("interaction-out-file", ["interaction", "demo", "--out", "{dir}/cli_text.npz"], r"cli_text\.npz"),
     ("sweep-config-missing", ["sweep", "{dir}/nope.toml"], r"sweep config '.*nope\.toml' does not exist"),
-    ("prior-build-missing", ["prior", "build", "{dir}/nope_clips", "--out", "{dir}/p.npz"], r"nope_clips does not exist"),
+    (
+        "prior-build-missing",
+        ["prior", "build", "{dir}/nope_clips", "--out", "{dir}/p.npz"],
+        r"nope_clips does not exist",
+    ),
     ("convert-input-missing", ["convert", "{dir}/nope.amc", "{dir}/o.npz"], r"nope\.amc"),
     ("check-out-folder", ["check", "{dir}/nope.amc", "--out", "{dir}/cli_text.npz/sub"], r"--out .*cli_text\.npz/sub"),
     ("export-missing", ["export", "{dir}/nope.bvh", "{dir}/exported"], r"nope\.bvh"),
@@ -529,7 +558,10 @@ def test_cli_bad_input(ctx, capsys, monkeypatch, argv):
     assert re.search(match, err), err
 
 
-@pytest.mark.parametrize("argv", [["demo", "--seconds", "-1"], ["export", "a.npz", "out", "--every", "0"], ["convert", "a", "b.npz", "--fps", "0"]])
+@pytest.mark.parametrize(
+    "argv",
+    [["demo", "--seconds", "-1"], ["export", "a.npz", "out", "--every", "0"], ["convert", "a", "b.npz", "--fps", "0"]],
+)
 def test_cli_rejects_non_positive_numbers(capsys, argv):
     from jaxmocap.cli import main
 
@@ -579,7 +611,9 @@ def test_no_observations_is_not_success(ctx):
     assert int(sol.result) == 0  # one observed row is enough
     # A per-sensor mask with as many sensors as frames is per sensor, not per frame: only
     # sensor 2 is seen and the padded frame is 2, so frames 0-1 still observe it.
-    sensors = Problem([Term("obs", lambda p, d: p["x"][:, None, :] - d, mask=lambda d: jnp.asarray([False, False, True]))])
+    sensors = Problem(
+        [Term("obs", lambda p, d: p["x"][:, None, :] - d, mask=lambda d: jnp.asarray([False, False, True]))]
+    )
     sol = solve_batch(sensors, {"x": jnp.zeros((1, 3, 2))}, jnp.ones((1, 3, 3, 2)), jnp.asarray([[True, True, False]]),
                       max_steps=50)  # fmt: skip
     assert int(sol.result[0]) == 0
@@ -597,7 +631,9 @@ def test_bandwidth_check_accepts_honest_terms():
     from jaxmocap.solve import measure_bandwidths
     from jaxmocap.timeseries import second_difference
 
-    honest = Problem([Term("fit", lambda p, d: p["x"] - 1.0), Term("smooth", lambda p, d: second_difference(p["x"]), bandwidth=1)])
+    honest = Problem(
+        [Term("fit", lambda p, d: p["x"] - 1.0), Term("smooth", lambda p, d: second_difference(p["x"]), bandwidth=1)]
+    )
     assert measure_bandwidths(honest, {"x": jnp.zeros((9, 2))}) == {"fit": 0, "smooth": 1}
     declared = Problem([Term("fit", lambda p, d: p["x"] - 1.0), Term("shift", _shift_term, bandwidth=1)])
     assert check_bandwidths(declared, {"x": jnp.zeros((7, 2))}) == {"fit": 0, "shift": 1}

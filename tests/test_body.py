@@ -92,7 +92,9 @@ def test_shape_gradient_and_translation(random_body):
     np.testing.assert_allclose(jac, np.moveaxis(random_body.shapedirs, 0, -1), atol=1e-12)  # linear in β at rest
     shift = forward_jit(random_body, np.zeros((24, 3)), np.zeros(10), np.array([1.0, 2.0, 3.0]))
     base = forward_jit(random_body, np.zeros((24, 3)), np.zeros(10), np.zeros(3))
-    np.testing.assert_allclose(shift.vertices - base.vertices, np.broadcast_to([1.0, 2.0, 3.0], base.vertices.shape), atol=1e-12)
+    np.testing.assert_allclose(
+        shift.vertices - base.vertices, np.broadcast_to([1.0, 2.0, 3.0], base.vertices.shape), atol=1e-12
+    )
 
 
 def test_forward_kinematics_closed_form():
@@ -128,7 +130,14 @@ def test_bad_shapes_are_named(random_body):
     with pytest.raises(ValueError, match="do not broadcast"):
         forward(random_body, np.zeros((4, 24, 3)), np.zeros((3, 10)))
     with pytest.raises(ValueError, match="shapedirs has shape"):
-        make_body(np.zeros((5, 3)), [[0, 1, 2]], np.zeros((4, 3, 2)), np.zeros((5, 3, 207)), np.zeros((24, 5)), np.zeros((5, 24)))
+        make_body(
+            np.zeros((5, 3)),
+            [[0, 1, 2]],
+            np.zeros((4, 3, 2)),
+            np.zeros((5, 3, 207)),
+            np.zeros((24, 5)),
+            np.zeros((5, 24)),
+        )
 
 
 def test_body_is_a_pytree_with_static_topology(random_body):
@@ -154,7 +163,9 @@ def _sparsified_body(smpl_dict, per_vertex=4, seed=5):
     for _ in range(per_vertex):
         weights[np.arange(len(weights)), r.integers(0, 24, len(weights))] += r.random(len(weights))
     weights /= weights.sum(1, keepdims=True)
-    return make_body(d["v_template"], d["f"], d["shapedirs"], d["posedirs"], d["J_regressor"], weights, dtype=np.float64)
+    return make_body(
+        d["v_template"], d["f"], d["shapedirs"], d["posedirs"], d["J_regressor"], weights, dtype=np.float64
+    )
 
 
 def _skinning_inputs(body, n, seed):
@@ -194,7 +205,12 @@ def test_sparse_skinning_equals_dense(smpl_dict, random_body, which):
     pose = rng.normal(scale=0.5, size=(4, 24, 3)).astype(np.float32)
     local = jaxmocap.rotation.axis_angle_to_matrix(jnp.asarray(pose))
     betas = rng.normal(size=(4, body.num_betas)).astype(np.float32)
-    out = {s: jax.jit(lambda b, r, s_=s: kinematics.forward_rotations_unchecked(b, r, betas, skinning=s_).vertices)(b32, local) for s in ("dense", "sparse")}
+    out = {
+        s: jax.jit(lambda b, r, s_=s: kinematics.forward_rotations_unchecked(b, r, betas, skinning=s_).vertices)(
+            b32, local
+        )
+        for s in ("dense", "sparse")
+    }
     np.testing.assert_allclose(out["sparse"], out["dense"], atol=2e-6)
 
 
@@ -207,7 +223,9 @@ def test_automatic_skinning_is_dense_on_cpu(smpl_dict):
         assert "gather" not in hlo and "sort" not in hlo
     dense = jax.jit(lambda b, r: kinematics.forward_rotations_unchecked(b, r, skinning="dense").vertices)
     np.testing.assert_allclose(
-        forward_jit(body, pose).vertices, dense(body, jaxmocap.rotation.axis_angle_to_matrix(jnp.asarray(pose))), atol=1e-12
+        forward_jit(body, pose).vertices,
+        dense(body, jaxmocap.rotation.axis_angle_to_matrix(jnp.asarray(pose))),
+        atol=1e-12,
     )
 
 
@@ -221,7 +239,11 @@ def test_sparse_skinning_gradients(smpl_dict, where):
     def vertices(skinning):
         def f(p):
             local = jaxmocap.rotation.axis_angle_to_matrix(p)
-            return kinematics.forward_rotations_unchecked(body, local, jnp.zeros(10), skinning=skinning).vertices[::5].ravel()
+            return (
+                kinematics.forward_rotations_unchecked(body, local, jnp.zeros(10), skinning=skinning)
+                .vertices[::5]
+                .ravel()
+            )
 
         return f
 
@@ -238,7 +260,12 @@ def test_one_and_two_blend_products_agree(random_body):
     """Shape and pose blend shapes as one product against the stacked bases or as two."""
     pose = jaxmocap.rotation.axis_angle_to_matrix(jnp.asarray(rng.normal(scale=0.5, size=(3, 24, 3))))
     betas = rng.normal(size=(3, 10))
-    run = lambda joint: jax.jit(lambda b: kinematics.forward_rotations_unchecked(b, pose, betas, joint_blend=joint).vertices)(random_body)  # noqa: E731
+
+    def run(joint):
+        return jax.jit(lambda b: kinematics.forward_rotations_unchecked(b, pose, betas, joint_blend=joint).vertices)(
+            random_body
+        )
+
     np.testing.assert_allclose(run(True), run(False), atol=1e-12)
 
 
@@ -283,7 +310,9 @@ def test_compact_body_poses_exactly_like_the_mesh():
     np.testing.assert_allclose(cut.joints, full.joints, atol=1e-9)
     np.testing.assert_allclose(cut.joint_rotations, full.joint_rotations, atol=1e-9)
     np.testing.assert_allclose(cut.vertices[:, :3], full.vertices[:, keep], atol=1e-9)
-    np.testing.assert_allclose(regress_keypoints(small_reg, cut.vertices), regress_keypoints(reg, full.vertices), atol=1e-9)
+    np.testing.assert_allclose(
+        regress_keypoints(small_reg, cut.vertices), regress_keypoints(reg, full.vertices), atol=1e-9
+    )
     assert small.num_vertices == 3 + int((np.abs(np.asarray(reg) @ np.asarray(body.weights)) > 1e-12).sum()) + 24
 
 

@@ -85,7 +85,10 @@ def _family_dict(num_joints: int) -> dict:
     kintree = np.stack([np.array(parents), np.arange(num_joints)])
     kintree[0, 0] = 4294967295
     return dict(
-        d, weights=w, J_regressor=reg, kintree_table=kintree,
+        d,
+        weights=w,
+        J_regressor=reg,
+        kintree_table=kintree,
         posedirs=rng.normal(scale=0.02, size=(V, 3, 9 * (num_joints - 1))),
     )
 

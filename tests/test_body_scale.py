@@ -34,7 +34,9 @@ def test_scaled_body_scales_the_joints_and_keeps_the_dtype(body):
     big = scaled_body(body, np.float64(1.2))  # a NumPy float64 must not promote a float32 body
     assert big.dtype == body.dtype
     zero = np.zeros(body.num_betas, np.float32)
-    np.testing.assert_allclose(shaped_joints(big, zero), 1.2 * np.asarray(shaped_joints(body, zero)), rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(
+        shaped_joints(big, zero), 1.2 * np.asarray(shaped_joints(body, zero)), rtol=1e-5, atol=1e-6
+    )
     for bad in (0.0, -1.1, np.nan, np.inf, [1.0, 1.1]):
         with pytest.raises(ValueError, match="finite number > 0"):
             scaled_body(body, bad)
@@ -72,14 +74,18 @@ def test_a_given_size_is_plain_sip(make_setup, start, estimate):
     """When the size is known nothing is estimated: SIP on that body is what the estimate's
     own fit of that candidate is, poses and costs (the refined candidates come in order)."""
     k = int(np.flatnonzero(np.isclose(estimate.scales, 1.1))[0])
-    sol = I.sparse_inertial_poser(make_setup(1.1), I.SIPWeights(mahal=0.0), init=start, max_steps=25, rtol=1e-4, atol=1e-4).solution
+    sol = I.sparse_inertial_poser(
+        make_setup(1.1), I.SIPWeights(mahal=0.0), init=start, max_steps=25, rtol=1e-4, atol=1e-4
+    ).solution
     np.testing.assert_allclose(sol.value["pose"], estimate.solution.value["pose"][k], atol=1e-6)
     np.testing.assert_allclose(float(sol.costs["acc"]), estimate.costs["acc"][k], rtol=1e-6)
 
 
 def test_the_truth_beyond_the_candidates_is_flagged(make_setup, start):
     """A bound that wins is reported (at_edge) and not refined: the true scale may lie beyond it."""
-    est = I.estimate_body_scale(make_setup, start, scales=(0.8, 0.85, 0.9), weights=I.SIPWeights(mahal=0.0), max_steps=25)
+    est = I.estimate_body_scale(
+        make_setup, start, scales=(0.8, 0.85, 0.9), weights=I.SIPWeights(mahal=0.0), max_steps=25
+    )
     assert est.at_edge and est.scales[est.best] == 0.9 and len(est.scales) == 3
 
 

@@ -26,7 +26,9 @@ def amass_file(tmp_path_factory):
     t = np.arange(T) / 30.0
     trans = np.stack([0.0 * t, 1.0 * t, 0.9 + 0.0 * t], 1)  # 1 m/s along AMASS's y
     path = tmp_path_factory.mktemp("amass") / "walk_poses.npz"
-    np.savez(path, poses=poses, trans=trans, betas=np.zeros(10), gender=np.array("neutral"), mocap_framerate=np.array(30.0))
+    np.savez(
+        path, poses=poses, trans=trans, betas=np.zeros(10), gender=np.array("neutral"), mocap_framerate=np.array(30.0)
+    )
     return path
 
 
@@ -45,7 +47,10 @@ def test_inspect_motion(amass_file, capsys):
     assert path == pytest.approx(0.5, abs=1e-6)  # 15 steps of 1/30 m
 
 
-@pytest.mark.skipif(find_cmu_dir() is None or not (find_cmu_dir().parent / "cmu_cc" / "005_02.bvh").is_file(), reason="needs ../shared/data/cmu_cc")
+@pytest.mark.skipif(
+    find_cmu_dir() is None or not (find_cmu_dir().parent / "cmu_cc" / "005_02.bvh").is_file(),
+    reason="needs ../shared/data/cmu_cc",
+)
 def test_inspect_names_the_rig(capsys):
     clip = find_cmu_dir().parent / "cmu_cc" / "005_02.bvh"
     assert main(["inspect", str(clip)]) == 0
@@ -122,7 +127,10 @@ def test_bad_arguments_exit_2(amass_file, tmp_path, capsys):
 
 @pytest.mark.skipif(find_cmu_dir() is None, reason="CMU clips not present")
 def test_demo(tmp_path, capsys):
-    assert main(["demo", "--out", str(tmp_path), "--seconds", "0.5", "--every", "4", "--body", "default-low", "--no-fit"]) == 0
+    assert (
+        main(["demo", "--out", str(tmp_path), "--seconds", "0.5", "--every", "4", "--body", "default-low", "--no-fit"])
+        == 0
+    )
     out = capsys.readouterr().out
     assert "CMU walk" in out and "16 frames" in out
     assert len(list((tmp_path / "meshes").glob("*.ply"))) == 4
@@ -134,7 +142,23 @@ def test_demo_without_cmu_uses_procedural_walk(tmp_path, monkeypatch, capsys):
     empty = tmp_path / "no_cmu"
     empty.mkdir()
     monkeypatch.setenv("JAXMOCAP_CMU", str(empty))
-    assert main(["demo", "--out", str(tmp_path / "demo"), "--seconds", "0.5", "--every", "8", "--body", "default-low", "--no-fit"]) == 0
+    assert (
+        main(
+            [
+                "demo",
+                "--out",
+                str(tmp_path / "demo"),
+                "--seconds",
+                "0.5",
+                "--every",
+                "8",
+                "--body",
+                "default-low",
+                "--no-fit",
+            ]
+        )
+        == 0
+    )
     out = capsys.readouterr().out
     assert "procedural walk" in out and "16 frames" in out
     assert len(list((tmp_path / "demo" / "meshes").glob("*.ply"))) == 2
@@ -144,7 +168,9 @@ def test_demo_counts_meshes_per_folder(tmp_path):
     """meshes/, meshes_sop/ and meshes_sip/ of 18 PLY each: three lines of 18, not one of 54."""
     from jaxmocap.cli import _mesh_lines
 
-    paths = [tmp_path / d / f"frame_{i:04d}.ply" for d in ("meshes", "meshes_sop", "meshes_sip") for i in range(0, 90, 5)]
+    paths = [
+        tmp_path / d / f"frame_{i:04d}.ply" for d in ("meshes", "meshes_sop", "meshes_sip") for i in range(0, 90, 5)
+    ]
     lines = _mesh_lines(paths + [tmp_path / "meshes" / "sequence.glb"])
     assert lines == [f"meshes   18 PLY in {tmp_path / d} (frame_0000.ply .. frame_0085.ply)"
                      for d in ("meshes", "meshes_sop", "meshes_sip")]  # fmt: skip

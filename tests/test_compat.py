@@ -41,6 +41,7 @@ def test_optimistix_damped_operator():
 def test_mjx_contacts():
     import mujoco  # a pinned dependency: imported, never skipped
     from mujoco import mjx
+
     xml = """<mujoco><worldbody><geom type="plane" size="5 5 .1"/>
       <body pos="0 0 0.05"><freejoint/><geom type="sphere" size="0.1"/></body></worldbody></mujoco>"""
     model = mjx.put_model(mujoco.MjModel.from_xml_string(xml))

@@ -77,7 +77,7 @@ def _numpy_lstm(x, Wih, Whh, b, reverse=False):
     h, c = np.zeros(H), np.zeros(H)
     out = np.zeros((T, H))
     sig = lambda z: 1 / (1 + np.exp(-z))  # noqa: E731
-    for t in (range(T - 1, -1, -1) if reverse else range(T)):
+    for t in range(T - 1, -1, -1) if reverse else range(T):
         g = Wih @ x[t] + Whh @ h + b
         i, f, z, o = np.split(g, 4)
         c = sig(f) * c + sig(i) * np.tanh(z)

@@ -17,7 +17,13 @@ def test_atomic_write_replaces_the_whole_file_and_leaves_nothing_on_failure(tmp_
 
 
 def test_natural_key_orders_frame_numbers_as_numbers():
-    names = ["cam10.json", "cam2.json", "Cam1.json", "cam02_000000000100_keypoints.json", "cam02_000000000099_keypoints.json"]
+    names = [
+        "cam10.json",
+        "cam2.json",
+        "Cam1.json",
+        "cam02_000000000100_keypoints.json",
+        "cam02_000000000099_keypoints.json",
+    ]
     assert sorted(names, key=natural_key) == [
         "Cam1.json", "cam2.json", "cam02_000000000099_keypoints.json", "cam02_000000000100_keypoints.json", "cam10.json",
     ]  # fmt: skip

@@ -192,9 +192,7 @@ def test_easymocap_fixture_matches_and_either_file_or_folder_reads(tmp_path):
 
 
 def test_easymocap_names_that_look_like_numbers_stay_strings(tmp_path):
-    cams = [
-        CalibratedCamera(n, c.K, c.dist, c.R, c.t, 1280, 720) for n, c in zip(("01", "02"), _rig(2))
-    ]
+    cams = [CalibratedCamera(n, c.K, c.dist, c.R, c.t, 1280, 720) for n, c in zip(("01", "02"), _rig(2))]
     save_calibration(tmp_path, cams, "easymocap")
     for f in ("intri.yml", "extri.yml"):  # as OpenCV writes them: names unquoted
         text = (tmp_path / f).read_bytes().replace(b'- "01"', b"- 01").replace(b'- "02"', b"- 02")
@@ -280,9 +278,7 @@ def test_distortion_matches_the_opencv_formula():
     np.testing.assert_allclose(distort_points([x, y], [k1, k2, p1, p2, k3]), expected, rtol=1e-15)
 
 
-@pytest.mark.parametrize(
-    "dist", [[-0.28, 0.09, 1e-3, -2e-3, -0.01], [0.12, -0.03, -1e-3, 1e-3, 0.0]]
-)
+@pytest.mark.parametrize("dist", [[-0.28, 0.09, 1e-3, -2e-3, -0.01], [0.12, -0.03, -1e-3, 1e-3, 0.0]])
 def test_undistortion_inverts_distortion_to_1e6_px_over_the_image(dist):
     K = np.array([[1100.0, 0.0, 955.0], [0.0, 1105.0, 545.0], [0.0, 0.0, 1.0]])
     u, v = np.meshgrid(np.linspace(0, 1919, 97), np.linspace(0, 1079, 55))
@@ -295,9 +291,7 @@ def test_undistortion_inverts_distortion_to_1e6_px_over_the_image(dist):
     # and the other way: ideal pixels -> distorted -> undistorted
     xy = (uv - K[:2, 2]) / np.diag(K)[:2] * 0.8
     distorted = distort_points(xy, dist) * np.diag(K)[:2] + K[:2, 2]
-    np.testing.assert_allclose(
-        undistort_pixels(distorted, K, dist), xy * np.diag(K)[:2] + K[:2, 2], atol=1e-6
-    )
+    np.testing.assert_allclose(undistort_pixels(distorted, K, dist), xy * np.diag(K)[:2] + K[:2, 2], atol=1e-6)
 
 
 # ------------------------------------------------------------------------------ OpenPose
@@ -322,9 +316,7 @@ def test_openpose_round_trip_with_several_people_empty_frames_and_a_missing_file
     write_openpose(tmp_path, views, kps, "body25", frames=frames)
     text = json.loads((tmp_path / "cam01" / "cam01_000000000011_keypoints.json").read_text())
     assert text["people"] == [] and text["version"] == 1.3
-    person = json.loads((tmp_path / "cam01" / "cam01_000000000010_keypoints.json").read_text())[
-        "people"
-    ][0]
+    person = json.loads((tmp_path / "cam01" / "cam01_000000000010_keypoints.json").read_text())["people"][0]
     assert person["person_id"] == [-1] and len(person["pose_keypoints_2d"]) == 75
     assert person["face_keypoints_2d"] == [] and person["hand_left_keypoints_2d"] == []
     (tmp_path / "cam03" / "cam03_000000000014_keypoints.json").unlink()  # a dropped frame
@@ -392,9 +384,7 @@ def test_select_person_picks_the_consistent_subject_not_person_zero(tmp_path):
     cams = _rig(seed=4)
     T, V = 6, 4
     step = np.array([0.02, 0.0, 0.01])
-    subject, other, third = (
-        _body(rng, c) for c in ([0.3, 0.9, 0.2], [1.0, 0.9, 0.6], [-0.4, 0.9, -0.3])
-    )
+    subject, other, third = (_body(rng, c) for c in ([0.3, 0.9, 0.2], [1.0, 0.9, 0.6], [-0.4, 0.9, -0.3]))
     truth = np.zeros((V, T, 25, 2))
     dets = [[] for _ in range(V)]
     for t in range(T):
@@ -411,9 +401,7 @@ def test_select_person_picks_the_consistent_subject_not_person_zero(tmp_path):
                 if name == "other" and t == 0:  # half-occluded in the first frame
                     kp[::2] = 0.0
                 rows[name] = kp
-            distractor = np.concatenate(
-                [rng.uniform([0, 0], [1279, 719], (25, 2)), rng.uniform(0.1, 0.6, (25, 1))], -1
-            )
+            distractor = np.concatenate([rng.uniform([0, 0], [1279, 719], (25, 2)), rng.uniform(0.1, 0.6, (25, 1))], -1)
             order = list(rows)
             rng.shuffle(order)
             if v == 1 and "subject" in order:  # first in some views, last in others
@@ -424,10 +412,7 @@ def test_select_person_picks_the_consistent_subject_not_person_zero(tmp_path):
                 order.append("subject")
             dets[v].append(np.stack([rows[n] for n in order] + [distractor]))
     P = max(len(d) for view in dets for d in view)
-    padded = [
-        np.stack([np.concatenate([d, np.zeros((P - len(d), 25, 3))]) for d in view])
-        for view in dets
-    ]
+    padded = [np.stack([np.concatenate([d, np.zeros((P - len(d), 25, 3))]) for d in view]) for view in dets]
     views = [c.name for c in cams]
     write_openpose(tmp_path, views, padded, "body25")
     rec = read_openpose(tmp_path, "body25")
@@ -444,12 +429,8 @@ def test_select_person_picks_the_consistent_subject_not_person_zero(tmp_path):
 def test_select_person_with_one_view_follows_the_most_confident_person_in_2d(tmp_path):
     cam = _rig(1)[0]
     T = 4
-    shape = np.random.default_rng(0).uniform(
-        [-50, -150], [50, 150], (18, 2)
-    )  # a person's 2D layout
-    a = np.concatenate(
-        [shape + [400.0, 300.0] + np.arange(T)[:, None, None] * 5, np.full((T, 18, 1), 0.9)], -1
-    )
+    shape = np.random.default_rng(0).uniform([-50, -150], [50, 150], (18, 2))  # a person's 2D layout
+    a = np.concatenate([shape + [400.0, 300.0] + np.arange(T)[:, None, None] * 5, np.full((T, 18, 1), 0.9)], -1)
     b = np.concatenate([np.tile(shape + [900.0, 300.0], (T, 1, 1)), np.full((T, 18, 1), 0.5)], -1)
     b[2:, :, 2] = 1.0  # later more confident, but not the person followed
     write_openpose(tmp_path, [cam.name], [np.stack([b, a], 1)], "coco18")
@@ -471,8 +452,7 @@ def test_view_names_match_exactly_then_normalised_else_both_sets_are_listed(tmp_
     assert normalise_view_name("cam01") == normalise_view_name("Cam_1") == ("cam", "1")
     # Pose2Sim names intrinsic calibrations after the image folders: matched by camera number
     numbered = [
-        CalibratedCamera(f"int_cam{i:02d}_img", c.K, c.dist, c.R, c.t, 1280, 720)
-        for i, c in enumerate(cams, 1)
+        CalibratedCamera(f"int_cam{i:02d}_img", c.K, c.dist, c.R, c.t, 1280, 720) for i, c in enumerate(cams, 1)
     ]
     write_openpose(tmp_path / "p2s", ["cam02_json", "cam01_json"], kp[:2], "body25")
     rec = read_openpose(tmp_path / "p2s", "body25", views=["cam02_json", "cam01_json"])
@@ -527,9 +507,7 @@ def test_truncated_json_names_the_file(tmp_path):
     write_openpose(tmp_path, ["cam01"], [_random_people(np.random.default_rng(0), 3, 2)], "body25")
     bad = tmp_path / "cam01" / "cam01_000000000001_keypoints.json"
     bad.write_text(bad.read_text()[:-40])
-    with pytest.raises(
-        KeypointFileError, match=r"cam01_000000000001_keypoints\.json: not valid JSON"
-    ):
+    with pytest.raises(KeypointFileError, match=r"cam01_000000000001_keypoints\.json: not valid JSON"):
         read_openpose(tmp_path, "body25")
 
 
@@ -545,9 +523,7 @@ def test_unknown_or_broken_calibrations_name_the_file(tmp_path):
     (tmp_path / "bad.qca.txt").write_text(
         QCA.replace('<transform x="0.0" y="-5000.0"', '<transform x="0.0" y="oops"', 1)
     )
-    with pytest.raises(
-        CalibrationError, match=r"bad\.qca\.txt \(camera 11\): <transform y='oops'> is not a number"
-    ):
+    with pytest.raises(CalibrationError, match=r"bad\.qca\.txt \(camera 11\): <transform y='oops'> is not a number"):
         load_calibration(tmp_path / "bad.qca.txt")
     (tmp_path / "cut.qca.txt").write_text(QCA[:-200])
     with pytest.raises(CalibrationError, match=r"cut\.qca\.txt: not valid XML"):
@@ -557,23 +533,17 @@ def test_unknown_or_broken_calibrations_name_the_file(tmp_path):
     with pytest.raises(CalibrationError, match=r"extri\.yml: no such file"):
         load_calibration(tmp_path / "em")
     (tmp_path / "fish.toml").write_text(TOML.replace("fisheye = false", "fisheye = true", 1))
-    with pytest.raises(
-        CalibrationError, match=r"fish\.toml \[cam_01\]: fisheye cameras are not supported"
-    ):
+    with pytest.raises(CalibrationError, match=r"fish\.toml \[cam_01\]: fisheye cameras are not supported"):
         load_calibration(tmp_path / "fish.toml")
 
 
 def test_wrong_image_size_is_caught_where_it_shows(tmp_path):
     path = tmp_path / "swapped.toml"
     path.write_text(TOML.replace("size = [ 1280.0, 720.0]", "size = [ 720.0, 1280.0]", 1))
-    with pytest.raises(
-        CalibrationError, match=r"swapped\.toml \[cam_01\].*principal point .*outside.*swapped"
-    ):
+    with pytest.raises(CalibrationError, match=r"swapped\.toml \[cam_01\].*principal point .*outside.*swapped"):
         load_calibration(path)
     # a calibration of a smaller video mode than the detections came from
-    small = [
-        CalibratedCamera(c.name, c.K / [[2], [2], [1]], c.dist, c.R, c.t, 640, 360) for c in _rig(2)
-    ]
+    small = [CalibratedCamera(c.name, c.K / [[2], [2], [1]], c.dist, c.R, c.t, 640, 360) for c in _rig(2)]
     kp = np.zeros((1, 1, 25, 3))
     kp[0, 0, :, :2] = [1000.0, 600.0]
     kp[0, 0, :, 2] = 0.8
@@ -595,9 +565,7 @@ def test_select_person_keeps_a_noisy_subject_with_swapped_legs(tmp_path):
                 kps[v][t, slot, :, 2] = rng.uniform(0.5, 1.0, 25)
             kps[v][t, 1 - v % 2, ::3] = 0.0  # the other person is partly hidden: less support
     left, right = [12, 13, 14], [9, 10, 11]  # BODY_25 legs
-    kps[0][1, 0, left + right] = kps[0][
-        1, 0, right + left
-    ]  # cam01 swaps the subject's legs in frame 1
+    kps[0][1, 0, left + right] = kps[0][1, 0, right + left]  # cam01 swaps the subject's legs in frame 1
     write_openpose(tmp_path, [c.name for c in cams], kps, "body25")
     out = select_person(read_openpose(tmp_path, "body25"), cams)
     for v, cam in enumerate(cams):  # the subject's own detections, swap and all, undistorted
@@ -613,9 +581,7 @@ def test_formats_is_the_data_layer_and_imports_no_observation_models():
 
     code = "import sys, jaxmocap.formats; print(' '.join(m for m in sys.modules if m.startswith('jaxmocap.')))"
     root = Path(__file__).resolve().parents[1]  # this checkout, not an installed copy
-    loaded = subprocess.run(
-        [sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=root
-    ).stdout
+    loaded = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=root).stdout
     assert "jaxmocap.formats.openpose" in loaded.split()
     layers = {m.split(".")[1] for m in loaded.split()}
     assert not layers & {"sensors", "energies", "methods", "priors", "solve"}
@@ -658,7 +624,9 @@ def test_frames_are_matched_by_number_with_gaps_kept_and_disjoint_cameras_refuse
     assert not rec.keypoints[0][3].any() and not rec.keypoints[1][[0, 4]].any()
     # a camera numbered from another start shares no frame: refused, not appended
     write_openpose(tmp_path, ["cam03"], kps[1:], "coco18", frames=[102, 103, 104], name="{view}.{frame:04d}.json")
-    with pytest.raises(KeypointFileError, match=r"'cam03' shares no frame number.*cam01 1..5, cam02 2..4, cam03 102..104"):
+    with pytest.raises(
+        KeypointFileError, match=r"'cam03' shares no frame number.*cam01 1..5, cam02 2..4, cam03 102..104"
+    ):
         read_openpose(tmp_path, None)
     assert read_openpose(tmp_path, None, views=["cam03"]).frames.tolist() == [102, 103, 104]
     # a file named otherwise is a stray, left out and listed; one named alike repeats a frame

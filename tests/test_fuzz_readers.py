@@ -345,7 +345,9 @@ def test_easymocap_extri_bytes(tmp_path, data):
     (folder / "intri.yml").write_bytes(CALIB["easymocap"][1])
     (folder / "extri.yml").write_bytes(data)
     # The error names the file at fault, extri.yml, though intri.yml was the one named.
-    _reads_or_names(folder / "extri.yml", CalibrationError, lambda p: load_calibration(p.parent / "intri.yml", format="easymocap"))
+    _reads_or_names(
+        folder / "extri.yml", CalibrationError, lambda p: load_calibration(p.parent / "intri.yml", format="easymocap")
+    )
 
 
 @FUZZ

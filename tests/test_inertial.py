@@ -91,7 +91,9 @@ def test_analytic_jacobians_and_local_elimination_match_autodiff(body, robust):
     analytic = Problem(terms, rotations=("pose",))
     plain = Problem([Term(t.name, t.fn, t.weight, t.bandwidth, t.loss, t.mask) for t in terms], rotations=("pose",))
     # AD blocks over the declared columns only, with the elimination.
-    ad_reads = Problem([Term(t.name, t.fn, t.weight, t.bandwidth, t.loss, t.mask, t.reads) for t in terms], rotations=("pose",))
+    ad_reads = Problem(
+        [Term(t.name, t.fn, t.weight, t.bandwidth, t.loss, t.mask, t.reads) for t in terms], rotations=("pose",)
+    )
     rng = np.random.default_rng(3)
     params = {
         "pose": jnp.asarray(sc.sequence(0)["poses"][0]) + jnp.asarray(rng.normal(0, 0.3, (10, 24, 3))),
@@ -306,4 +308,6 @@ def eqx_set_frames(setup, T):
     import equinox as eqx
 
     d = setup.data
-    return eqx.tree_at(lambda s: (s.data.orientation, s.data.acceleration), setup, (d.orientation[:T], d.acceleration[:T]))
+    return eqx.tree_at(
+        lambda s: (s.data.orientation, s.data.acceleration), setup, (d.orientation[:T], d.acceleration[:T])
+    )

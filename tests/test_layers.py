@@ -15,7 +15,10 @@ PACKAGE = Path(__file__).resolve().parents[1] / "jaxmocap"
 
 # Bottom to top, as the README's architecture paragraph lists them.
 LAYERS = [
-    ("maths", {"rotation", "timeseries", "_checks", "_progress", "_compat", "_threads", "_cache", "_cli_env", "_files"}),
+    (
+        "maths",
+        {"rotation", "timeseries", "_checks", "_progress", "_compat", "_threads", "_cache", "_cli_env", "_files"},
+    ),
     ("models", {"body", "solve"}),
     ("data", {"motion", "formats", "metrics", "objects"}),
     ("geometry", {"geometry"}),
@@ -72,7 +75,11 @@ def _imports(path: Path):
 
 
 def test_every_unit_has_a_layer():
-    units = {p.stem if p.is_file() else p.name for p in PACKAGE.iterdir() if (p.suffix == ".py" or (p / "__init__.py").exists()) and p.name != "__init__.py"}
+    units = {
+        p.stem if p.is_file() else p.name
+        for p in PACKAGE.iterdir()
+        if (p.suffix == ".py" or (p / "__init__.py").exists()) and p.name != "__init__.py"
+    }
     assert units <= set(LAYER), f"units without a layer (add them to LAYERS): {sorted(units - set(LAYER))}"
 
 
@@ -86,7 +93,9 @@ def test_no_import_runs_up_the_layers():
             if _alias(module, target):
                 continue
             if src in LAYER and dst in LAYER and LAYER[dst] > LAYER[src]:
-                upward.append(f"{path.relative_to(PACKAGE.parent)}:{line}: {src} ({LAYERS[LAYER[src]][0]}) imports {target} ({LAYERS[LAYER[dst]][0]})")
+                upward.append(
+                    f"{path.relative_to(PACKAGE.parent)}:{line}: {src} ({LAYERS[LAYER[src]][0]}) imports {target} ({LAYERS[LAYER[dst]][0]})"
+                )
     assert not upward, "imports that run up the layers:\n" + "\n".join(upward)
 
 
@@ -200,7 +209,9 @@ def test_moved_names_still_resolve(old):
 def test_no_import_circles():
     assert _cycles({"a": {"b"}, "b": {"a"}, "c": {"a"}}) == [["a", "b"]]  # the checker sees one
     cycles = _cycles(_module_graph())
-    assert not cycles, "modules that import each other (directly or round a circle):\n" + "\n".join(" <-> ".join(c) for c in cycles)
+    assert not cycles, "modules that import each other (directly or round a circle):\n" + "\n".join(
+        " <-> ".join(c) for c in cycles
+    )
 
 
 def test_the_checker_sees_a_circle_through_a_package(tmp_path):
@@ -286,20 +297,32 @@ def test_the_checker_sees_a_private_name(tmp_path):
     user.write_text("from .solver import _check, solve\nfrom .. import _checks\nfrom . import solver as S\n"
                     "def f():\n    from jaxmocap.solve import solver\n    return S._core, solver._x, _checks.check\n")  # fmt: skip
     assert sorted(_private_uses(user, package)) == [
-        (1, "jaxmocap.solve.solver._check"), (6, "jaxmocap.solve.solver._core"), (6, "jaxmocap.solve.solver._x")]
+        (1, "jaxmocap.solve.solver._check"),
+        (6, "jaxmocap.solve.solver._core"),
+        (6, "jaxmocap.solve.solver._x"),
+    ]
 
 
 def _jax_internals(path: Path):
     """Lines that reach into `jax._src`: imports and attribute reads."""
     for node in ast.walk(ast.parse(path.read_text(), str(path))):
         if isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
-            if node.module == "jax._src" or node.module.startswith("jax._src.") or (
-                node.module == "jax" and any(a.name == "_src" for a in node.names)
+            if (
+                node.module == "jax._src"
+                or node.module.startswith("jax._src.")
+                or (node.module == "jax" and any(a.name == "_src" for a in node.names))
             ):
                 yield node.lineno
-        elif isinstance(node, ast.Import) and any(a.name == "jax._src" or a.name.startswith("jax._src.") for a in node.names):
+        elif isinstance(node, ast.Import) and any(
+            a.name == "jax._src" or a.name.startswith("jax._src.") for a in node.names
+        ):
             yield node.lineno
-        elif isinstance(node, ast.Attribute) and node.attr == "_src" and isinstance(node.value, ast.Name) and node.value.id == "jax":
+        elif (
+            isinstance(node, ast.Attribute)
+            and node.attr == "_src"
+            and isinstance(node.value, ast.Name)
+            and node.value.id == "jax"
+        ):
             yield node.lineno
 
 
@@ -317,3 +340,15 @@ def test_the_checker_sees_jax_internals(tmp_path):
     fake.write_text("import jax\nfrom jax._src import xla_bridge\nfrom jax import _src\nimport jax._src.core\n"
                     "def f():\n    return jax._src.config\n")  # fmt: skip
     assert sorted(_jax_internals(fake)) == [2, 3, 4, 6]
+
+
+@pytest.mark.parametrize("command", [["check"], ["format", "--check"]])
+def test_tree_passes_ruff(command):
+    # The pinned ruff (constraints.txt) with pyproject.toml's rules and format: CI runs the
+    # suite, so it refuses what `make lint` would.
+    root = PACKAGE.parent
+    run = subprocess.run([sys.executable, "-m", "ruff", *command, "jaxmocap", "tests", "benchmarks", "experiments"],
+                         cwd=root, capture_output=True, text=True)  # fmt: skip
+    assert run.returncode == 0, (
+        f"ruff {' '.join(command)} (fix: make lint's commands without --check):\n{run.stdout[-3000:]}"
+    )

@@ -121,7 +121,10 @@ def test_literature_metrics_against_a_known_error(random_body, smpl_dict):
     betas = np.zeros(random_body.num_betas)
     ref = [[smpl_forward_numpy(smpl_dict, p, betas, np.zeros(3))[:2] for p in poses] for poses in (pred, true)]
     rel = lambda i, k: np.stack([r[k] - r[1][:1] for r in ref[i]])  # noqa: E731  (T, N, 3) minus the pelvis
-    expect = {k: 100 * np.linalg.norm(rel(0, i) - rel(1, i), axis=-1).mean() for k, i in (("position_error_cm", 1), ("mesh_error_cm", 0))}
+    expect = {
+        k: 100 * np.linalg.norm(rel(0, i) - rel(1, i), axis=-1).mean()
+        for k, i in (("position_error_cm", 1), ("mesh_error_cm", 0))
+    }
     assert expect["position_error_cm"] > 0.1 and expect["mesh_error_cm"] > 0.1  # the turn is visible
     for key, value in expect.items():
         assert m[key] == pytest.approx(value, rel=1e-6), key

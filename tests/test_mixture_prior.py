@@ -55,7 +55,11 @@ def test_one_component_is_the_single_gaussian():
     np.testing.assert_allclose(mix.neg_log_likelihood(x), single.neg_log_likelihood(x), rtol=1e-12)
     np.testing.assert_allclose(mix.mean, single.mean)
     # The SIP term's cost with either form is d_mahal².
-    params = {"pose": jax.vmap(jax.vmap(axis_angle_to_matrix))(jnp.concatenate([jnp.zeros((4, 1, 3)), x.reshape(4, 23, 3)], 1))}
+    params = {
+        "pose": jax.vmap(jax.vmap(axis_angle_to_matrix))(
+            jnp.concatenate([jnp.zeros((4, 1, 3)), x.reshape(4, 23, 3)], 1)
+        )
+    }
     fn = MahalanobisResidual()
     cost = lambda p: float(jnp.sum(fn(params, SimpleNamespace(prior=p)) ** 2))  # noqa: E731
     assert abs(cost(mix) - cost(single)) <= 1e-10 * cost(single)

@@ -151,9 +151,7 @@ def test_amass_z_up_conversion_rotates_the_posed_mesh(tmp_path, random_body):
     R = Z_UP_TO_Y_UP
     np.testing.assert_allclose(out.vertices, np.asarray(ref.vertices) @ R.T, atol=1e-10)
     np.testing.assert_allclose(out.joints[:, 0], np.asarray(ref.joints[:, 0]) @ R.T, atol=1e-10)
-    np.testing.assert_allclose(
-        out.joint_rotations[:, 0], R @ np.asarray(ref.joint_rotations[:, 0]), atol=1e-10
-    )
+    np.testing.assert_allclose(out.joint_rotations[:, 0], R @ np.asarray(ref.joint_rotations[:, 0]), atol=1e-10)
     # z up became y up: a point straight above in AMASS is straight above here.
     np.testing.assert_allclose(R @ [0, 0, 1], [0, 1, 0])
 
@@ -286,9 +284,7 @@ def test_small_asf_amc_closed_form(small_asf):
     np.testing.assert_allclose(m.positions[0, 2], root1 + [0, 0, -a], atol=1e-12)
     np.testing.assert_allclose(end[0, 2], root1 + [-b, 0, -a], atol=1e-12)
     # Frame 2: upper rx=90 in the axis frame C=Rz(90) is a 90° turn about world y.
-    np.testing.assert_allclose(
-        m.rotations[1, 1], Rotation.from_euler("y", 90, degrees=True).as_matrix(), atol=1e-12
-    )
+    np.testing.assert_allclose(m.rotations[1, 1], Rotation.from_euler("y", 90, degrees=True).as_matrix(), atol=1e-12)
     np.testing.assert_allclose(end[1, 2], [0, -b, -a], atol=1e-12)
     # Frame 3: root RX=90 RY=90 about fixed axes, X first: R = Ry(90)·Rx(90).
     np.testing.assert_allclose(m.positions[2, 2], [0, 0, -a], atol=1e-12)
@@ -373,9 +369,7 @@ def test_small_bvh_closed_form(tmp_path):
     assert m.names == ("Hips", "Knee", "Knee_end") and m.fps == 50.0 and m.num_frames == 3
     np.testing.assert_allclose(m.positions[0], [[0, 1, 0], [0, 0.9, 0], [0, 0.8, 0]], atol=1e-12)
     # Frame 2: Hips Rz(90) maps −y → +x; the knee's Rx(90) maps −y → −z.
-    np.testing.assert_allclose(
-        m.positions[1], [[0.05, 1, 0], [0.15, 1, 0], [0.15, 1, -0.1]], atol=1e-12
-    )
+    np.testing.assert_allclose(m.positions[1], [[0.05, 1, 0], [0.15, 1, 0], [0.15, 1, -0.1]], atol=1e-12)
     # Frame 3: channels Z X Y compose about moving axes: R = Rz(90)·Rx(90), −y → −z.
     np.testing.assert_allclose(m.positions[2, 1], [0, 1, -0.1], atol=1e-12)
     np.testing.assert_allclose(m.tips[1], [0, -0.1, 0])
@@ -420,9 +414,7 @@ def direction_errors(joints, src, table):
         if np.linalg.norm(s[0]) < 1e-6:
             continue
         cos = np.sum(a * s, 1) / np.linalg.norm(a, axis=1) / np.linalg.norm(s, axis=1)
-        errors[(SMPL_JOINT_NAMES[p], SMPL_JOINT_NAMES[j])] = np.degrees(
-            np.arccos(np.clip(cos, -1, 1))
-        ).mean()
+        errors[(SMPL_JOINT_NAMES[p], SMPL_JOINT_NAMES[j])] = np.degrees(np.arccos(np.clip(cos, -1, 1))).mean()
     return errors
 
 
@@ -431,19 +423,13 @@ def test_retarget_same_skeleton_reproduces_positions(smpl_like_body):
     rng = np.random.default_rng(4)
     rest, _ = smpl_rest(smpl_like_body)
     T = 3
-    local = (
-        Rotation.from_rotvec(rng.normal(scale=0.5, size=(T * 24, 3)))
-        .as_matrix()
-        .reshape(T, 24, 3, 3)
-    )
+    local = Rotation.from_rotvec(rng.normal(scale=0.5, size=(T * 24, 3))).as_matrix().reshape(T, 24, 3, 3)
     G = local.copy()
     for j in range(1, 24):
         G[:, j] = G[:, SMPL_PARENTS[j]] @ local[:, j]
     root = rng.normal(size=(T, 3))
     pos = smpl_joint_positions(G, rest, root - rest[0])
-    src = SkeletonMotion(
-        SMPL_JOINT_NAMES, SMPL_PARENTS, rest - rest[0], np.zeros((24, 3)), G, pos, 30.0, "synthetic"
-    )
+    src = SkeletonMotion(SMPL_JOINT_NAMES, SMPL_PARENTS, rest - rest[0], np.zeros((24, 3)), G, pos, 30.0, "synthetic")
     m = retarget(src, body=smpl_like_body, mapping={n: n for n in SMPL_JOINT_NAMES}, floor=False)
     np.testing.assert_allclose(smpl_world(m, smpl_like_body), pos, atol=1e-9)
     np.testing.assert_allclose(
@@ -514,7 +500,11 @@ def _write_bvh(path, names, parents, offsets, local, root_pos, extra_leaves=(), 
         lines.append(f"{pad}{'ROOT' if parents[j] < 0 else 'JOINT'} {names[j]}")
         lines.append(pad + "{")
         lines.append(f"{pad}  OFFSET " + " ".join(f"{x * units:.6f}" for x in offsets[j]))
-        chans = (["Xposition", "Yposition", "Zposition"] if parents[j] < 0 else []) + ["Zrotation", "Yrotation", "Xrotation"]
+        chans = (["Xposition", "Yposition", "Zposition"] if parents[j] < 0 else []) + [
+            "Zrotation",
+            "Yrotation",
+            "Xrotation",
+        ]
         lines.append(f"{pad}  CHANNELS {len(chans)} " + " ".join(chans))
         if parents[j] < 0:
             cols.append(root_pos * units)
@@ -624,9 +614,7 @@ def test_load_motion_cmu_resampled(smpl_like_body):
     assert m.fps == 30.0 and m.num_frames == 86
     b = load_motion(CMU / "131_01.bvh", body=smpl_like_body)
     assert b.num_frames == 994 and np.isfinite(b.poses).all()
-    errors = direction_errors(
-        smpl_world(b, smpl_like_body), load_bvh(CMU / "131_01.bvh"), CMU_BVH_MAP
-    )
+    errors = direction_errors(smpl_world(b, smpl_like_body), load_bvh(CMU / "131_01.bvh"), CMU_BVH_MAP)
     assert np.mean(list(errors.values())) < 10
 
 

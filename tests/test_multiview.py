@@ -75,7 +75,9 @@ def scene():
     betas = np.zeros(10)
     betas[:3] = rng.normal(size=3)
     trans = np.stack([0.1 * s, np.full(T, 0.9), 0.05 * s], -1)
-    out = forward(body, jnp.asarray(pose, jnp.float32), jnp.asarray(betas, jnp.float32), jnp.asarray(trans, jnp.float32))
+    out = forward(
+        body, jnp.asarray(pose, jnp.float32), jnp.asarray(betas, jnp.float32), jnp.asarray(trans, jnp.float32)
+    )
     K = intrinsics(256, 192, 55.0)
     R, t = ring_cameras(V, 4.0, 1.4, np.array([0.0, 0.9, 0.0]), 0.3)
     reg = keypoint_regressor(body, "body25")
@@ -93,7 +95,9 @@ def scene():
 
 def _mpjpe(body, p, betas, truth):
     b = np.broadcast_to(betas, (len(p["pose"]), betas.shape[-1])) if betas.ndim == 1 else betas
-    j = forward(body, jnp.asarray(p["pose"], jnp.float32), jnp.asarray(b, jnp.float32), jnp.asarray(p["trans"], jnp.float32)).joints
+    j = forward(
+        body, jnp.asarray(p["pose"], jnp.float32), jnp.asarray(b, jnp.float32), jnp.asarray(p["trans"], jnp.float32)
+    ).joints
     return float(np.mean(np.linalg.norm(np.asarray(j) - truth, axis=-1))) * 1000
 
 
@@ -137,7 +141,11 @@ def test_stage_one_and_two_recover_a_known_motion(scene):
 def test_resolve_left_right_flips_back_a_view_that_swapped_the_legs(scene):
     body = scene["body"]
     names = KEYPOINT_FORMATS["body25"]
-    legs = [(a, b) for a, b in flip_pairs(names) if not any(k in names[a] for k in ("eye", "ear", "shoulder", "elbow", "wrist"))]
+    legs = [
+        (a, b)
+        for a, b in flip_pairs(names)
+        if not any(k in names[a] for k in ("eye", "ear", "shoulder", "elbow", "wrist"))
+    ]
     kp = scene["kp"].copy()
     for a, b in legs:  # view 1 swaps the legs in frames 3-5 (the hip is flexed: legs apart)
         kp[3:, 1, [a, b]] = kp[3:, 1, [b, a]]
@@ -152,7 +160,9 @@ def test_resolve_left_right_flips_back_a_view_that_swapped_the_legs(scene):
     for a, b in legs:
         kp[3:5, 1, [a, b]] = kp[3:5, 1, [b, a]]
     one = mv.mask_views(mv.camera_data(body, scene["K"], scene["R"], scene["t"], kp, "body25"), [1])
-    np.testing.assert_array_equal(np.asarray(mv.resolve_left_right(one, temporal=0.0).keypoints), np.asarray(one.keypoints))
+    np.testing.assert_array_equal(
+        np.asarray(mv.resolve_left_right(one, temporal=0.0).keypoints), np.asarray(one.keypoints)
+    )
     fixed = mv.resolve_left_right(one)
     np.testing.assert_allclose(np.asarray(fixed.keypoints), np.asarray(mv.mask_views(clean, [1]).keypoints), atol=1e-4)
 
@@ -194,7 +204,9 @@ def test_compact_body_gives_the_same_keypoints_joints_and_silhouette_terms(scene
               "trans": jnp.asarray(scene["trans"], jnp.float32), "betas": jnp.asarray(rng.normal(size=(6, 10)), jnp.float32)}  # fmt: skip
     w = mv.MuVSWeights()
     full = mv._weighted(mv._stage_one_problem(w.sigma, w.silhouette_stride, w.silhouette_slack, True), w, jnp.float32)
-    joints = mv._weighted(mv._stage_one_problem(w.sigma, w.silhouette_stride, w.silhouette_slack, False), w, jnp.float32)
+    joints = mv._weighted(
+        mv._stage_one_problem(w.sigma, w.silhouette_stride, w.silhouette_slack, False), w, jnp.float32
+    )
     small = mv.compact(data, 0)
     assert small.body.num_vertices < 0.15 * body.num_vertices and not small.pose_blend
     compact_costs = joints.costs(params, small)
@@ -273,7 +285,9 @@ def test_temporal_stage_keeps_the_reprojection_of_clean_data(walking):
         p2, costs = mv.stage_two(data, fit, w)
         before, after = _reprojection(walking, "clean", fit), _reprojection(walking, "clean", p2)
         assert after <= 1.1 * before, (w.pose_prior, before, after)
-        assert _mpjpe(walking["body"], p2, p2["betas"], walking["joints"]) <= 1.1 * _mpjpe(walking["body"], fit, fit["betas"], walking["joints"])
+        assert _mpjpe(walking["body"], p2, p2["betas"], walking["joints"]) <= 1.1 * _mpjpe(
+            walking["body"], fit, fit["betas"], walking["joints"]
+        )
 
 
 def test_a_short_last_window_is_smoothed_like_whole_ones(walking):
@@ -416,5 +430,7 @@ def test_the_floor_term_moves_a_body_too_close_to_the_camera_back(scene):
     assert err_ground < 0.5 * err_alone, (err_alone, err_ground)  # 0.05 against 0.14 m
     mpjpe = lambda p: float(np.linalg.norm(mv._full_pose(one, p)[1] - joints, axis=-1).mean())  # noqa: E731
     assert mpjpe(ground) < 0.6 * mpjpe(alone), (mpjpe(alone), mpjpe(ground))  # 88 against 178 mm
-    assert mv._floor_for(one, floor) is floor and mv._floor_for(data, floor) is None and mv._floor_for(one, None) is None
+    assert (
+        mv._floor_for(one, floor) is floor and mv._floor_for(data, floor) is None and mv._floor_for(one, None) is None
+    )
     assert mv._floor_for(mv.stack([one, one]), floor) is floor and mv._floor_for(mv.stack([one, data]), floor) is None

@@ -188,7 +188,9 @@ def test_masks_are_undistorted_onto_the_fit_pixels_and_bad_ones_are_named(tmp_pa
     assert (video & disk).sum() / (video | disk).sum() < 0.8  # so undistortion mattered
 
     Image.fromarray(np.zeros((H // 2, W // 2), np.uint8)).save(folder / "cam01_json_000000000006.png")
-    with pytest.raises(ValueError, match=r"000000000006\.png: mask is 640 x 360 px but camera 'cam01' records 1280 x 720"):
+    with pytest.raises(
+        ValueError, match=r"000000000006\.png: mask is 640 x 360 px but camera 'cam01' records 1280 x 720"
+    ):
         read_masks(tmp_path / "masks", ["cam01_json"], [6], [cam])
     with pytest.raises(ValueError, match=r"cam02_json: missing mask folder.*\['cam01_json'\]"):
         read_masks(tmp_path / "masks", ["cam02_json"], [3], [cam])
@@ -278,9 +280,13 @@ def test_one_camera_says_depth_is_unobserved_and_how_uncertain_it_is(demo_record
     assert "warning: one camera (cam01): depth along its line of sight is not observed" in io.err
     report = json.loads((tmp_path / "mono" / "report.json").read_text())
     assert report["monocular"] is True and report["frames"]["fps"] == 60.0
-    assert report["weights"]["pose_prior"] == PRESETS["validated"].pose_prior != PRESETS["thesis"].pose_prior  # the default
+    assert (
+        report["weights"]["pose_prior"] == PRESETS["validated"].pose_prior != PRESETS["thesis"].pose_prior
+    )  # the default
     depth = report["depth"]
-    assert 3.0 < depth["depth_m"] < 6.0 and 0.04 * depth["depth_m"] < depth["depth_uncertainty_m"] < 0.2 * depth["depth_m"]
+    assert (
+        3.0 < depth["depth_m"] < 6.0 and 0.04 * depth["depth_m"] < depth["depth_uncertainty_m"] < 0.2 * depth["depth_m"]
+    )
     # the method's record (`MuVSResult.depth`): the body's size, the detections' scale error
     # and the frames' depth scatter; no floor is given to the fit, so nothing was rescaled
     assert depth["camera"] == "cam01" and depth["view"] == 0 and depth["scale"] == 1.0 and depth["ground"] is None
@@ -289,19 +295,30 @@ def test_one_camera_says_depth_is_unobserved_and_how_uncertain_it_is(demo_record
     assert depth["relative"] >= STATURE_CV and size["body_extent_px"] > 0 and size["reprojection_px"] > 0
     assert depth["depth_uncertainty_m"] == pytest.approx(depth["depth_m"] * depth["relative"])
     assert abs(depth["floor"]["ratio"] - 1) < 0.1, depth  # the demo's body is the mean body, on the floor
-    assert "- warning: one camera (cam01): depth along its line of sight is not observed" in (
-        tmp_path / "mono" / "report.md").read_text()
+    assert (
+        "- warning: one camera (cam01): depth along its line of sight is not observed"
+        in (tmp_path / "mono" / "report.md").read_text()
+    )
 
 
 def test_multiview_demo_writes_a_lab_recording_and_fits_it(tmp_path, capsys):
     code, io = _run(["demo", "--out", tmp_path / "demo", "--no-temporal", "--weights", "thesis"], capsys)
     assert code == 0, io.err
-    for line in ("demo     writing a synthetic 4-camera recording", "cam04_json 15 frames (1..16)",
-                 "layout   body25b (from", "confirmed by the skeleton", "fps      60", "demo     MPJPE"):
+    for line in (
+        "demo     writing a synthetic 4-camera recording",
+        "cam04_json 15 frames (1..16)",
+        "layout   body25b (from",
+        "confirmed by the skeleton",
+        "fps      60",
+        "demo     MPJPE",
+    ):
         assert line in io.out, (line, io.out)
     report = json.loads((tmp_path / "demo" / "fit" / "report.json").read_text())
     assert report["monocular"] is False and report["layout"] == "body25b" and report["frames"]["count"] == 16
-    assert (report["weights"]["pose_prior"], report["weights"]["shape"]) == (20.0, 50.0)  # --weights thesis reached the fit
+    assert (report["weights"]["pose_prior"], report["weights"]["shape"]) == (
+        20.0,
+        50.0,
+    )  # --weights thesis reached the fit
     assert report["reprojection"]["final"]["overall"]["median_px"] < 6.0
     assert (tmp_path / "demo" / "recording" / "Config.toml").is_file()
     assert (tmp_path / "demo" / "fit" / "smpl.npz").is_file()

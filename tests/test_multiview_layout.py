@@ -52,7 +52,9 @@ def test_a_named_layout_is_confirmed_warned_about_or_refused(scene, monkeypatch)
     check = check_layout(subjects["body25b"], P, body, 25, "body25b", "Config.toml")
     assert (check.layout, check.verdict) == ("body25b", "confirmed") and "from Config.toml" in check.message
     # BODY_25B read as BODY_25: "left elbow" is the right shoulder; refused before any fit
-    with pytest.raises(ValueError, match=r"--layout says the keypoints are body25, but.*% off.*pass --layout body25b\.$"):
+    with pytest.raises(
+        ValueError, match=r"--layout says the keypoints are body25, but.*% off.*pass --layout body25b\.$"
+    ):
         check_layout(subjects["body25b"], P, body, 25, "body25", "--layout")
     # a milder misfit (here: the same data with the refusal threshold out of reach) is fitted
     # as named, with a warning
@@ -64,7 +66,9 @@ def test_a_named_layout_is_confirmed_warned_about_or_refused(scene, monkeypatch)
 
 def test_counts_that_do_not_match_the_named_layout_and_too_little_data_are_named(scene):
     body, P, subjects = scene
-    with pytest.raises(ValueError, match=r"--layout names 'coco18' \(18 points\).*25 points per person: body25 or body25b"):
+    with pytest.raises(
+        ValueError, match=r"--layout names 'coco18' \(18 points\).*25 points per person: body25 or body25b"
+    ):
         check_layout(subjects["body25"], P, body, 25, "coco18", "--layout")
     assert check_layout(np.zeros((2, 3, 18, 3)), P[:2], body, 18).verdict == "unchecked"
     with pytest.raises(ValueError, match="too few detections to tell body25 from body25b apart.*--layout"):

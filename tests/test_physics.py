@@ -61,8 +61,12 @@ def scene(body):
 def _check(scene, poses, trans, box_pos):
     n = len(poses)
     pad = lambda x: np.concatenate([x, np.repeat(x[-1:], B - n, 0)])  # noqa: E731
-    out = check(scene, pad(np.asarray(poses, float)), pad(np.asarray(trans, float)),
-                object_positions=pad(np.asarray(box_pos, float)).reshape(B, 1, 3))
+    out = check(
+        scene,
+        pad(np.asarray(poses, float)),
+        pad(np.asarray(trans, float)),
+        object_positions=pad(np.asarray(box_pos, float)).reshape(B, 1, 3),
+    )
     return jax.tree.map(lambda x: np.asarray(x)[:n], out)
 
 
@@ -216,7 +220,10 @@ def test_ground_residual_gradients_and_descent(body):
     # Finite differences along a random direction (away from the hinge's kinks).
     v = jax.tree.map(lambda x: jnp.asarray(rng.normal(size=x.shape)), params)
     eps = 1e-6
-    fd = (flat(jax.tree.map(lambda x, y: x + eps * y, params, v)) - flat(jax.tree.map(lambda x, y: x - eps * y, params, v))) / (2 * eps)
+    fd = (
+        flat(jax.tree.map(lambda x, y: x + eps * y, params, v))
+        - flat(jax.tree.map(lambda x, y: x - eps * y, params, v))
+    ) / (2 * eps)
     jvp = jax.jvp(flat, (params,), (v,))[1]
     np.testing.assert_allclose(np.asarray(jvp), np.asarray(fd), atol=1e-6)
 

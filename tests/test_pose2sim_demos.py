@@ -123,7 +123,9 @@ def test_points_a_little_outside_the_image_are_kept_a_wrong_image_size_is_not():
     calibration = load_calibration(SINGLE / "calibration")
     assert len(align_views(rec, calibration)) == 2
     half = [CalibratedCamera(c.name, c.K * [[0.5], [0.5], [1]], c.dist, c.R, c.t, 544, 960) for c in calibration]
-    with pytest.raises(ValueError, match=r"view 'cam02_json' has detections in u .*outside camera 'cam_02''s 544 x 960"):
+    with pytest.raises(
+        ValueError, match=r"view 'cam02_json' has detections in u .*outside camera 'cam_02''s 544 x 960"
+    ):
         align_views(rec, half)
 
 
@@ -143,7 +145,9 @@ def test_pose2sim_010_halpe26_and_frame_rate_auto_from_the_videos_header(tmp_pat
     rec = read_openpose(p.keypoints, None)
     assert rec.layout == "halpe26" and rec.views == CAMS and rec.frames.tolist() == list(range(6))
     subject, P = _subject(rec, load_calibration(p.calibration))
-    assert check_layout(subject, P, default_body("low"), 26, "halpe26").verdict == "unchecked"  # the one 26-point layout
+    assert (
+        check_layout(subject, P, default_body("low"), 26, "halpe26").verdict == "unchecked"
+    )  # the one 26-point layout
     # 'auto' without a readable video: not known (the command then warns and assumes 30, Pose2Sim's fallback)
     (root / "videos" / "cam01.mp4").write_bytes(b"not a video")
     assert read_config(root).fps is None and read_config(root).fps_from is None
@@ -186,8 +190,11 @@ def test_one_folder_holding_every_cameras_files_is_split_by_their_names(tmp_path
 def test_a_camera_folder_named_two_ways_as_often_is_refused(tmp_path):
     files = {k: v for k, v in _frames().items() if k.startswith("cam01_json")}
     files.update({k.replace("cam01.", "cam02."): v for k, v in files.items()})  # another camera's copies
-    with pytest.raises(KeypointFileError, match=r"cam01_json: frame files named in two ways, 6 like 'cam01\.0000\.json' "
-                                                r"and 6 like 'cam02\.0000\.json'; a camera folder holds one camera"):
+    with pytest.raises(
+        KeypointFileError,
+        match=r"cam01_json: frame files named in two ways, 6 like 'cam01\.0000\.json' "
+        r"and 6 like 'cam02\.0000\.json'; a camera folder holds one camera",
+    ):
         read_openpose(_write(tmp_path, files), None)
 
 
@@ -214,8 +221,11 @@ def test_frames_are_matched_by_number_across_cameras_and_gaps_stay_gaps(tmp_path
 def test_a_camera_whose_frame_numbers_overlap_no_other_is_named(tmp_path):
     files = {k.replace("cam04.00", "cam04.01"): v for k, v in _frames().items()}  # cam04 numbered 100..105
     root = _write(tmp_path, files)
-    with pytest.raises(KeypointFileError, match=r"camera folder 'cam04_json' shares no frame number with the other "
-                                                r"cameras \(frame numbers: cam01_json 0..5, .*cam04_json 100..105\)"):
+    with pytest.raises(
+        KeypointFileError,
+        match=r"camera folder 'cam04_json' shares no frame number with the other "
+        r"cameras \(frame numbers: cam01_json 0..5, .*cam04_json 100..105\)",
+    ):
         read_openpose(root, None)
     assert read_openpose(root, None, views=CAMS[:3]).views == CAMS[:3]  # or leave it out
 
@@ -260,8 +270,11 @@ def test_the_layout_is_told_from_the_real_skeleton_both_ways(body):
     check = check_layout(subject25, P, body, 25)
     assert (check.layout, check.verdict) == ("body25", "detected"), check.scores
     assert check.scores["body25b"] > 3 * check.scores["body25"], check.scores
-    with pytest.raises(ValueError, match=r"Config\.toml \(pose_model = 'BODY_25B'\) says the keypoints are body25b.*"
-                                         r"pass --layout body25 or correct"):
+    with pytest.raises(
+        ValueError,
+        match=r"Config\.toml \(pose_model = 'BODY_25B'\) says the keypoints are body25b.*"
+        r"pass --layout body25 or correct",
+    ):
         check_layout(subject25, P, body, 25, "body25b", "Config.toml (pose_model = 'BODY_25B')")
 
 

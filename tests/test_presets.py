@@ -47,7 +47,12 @@ def test_validated_preset_is_what_the_development_subjects_chose(recorded):
     check_record(recorded["split"])
     chosen = recorded["tuning"]["chosen"]
     v = I.PRESETS["validated"]
-    assert (v.weights.mahal, v.max_steps, v.rtol, v.atol) == (chosen["mahal"], chosen["max_steps"], chosen["rtol"], chosen["atol"])
+    assert (v.weights.mahal, v.max_steps, v.rtol, v.atol) == (
+        chosen["mahal"],
+        chosen["max_steps"],
+        chosen["rtol"],
+        chosen["atol"],
+    )
     assert recorded["preset_matches_tuning"]
     assert set(recorded["tuning"]["clips"]).isdisjoint(recorded["evaluation"]["clips"])
 
@@ -55,7 +60,9 @@ def test_validated_preset_is_what_the_development_subjects_chose(recorded):
 @pytest.fixture(scope="module")
 def jump(recorded):
     check = recorded["check"]
-    assert (CMU / check["clip"]).is_file(), f"{CMU / check['clip']} is missing: these tests need ../shared beside the checkout"
+    assert (CMU / check["clip"]).is_file(), (
+        f"{CMU / check['clip']} is missing: these tests need ../shared beside the checkout"
+    )
     body = default_body("low")
     cfg = ScenarioConfig(fps=30.0, max_frames=check["frames"], imu_set=check["imu_set"],
                          imu_errors=IMUErrorModel.xsens(), betas_std=0.0)  # fmt: skip
@@ -136,7 +143,9 @@ def test_muvs_validated_preset_is_what_the_development_subjects_chose():
     from jaxmocap.methods import multiview as mv
     from jaxmocap.motion.splits import check_record
 
-    assert MUVS_TUNING.is_file(), f"{MUVS_TUNING} is missing: run python experiments/muvs_tuning.py --out experiments/results"
+    assert MUVS_TUNING.is_file(), (
+        f"{MUVS_TUNING} is missing: run python experiments/muvs_tuning.py --out experiments/results"
+    )
     recorded = json.loads(MUVS_TUNING.read_text())
     check_record(recorded["split"])
     assert recorded["split"]["tuning"] == ["02", "131"] and not recorded["split"]["evaluation"]

@@ -107,10 +107,15 @@ def test_a_trial_reads_its_session_config_and_calibration(tmp_path):
 
 def test_project_problems_name_the_file_and_the_fix(tmp_path):
     root = _project(tmp_path / "p", model="'Whole_body'")
-    with pytest.raises(ProjectError, match=r"Config\.toml: pose_model = 'Whole_body' has no jaxmocap layout.*BODY_25B.*"
-                                           r"pose_model = 'Body_with_feet'"):
+    with pytest.raises(
+        ProjectError,
+        match=r"Config\.toml: pose_model = 'Whole_body' has no jaxmocap layout.*BODY_25B.*"
+        r"pose_model = 'Body_with_feet'",
+    ):
         _ = read_project(root).config.layout
-    with pytest.raises(KeypointFileError, match=r"p: no camera folders.*/p/pose; or the project folder itself as `jaxmocap multiview "):
+    with pytest.raises(
+        KeypointFileError, match=r"p: no camera folders.*/p/pose; or the project folder itself as `jaxmocap multiview "
+    ):
         read_openpose(root, None)  # the project given where its keypoint folder belongs
     (root / "Config.toml").write_text(CONFIG.format(rate="-5", model="'BODY_25B'"))
     with pytest.raises(ProjectError, match=r"Config\.toml: \[project\] frame_rate must be a positive.*-5"):
@@ -119,7 +124,9 @@ def test_project_problems_name_the_file_and_the_fix(tmp_path):
     with pytest.raises(ProjectError, match=r"Config\.toml: not valid TOML"):
         read_config(root)
     (root / "calibration" / "Calib_board.toml").write_text(TOML)
-    with pytest.raises(ProjectError, match=r"several calibration files \['Calib_board\.toml', 'Calib_qualisys\.toml'\].*--calib"):
+    with pytest.raises(
+        ProjectError, match=r"several calibration files \['Calib_board\.toml', 'Calib_qualisys\.toml'\].*--calib"
+    ):
         read_project(root)
     empty = tmp_path / "empty"
     (empty / "calibration").mkdir(parents=True)

@@ -43,9 +43,7 @@ def motion():
     c, _, _ = contact_point(body, V[FRAME], J[FRAME], G[FRAME], "right_hand")
     # Down by 30 cm and 10 cm further out to the right (-x): a stoop, not an arm swing.
     target = c + np.array([-0.1, -0.3, 0.0])
-    return SimpleNamespace(
-        body=body, poses=m.poses, trans=m.trans, betas=betas, joints=J, target=target
-    )
+    return SimpleNamespace(body=body, poses=m.poses, trans=m.trans, betas=betas, joints=J, target=target)
 
 
 def test_reach_touches_the_target_with_the_feet_planted(motion):
@@ -125,9 +123,7 @@ def body():
 
 
 def _scene(body, name, reach=True):
-    cfg = interaction_config(
-        object=name, num_views=1, max_frames=24, width=48, height=36, depth_points=0, reach=reach
-    )
+    cfg = interaction_config(object=name, num_views=1, max_frames=24, width=48, height=36, depth_points=0, reach=reach)
     sc = make_scenario(["walk"], cfg, seed=0, body=body)
     return sc, sc.sequence(0), RigidObject(sc["obj_vertices"].astype(np.float64), sc["obj_faces"])
 
@@ -142,12 +138,8 @@ def test_object_is_picked_up_from_and_put_down_on_the_floor(body, name):
     rest = np.r_[0:start, end:24]
     assert np.abs(low[rest]).max() < 0.005, low  # on the floor, not floating
     for frames in (slice(0, start + 1), slice(end, 24)):  # at rest
-        np.testing.assert_allclose(
-            R[frames], np.broadcast_to(R[frames][0], R[frames].shape), atol=1e-6
-        )
-        np.testing.assert_allclose(
-            t[frames], np.broadcast_to(t[frames][0], t[frames].shape), atol=1e-6
-        )
+        np.testing.assert_allclose(R[frames], np.broadcast_to(R[frames][0], R[frames].shape), atol=1e-6)
+        np.testing.assert_allclose(t[frames], np.broadcast_to(t[frames][0], t[frames].shape), atol=1e-6)
     if name == "chair":  # dragged, tilted on a corner: it travels, its lowest point stays on the floor
         assert np.linalg.norm(t[end - 1, [0, 2]] - t[start, [0, 2]]) > 0.3 and low[start:end].min() > -0.005, (t, low)
     else:  # carried, lifted

@@ -35,14 +35,23 @@ QUOTES = [
     (
         r"SIP \(1000 frames\) ([\d.]+) s cold, ([\d.]+) s warm, run ([\d.]+) s \(([\d.]+) s every run before\)",
         "benchmarks/results/cold_start_gpu.json",
-        ["entries.sip.cold_compile_s", "entries.sip.warm_compile_s", "entries.sip.run_s", "before.entries.sip.cold_compile_s"],
+        [
+            "entries.sip.cold_compile_s",
+            "entries.sip.warm_compile_s",
+            "entries.sip.run_s",
+            "before.entries.sip.cold_compile_s",
+        ],
         [1, 2, 3, 1],
     ),
     (
         r"SIP batch 1000 x 1000 ([\d.]+) s cold, ([\d.]+) s warm, run ([\d.]+) s \(([\d.]+) s every run before\)",
         "benchmarks/results/cold_start_gpu.json",
-        ["entries.sip_batch.cold_compile_s", "entries.sip_batch.warm_compile_s", "entries.sip_batch.run_s",
-         "before.entries.sip_batch.cold_compile_s"],
+        [
+            "entries.sip_batch.cold_compile_s",
+            "entries.sip_batch.warm_compile_s",
+            "entries.sip_batch.run_s",
+            "before.entries.sip_batch.cold_compile_s",
+        ],
         [1, 2, 1, 1],
     ),
     (
@@ -55,17 +64,29 @@ QUOTES = [
         r"CPU, 60 frames: SIP ([\d.]+) s cold, ([\d.]+) s warm \(([\d.]+) s every run before\), a sweep cell ([\d.]+) s "
         r"cold, ([\d.]+) s warm; `jaxmocap demo` ([\d.]+) s cold, ([\d.]+) s warm",
         "benchmarks/results/cold_start.json",
-        ["entries.sip.cold_compile_s", "entries.sip.warm_compile_s", "before.entries.sip.cold_compile_s",
-         "entries.sweep_cell.cold_compile_s", "entries.sweep_cell.warm_compile_s", "entries.make_demo.cold_wall_s",
-         "entries.make_demo.warm_wall_s"],
+        [
+            "entries.sip.cold_compile_s",
+            "entries.sip.warm_compile_s",
+            "before.entries.sip.cold_compile_s",
+            "entries.sweep_cell.cold_compile_s",
+            "entries.sweep_cell.warm_compile_s",
+            "entries.make_demo.cold_wall_s",
+            "entries.make_demo.warm_wall_s",
+        ],
         [1, 2, 1, 1, 2, 1, 1],
     ),
     (
         r"MLP macro F1 ([\d.]+), MLP \+ CRF accuracy ([\d.]+) / macro F1 ([\d.]+)\s+\(([\d.]+) on the evaluation"
         r" subjects 05, 06, 07 alone\), against accuracy ([\d.]+) / macro F1\s+([\d.]+) for always",
         "experiments/results/har.json",
-        ["macro_f1_mlp", "accuracy_crf", "macro_f1_crf", "evaluation_subjects_only.macro_f1_crf",
-         "baseline_constant_most_frequent_test_class.accuracy", "baseline_constant_most_frequent_test_class.macro_f1"],
+        [
+            "macro_f1_mlp",
+            "accuracy_crf",
+            "macro_f1_crf",
+            "evaluation_subjects_only.macro_f1_crf",
+            "baseline_constant_most_frequent_test_class.accuracy",
+            "baseline_constant_most_frequent_test_class.macro_f1",
+        ],
         [3, 3, 3, 3, 3, 3],
     ),
     (
@@ -78,29 +99,39 @@ QUOTES = [
         r"the fit's median reprojection is ([\d.]+) px against ([\d.]+) px for a per-keypoint triangulation\s+"
         r"of the same detections \(`fit_over_triangulation` ([\d.]+); held out: ([\d.]+) / ([\d.]+) px, ([\d.]+)\):",
         "experiments/results/multiview_real.json",
-        ["recordings.Demo_SinglePerson.reprojection_px.fit_median",
-         "recordings.Demo_SinglePerson.reprojection_px.triangulation_median",
-         "recordings.Demo_SinglePerson.fit_over_triangulation",
-         "recordings.Demo_MultiPerson.reprojection_px.fit_median",
-         "recordings.Demo_MultiPerson.reprojection_px.triangulation_median",
-         "recordings.Demo_MultiPerson.fit_over_triangulation"],
+        [
+            "recordings.Demo_SinglePerson.reprojection_px.fit_median",
+            "recordings.Demo_SinglePerson.reprojection_px.triangulation_median",
+            "recordings.Demo_SinglePerson.fit_over_triangulation",
+            "recordings.Demo_MultiPerson.reprojection_px.fit_median",
+            "recordings.Demo_MultiPerson.reprojection_px.triangulation_median",
+            "recordings.Demo_MultiPerson.fit_over_triangulation",
+        ],
         [1, 1, 2, 1, 1, 2],
     ),
     (
         r"`Demo_MultiPerson` held out; ([\d.]+) s in all here, 2 cores shared at a load of ([\d.]+)-([\d.]+), of which\s+"
         r"the detector ([\d.]+) and ([\d.]+) s for a recording's 400 frames\)",
         "experiments/results/multiview_real.json",
-        ["run_time_s", "load_average.start", "load_average.end", "recordings.Demo_SinglePerson.run_time_s.detector",
-         "recordings.Demo_MultiPerson.run_time_s.detector"],
+        [
+            "run_time_s",
+            "load_average.start",
+            "load_average.end",
+            "recordings.Demo_SinglePerson.run_time_s.detector",
+            "recordings.Demo_MultiPerson.run_time_s.detector",
+        ],
         [0, 0, 0, 0, 0],
     ),
     (
         r"up\s+to ([\d.]+) % \(held out ([\d.]+) %: arms short, shanks long\), while its limb points jitter an\s+"
         r"eighth as much \(([\d.]+) against ([\d.]+) m/s²\)",
         "experiments/results/multiview_real.json",
-        ["recordings.Demo_SinglePerson.limb_length_error_max_pct", "recordings.Demo_MultiPerson.limb_length_error_max_pct",
-         "recordings.Demo_SinglePerson.jitter_m_s2.fit_limb_keypoints",
-         "recordings.Demo_SinglePerson.jitter_m_s2.triangulated_limb_keypoints"],
+        [
+            "recordings.Demo_SinglePerson.limb_length_error_max_pct",
+            "recordings.Demo_MultiPerson.limb_length_error_max_pct",
+            "recordings.Demo_SinglePerson.jitter_m_s2.fit_limb_keypoints",
+            "recordings.Demo_SinglePerson.jitter_m_s2.triangulated_limb_keypoints",
+        ],
         [1, 1, 1, 1],
     ),
     (
@@ -112,18 +143,22 @@ QUOTES = [
 ]
 
 
-@pytest.mark.parametrize("pattern, path, keys, decimals", QUOTES, ids=[q[1].split("/")[-1] + ":" + q[2][0] for q in QUOTES])
+@pytest.mark.parametrize(
+    "pattern, path, keys, decimals", QUOTES, ids=[q[1].split("/")[-1] + ":" + q[2][0] for q in QUOTES]
+)
 def test_quoted_numbers_match_their_files(pattern, path, keys, decimals):
     matches = re.findall(pattern, README)
     assert matches, f"the README no longer says {pattern!r}; update QUOTES with the sentence that quotes {path}"
     for found in matches:
         found = (found,) if isinstance(found, str) else found
         for text, key, d in zip(found, keys, decimals, strict=True):
-            assert f"{_key(path, key):.{d}f}" == text, f"README says {text} for {path}:{key}, the file has {_key(path, key)}"
+            assert f"{_key(path, key):.{d}f}" == text, (
+                f"README says {text} for {path}:{key}, the file has {_key(path, key)}"
+            )
 
 
 def _toml_block_after(marker: str) -> dict:
-    tail = README[README.index(marker):]
+    tail = README[README.index(marker) :]
     block = re.search(r"```toml\n(.*?)```", tail, re.S)
     return tomllib.loads(block.group(1))
 

@@ -82,9 +82,7 @@ def test_quaternion_and_6d_round_trips():
     np.testing.assert_allclose(rot.quaternion_to_axis_angle(q), w, atol=1e-10)
     np.testing.assert_allclose(rot.sixd_to_matrix(rot.matrix_to_6d(R)), R, atol=1e-12)
     p = rot.matrix_to_quaternion(R[::-1])
-    np.testing.assert_allclose(
-        rot.quaternion_to_matrix(rot.quaternion_multiply(p, q)), R[::-1] @ R, atol=1e-12
-    )
+    np.testing.assert_allclose(rot.quaternion_to_matrix(rot.quaternion_multiply(p, q)), R[::-1] @ R, atol=1e-12)
 
 
 def test_float32_accuracy_and_zero_gradient():
@@ -92,9 +90,7 @@ def test_float32_accuracy_and_zero_gradient():
     R = rot.axis_angle_to_matrix(w)
     assert R.dtype == jnp.float32
     np.testing.assert_allclose(R, Rotation.from_rotvec(CASES["small"]).as_matrix(), atol=1e-7)
-    g = jax.grad(lambda x: rot.matrix_to_axis_angle(rot.axis_angle_to_matrix(x)).sum())(
-        jnp.zeros(3, jnp.float32)
-    )
+    g = jax.grad(lambda x: rot.matrix_to_axis_angle(rot.axis_angle_to_matrix(x)).sum())(jnp.zeros(3, jnp.float32))
     np.testing.assert_allclose(g, np.ones(3), atol=1e-6)
 
 

@@ -152,7 +152,9 @@ def test_heading_drift_rotates_orientations_by_exactly_gamma(body, sip6):
     np.testing.assert_allclose(imu_calibration.heading_angle(jnp.asarray(delta)), gamma, atol=1e-9)
     np.testing.assert_allclose(meas.acceleration, read.acceleration, atol=1e-12)  # a frame error only
     # Heading reset (eq. 2.71) undoes it.
-    np.testing.assert_allclose(imu_calibration.remove_heading(jnp.asarray(meas.orientation), gamma), read.orientation, atol=1e-12)
+    np.testing.assert_allclose(
+        imu_calibration.remove_heading(jnp.asarray(meas.orientation), gamma), read.orientation, atol=1e-12
+    )
 
 
 def test_error_switches_are_independent_and_deterministic(body, sip6):
@@ -218,7 +220,9 @@ def test_rasterised_square_and_depth_points():
     assert abs((lab == 0).sum() - side**2) <= 4 * side + 4
     np.testing.assert_allclose(d[lab == 0], 4.0, atol=1e-9)
     assert (lab == raster.FLOOR).any() and (lab == raster.BACKGROUND).any()
-    pts, labels, valid = depth.depth_point_cloud(K, R, t, d, lab, 100, np.random.default_rng(0), depth.DepthNoiseModel.off())
+    pts, labels, valid = depth.depth_point_cloud(
+        K, R, t, d, lab, 100, np.random.default_rng(0), depth.DepthNoiseModel.off()
+    )
     assert valid.all() and (labels == 0).all()
     np.testing.assert_allclose(pts[:, 2], 0.0, atol=1e-9)
     assert np.abs(pts[:, :2] - [0.0, 1.0]).max() <= 0.5 + 1e-9
@@ -239,7 +243,9 @@ def test_keypoint_regressors_and_detector(body):
         assert kp[names.index("nose"), 2] > kp[names.index("left_ear"), 2]
     uv = np.random.default_rng(0).uniform(10, 50, size=(2, 30, 18, 2))
     z = np.ones((2, 30, 18))
-    clean = detector.detect(uv, z, 64, 64, keypoints.COCO18_NAMES, detector.DetectorErrorModel.off(), np.random.default_rng(1))
+    clean = detector.detect(
+        uv, z, 64, 64, keypoints.COCO18_NAMES, detector.DetectorErrorModel.off(), np.random.default_rng(1)
+    )
     for p in range(2):
         slot = np.argmax(clean.person == p, axis=1)
         np.testing.assert_allclose(clean.keypoints[np.arange(30), slot, :, :2], uv[p])

@@ -77,10 +77,12 @@ def test_manifold_parametrisations_converge_alike():
 
 # --- the structured linear solve: band, border, windows ----------------------------------
 
+
 @pytest.mark.parametrize(
     "variant, tridiagonal",
     [(v, m) for v in ("band", "border", "windows", "all") for m in ("scan", "cyclic")]
-    + [(v, m) for v in ("narrow", "narrow_border") for m in ("rows", "cyclic")] + [("windows", "rows")],
+    + [(v, m) for v in ("narrow", "narrow_border") for m in ("rows", "cyclic")]
+    + [("windows", "rows")],
 )
 def test_structured_step_equals_dense_step(variant, tridiagonal):
     """The LM step (eq. 2.52) from the structured factorisation equals a dense float64 solve
@@ -100,7 +102,9 @@ def test_structured_step_equals_dense_step(variant, tridiagonal):
 
     @jax.jit  # one compilation instead of op-by-op dispatch of every small product
     def step_of(params, data):
-        normal, grad, cost = linearise(params, Args(problem, data, None, layout), st, jnp.float64, jnp.float64, tridiagonal)
+        normal, grad, cost = linearise(
+            params, Args(problem, data, None, layout), st, jnp.float64, jnp.float64, tridiagonal
+        )
         xF, xW, xG = solve_factored(factor(normal, st, 0.3, tridiagonal=tridiagonal), *grad)
         return normal.C is not None, layout.ravel(layout.unravel(st.from_solver_order(xF), xW, xG)), cost
 
@@ -179,7 +183,9 @@ def test_block_tridiagonal_solves_match_dense(K, N):
         tridiagonal_factor(jnp.asarray(D), jnp.asarray(U), "lu")
 
 
-@pytest.mark.parametrize("T, n, R, B", [(1, 3, 2, 1), (3, 6, 4, 2), (9, 5, 3, 1), (11, 4, 2, 2), (7, 5, 7, 1), (40, 4, 2, 2)])
+@pytest.mark.parametrize(
+    "T, n, R, B", [(1, 3, 2, 1), (3, 6, 4, 2), (9, 5, 3, 1), (11, 4, 2, 2), (7, 5, 7, 1), (40, 4, 2, 2)]
+)
 def test_rows_factorisation_matches_dense(T, n, R, B):
     """`rows.py` (frame order, cyclic reduction) against numpy on
     H = blockdiag(A) + CᵀC with coupling rows reading frames t-B .. t+B: bandwidths 1 and 2,
@@ -244,10 +250,18 @@ def test_block_jacobian_normal_equations_match_dense(W):
     data = {"y": jnp.asarray(rng.normal(size=(T, m)))}
     params = {"a": jnp.asarray(rng.normal(size=(T, 5, 3))), "b": jnp.asarray(rng.normal(size=(T, 1)))}
     mask = jnp.asarray([True] * (T - 1) + [False])
-    acc = Term("acc", lambda p, d: p["a"][:, 1] - jnp.roll(p["a"][:, 3], 1, 0) + p["b"], 0.7, 1, reads=(("a", (1, 3)), ("b", None)))
+    acc = Term(
+        "acc",
+        lambda p, d: p["a"][:, 1] - jnp.roll(p["a"][:, 3], 1, 0) + p["b"],
+        0.7,
+        1,
+        reads=(("a", (1, 3)), ("b", None)),
+    )
     out = {}
     for name, j, masked in (("factored", jac, False), ("dense", dense_jac, False), ("masked", jac, True)):
-        prior = Term("prior", fn, 0.3, 0, None, (lambda d: jnp.ones((T,), bool)) if masked else None, (("a", index),), j)
+        prior = Term(
+            "prior", fn, 0.3, 0, None, (lambda d: jnp.ones((T,), bool)) if masked else None, (("a", index),), j
+        )
         problem = Problem([acc, prior])
         layout = problem.layout(params)
         args = Args(problem, data, mask, layout)
@@ -348,7 +362,12 @@ def test_se3_unknowns_converge():
     M = to_manifold({"T": true}, lay)["T"]
     obs = jnp.einsum("tab,pb->tpa", M[:, :3, :3], pts) + M[:, None, :3, 3]
     problem = Problem(
-        [Term("pts", lambda x, d: jnp.einsum("tab,pb->tpa", x["T"][:, :3, :3], d["p"]) + x["T"][:, None, :3, 3] - d["obs"])],
+        [
+            Term(
+                "pts",
+                lambda x, d: jnp.einsum("tab,pb->tpa", x["T"][:, :3, :3], d["p"]) + x["T"][:, None, :3, 3] - d["obs"],
+            )
+        ],
         {"T": frame("se3")},
     )
     sol = solve(problem, {"T": true + 0.3}, {"p": pts, "obs": obs}, max_steps=50, rtol=1e-12, atol=1e-14)
@@ -707,7 +726,9 @@ def test_basis_term_converges_to_the_least_squares_minimiser():
         return out
 
     fun = jax.jit(lambda p: jnp.concatenate([r.ravel() for r in _BASIS.residuals(p, data).values()]))
-    v0 = np.concatenate([np.asarray(sol.value[k])[~pinned] if k == "coef" else np.asarray(sol.value[k]).ravel() for k in keys])
+    v0 = np.concatenate(
+        [np.asarray(sol.value[k])[~pinned] if k == "coef" else np.asarray(sol.value[k]).ravel() for k in keys]
+    )
     ref = scipy.optimize.least_squares(lambda v: np.asarray(fun(unflat(v))), v0, xtol=1e-14, ftol=1e-14, gtol=1e-14)
     np.testing.assert_allclose(float(sol.cost), 0.5 * float(np.sum(ref.fun**2)), rtol=1e-6)
     np.testing.assert_allclose(np.asarray(sol.value["trans"]), np.asarray(unflat(ref.x)["trans"]), atol=1e-5)

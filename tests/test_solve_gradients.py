@@ -78,14 +78,15 @@ def test_gradients_through_solve_match_finite_differences():
         assert abs(float(g) - fd) <= 1e-4 * abs(fd) + 1e-6, (i, float(g), fd)
 
 
-
-
 def test_gradient_through_solve_with_a_gauge_freedom():
     """A cost blind to a constant + linear drift (SIP's translation, seen through second
     differences only) has a singular Hessian; a gauge-invariant output still gets its
     gradient (the adjoint's relative ridge), equal to central differences."""
     T = 12
-    data = {"acc": jnp.sin(jnp.arange(T, dtype=jnp.float64))[:, None], "obs": jnp.cos(jnp.arange(T, dtype=jnp.float64))[:, None]}
+    data = {
+        "acc": jnp.sin(jnp.arange(T, dtype=jnp.float64))[:, None],
+        "obs": jnp.cos(jnp.arange(T, dtype=jnp.float64))[:, None],
+    }
 
     def f(log_w):
         problem = Problem([

@@ -213,7 +213,9 @@ def test_results_are_written_with_their_split_and_provenance(tmp_path):
     prov = _provenance_module()
     folder = tmp_path / "results" / "sub"
     split = Split("unit", tuning=DEVELOPMENT, training=LEAVE_SUBJECT_OUT)
-    path = prov.write_json(folder / "table.json", {"x": 1.0}, split=split, data={"clips": ["005_01.bvh"]}, argv=["--n", "2"])
+    path = prov.write_json(
+        folder / "table.json", {"x": 1.0}, split=split, data={"clips": ["005_01.bvh"]}, argv=["--n", "2"]
+    )
     prov.write_text(tmp_path / "results" / "table.md", "# t\n", split=split, data={"clips": []})
     assert json.loads(path.read_text()) == {"x": 1.0, "split": split.record()}
     files = json.loads((tmp_path / "results" / "provenance.json").read_text())["files"]

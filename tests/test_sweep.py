@@ -74,7 +74,9 @@ COMPILES = []
 jax.monitoring.register_event_duration_secs_listener(
     lambda name, *a, **k: COMPILES.append(name) if name == "/jax/core/compile/backend_compile_duration" else None
 )
-COUNTED = Problem([Term("data", lambda p, d: p["x"] - d["y"]), Term("smooth", lambda p, d: second_difference(p["x"]), bandwidth=1)])
+COUNTED = Problem(
+    [Term("data", lambda p, d: p["x"] - d["y"]), Term("smooth", lambda p, d: second_difference(p["x"]), bandwidth=1)]
+)
 
 
 def test_chunks_equal_one_batch_and_one_compile_serves_every_weight_setting():
@@ -169,7 +171,10 @@ def test_variants_collapse_switched_off_terms():
         (lambda c: c["grid"]["terms"].update(data=[True, False]), "'data' is not a switchable term"),
         (lambda c: c["grid"]["weights"].update(smooth=[]), "smooth is an empty grid axis"),
         (lambda c: c["datasets"]["tracks"].update(motions=["/no/such/clip.bvh"]), "'/no/such/clip.bvh' is neither"),
-        (lambda c: c["datasets"].update(tracks={"scenario": "/no/such.npz"}), "scenario file '/no/such.npz' does not exist"),
+        (
+            lambda c: c["datasets"].update(tracks={"scenario": "/no/such.npz"}),
+            "scenario file '/no/such.npz' does not exist",
+        ),
         (lambda c: c["sweep"].update(sensor_errors=["medium"]), "preset 'medium' has no"),
         (lambda c: c["sweep"].update(methods=["nope"]), "unknown method 'nope'"),
         (lambda c: c["sweep"].update(metric="mpjpe"), "metric 'mpjpe' is not reported"),
@@ -189,7 +194,9 @@ def test_changed_config_refuses_to_resume_naming_the_change(tmp_path):
     store = Store(tmp_path, config)
     store.open()
     # One solved cell: results to protect (a folder that solved none is taken over instead).
-    (store.cells / "solved.json").write_text(json.dumps({"config_hash": store.hash, "cell": "c", "metrics": {"rmse": 1.0}}))
+    (store.cells / "solved.json").write_text(
+        json.dumps({"config_hash": store.hash, "cell": "c", "metrics": {"rmse": 1.0}})
+    )
     changed = toy_config()
     changed["grid"]["weights"]["smooth"] = [0.1, 1.0, 30.0]
     changed["sensor_errors"]["high"]["acc_noise"] = 0.3
@@ -257,7 +264,9 @@ def test_killed_sweep_resumes_losing_and_repeating_nothing(tmp_path):
     # the high noise fails to prepare (its 4 other variants).
     assert sum("undetermined" in r["error"] for r in failed) + sum("prepare" in r["error"] for r in failed) == 28
     assert len(failed) == 28
-    assert all(json.loads(t)["config_hash"] == json.loads((out / "sweep.json").read_text())["hash"] for t in after.values())
+    assert all(
+        json.loads(t)["config_hash"] == json.loads((out / "sweep.json").read_text())["hash"] for t in after.values()
+    )
     summary = (out / "summary.md").read_text()
     assert "paired" in summary.lower() and (out / "boxplot.png").stat().st_size > 0 and (out / "weights.png").exists()
 
@@ -325,8 +334,12 @@ def test_two_processes_joined_by_jax_distributed_equal_one_process(tmp_path):
         port = s.getsockname()[1]
     two = tmp_path / "two"
     procs = [
-        subprocess.Popen([sys.executable, "-c", DISTRIBUTED, f"127.0.0.1:{port}", str(i), str(cfg), str(two)],
-                         env=ENV, stdout=subprocess.PIPE, stderr=subprocess.PIPE)  # fmt: skip
+        subprocess.Popen(
+            [sys.executable, "-c", DISTRIBUTED, f"127.0.0.1:{port}", str(i), str(cfg), str(two)],
+            env=ENV,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+        )  # fmt: skip
         for i in range(2)
     ]
     outs = [p.communicate(timeout=300) for p in procs]

@@ -47,7 +47,12 @@ def seq_path(raw, tmp_path_factory):
 def test_round_trip(seq_path, raw):
     data, truth = raw
     seq = load_threedpw(seq_path)
-    assert (seq.name, seq.genders, seq.num_people, seq.num_frames) == ("courtyard_synthetic_00", ("male", "female"), 2, T)
+    assert (seq.name, seq.genders, seq.num_people, seq.num_frames) == (
+        "courtyard_synthetic_00",
+        ("male", "female"),
+        2,
+        T,
+    )
     np.testing.assert_array_equal(seq.poses, truth["poses"])
     np.testing.assert_array_equal(seq.trans, truth["trans"])
     np.testing.assert_array_equal(seq.betas, [data["betas"][0], data["betas"][1][:10]])
@@ -59,7 +64,9 @@ def test_round_trip(seq_path, raw):
     np.testing.assert_array_equal(seq.joints, truth["joints"])
     assert (seq.width, seq.height) == (1080, 1920)  # from the principal point
     assert (load_threedpw(seq_path, image_size=(1920, 1080)).width, seq.poses_60hz[1].shape) == (1920, (2 * T, 24, 3))
-    np.testing.assert_allclose(seq.camera_to_world @ data["cam_poses"], np.broadcast_to(np.eye(4), (T, 4, 4)), atol=1e-12)
+    np.testing.assert_allclose(
+        seq.camera_to_world @ data["cam_poses"], np.broadcast_to(np.eye(4), (T, 4, 4)), atol=1e-12
+    )
     assert seq.motion(1).gender == "female" and seq.motion(1).poses.shape == (T, 24, 3)
     assert valid_span(seq.valid[0]) == slice(0, T - 3)
 

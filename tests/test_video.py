@@ -124,7 +124,9 @@ def detected():
     """MediaPipe Pose on frames 10..15 of Pose2Sim's single-person demo, cameras 1 and 3."""
     python = _detector()
     demo = _demo()
-    return demo, {cam: detect_video(demo / "videos" / f"{cam}.mp4", python, slice(10, 16)) for cam in ("cam01", "cam03")}
+    return demo, {
+        cam: detect_video(demo / "videos" / f"{cam}.mp4", python, slice(10, 16)) for cam in ("cam01", "cam03")
+    }
 
 
 def test_the_detector_finds_the_person_in_a_real_video(detected):
@@ -151,7 +153,9 @@ def test_real_detections_agree_with_the_recordings_calibration(detected):
 
     demo, dets = detected
     views = tuple(f"{c}_json" for c in dets)
-    rec = KeypointRecording(views, "mediapipe33", dets["cam01"].frames, tuple(d.keypoints[:, None] for d in dets.values()))
+    rec = KeypointRecording(
+        views, "mediapipe33", dets["cam01"].frames, tuple(d.keypoints[:, None] for d in dets.values())
+    )
     cameras = align_views(rec, load_calibration(demo / "calibration" / "Calib.qca.txt"))
     kp = np.stack([k[:, 0] for k in undistort_recording(rec, cameras)])  # (V, T, 33, 3)
     X, err = triangulate(projection_matrices(cameras), kp[..., :2], kp[..., 2])

@@ -154,5 +154,7 @@ def test_whole_method_assigns_and_fuses(scene):
     # The same fit as from identity labels: the two pose sequences against each other, not
     # their errors against the truth (equal means could hide different poses).
     apart = pose_errors(scene["body"], np.asarray(res.poses), np.asarray(scene["res"].poses))
-    assert np.mean(apart["mpjpe"]) < 5.0 and np.mean(apart["mpjae"]) < 3.0, {k: float(np.mean(v)) for k, v in apart.items()}
+    assert np.mean(apart["mpjpe"]) < 5.0 and np.mean(apart["mpjae"]) < 3.0, {
+        k: float(np.mean(v)) for k, v in apart.items()
+    }
     assert set(out.seconds) == {"tracker", "association", "fusion"}

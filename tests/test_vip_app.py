@@ -30,7 +30,9 @@ def _truth_fit(inputs, max_steps=30, rounds=2, log=print):
     people = []
     for k, truth in enumerate(inputs.truths):
         Rcw = np.swapaxes(truth["cam_R"], -1, -2)
-        camera = np.concatenate([np.asarray(matrix_to_axis_angle(Rcw)), -np.einsum("tab,tb->ta", Rcw, truth["cam_t"])], -1)
+        camera = np.concatenate(
+            [np.asarray(matrix_to_axis_angle(Rcw)), -np.einsum("tab,tb->ta", Rcw, truth["cam_t"])], -1
+        )
         heading = np.zeros(len(inputs.bones)) if inputs.imu_heading is None else -inputs.imu_heading[k]
         people.append(SimpleNamespace(poses=truth["poses"], trans=truth["trans"], camera=camera, heading=heading,
                                       x0=truth["poses"][0], init=truth["poses"] + np.radians(3.0),
@@ -66,7 +68,9 @@ def _check_outputs(out, report, T, P):
         assert len(e["heading_deg"]) == 13
     for a in report["association"]:
         assert a["assigned"] == a["right"] == a["wearer_frames_detected"], a
-    assert {"inputs", "tracker", "association", "fusion", "files", "overlays", "errors", "scene", "total"} <= set(report["seconds"])
+    assert {"inputs", "tracker", "association", "fusion", "files", "overlays", "errors", "scene", "total"} <= set(
+        report["seconds"]
+    )
     assert json.loads((out / "report.json").read_text()) == report
 
 

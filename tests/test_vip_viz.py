@@ -81,7 +81,13 @@ def test_scene_glb(tmp_path, sphere):
     assert isinstance(scene.geometry["camera_path"], trimesh.path.Path3D)
 
     one = trimesh.load(scene_glb(tmp_path / "one.glb", verts[:, 0], sphere.faces, centres, R, frames=[0, 7]))
-    assert sorted(one.geometry) == ["camera_0000", "camera_0007", "camera_path", "person0_frame0000", "person1_frame0000"]
+    assert sorted(one.geometry) == [
+        "camera_0000",
+        "camera_0007",
+        "camera_path",
+        "person0_frame0000",
+        "person1_frame0000",
+    ]
     ply = trimesh.load(scene_glb(tmp_path / "scene.ply", verts, sphere.faces, centres, R, frames=[3]))
     assert len(ply.vertices) == P * V + 5
     with pytest.raises(ValueError, match="vertices"):

@@ -53,7 +53,9 @@ def test_mannequin_layout(body):
 def test_posed_vertices_matches_forward(body, motion, posed):
     vertices, joints = posed
     assert vertices.shape == (T, body.num_vertices, 3) and joints.shape == (T, 24, 3)
-    out = forward(body, np.asarray(motion.poses[[0, 13]], np.float32), None, np.asarray(motion.trans[[0, 13]], np.float32))
+    out = forward(
+        body, np.asarray(motion.poses[[0, 13]], np.float32), None, np.asarray(motion.trans[[0, 13]], np.float32)
+    )
     np.testing.assert_allclose(vertices[[0, 13]], out.vertices, atol=1e-5)
     np.testing.assert_allclose(joints[[0, 13]], out.joints, atol=1e-5)
     v5, j5 = posed_vertices(body, motion, frames=slice(3, 8))  # padded to the same 8-frame chunk

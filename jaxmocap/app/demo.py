@@ -17,6 +17,7 @@ from ..motion.io import find_cmu_dir
 
 __all__ = ["DemoResult", "ExportResult", "export_motion", "run_demo"]
 
+
 @dataclasses.dataclass(frozen=True)
 class ExportResult:
     """What `export_motion` wrote."""
@@ -57,14 +58,22 @@ def export_motion(
         name = Path(motion.name).name if motion.name else "motion"
         pngs.append(
             plot_sequence(
-                joints, body.parents, out_dir / "filmstrip.png", fps=motion.fps, joint_names=body.joint_names,
+                joints,
+                body.parents,
+                out_dir / "filmstrip.png",
+                fps=motion.fps,
+                joint_names=body.joint_names,
                 title=f"{name}: {motion.num_frames} frames at {motion.fps:g} fps ({motion.duration:.2f} s)",
             )
         )
         mid = motion.num_frames // 2
         pngs.append(
             plot_body(
-                vertices[mid], body.faces, out_dir / "body.png", joints=joints[mid], parents=body.parents,
+                vertices[mid],
+                body.faces,
+                out_dir / "body.png",
+                joints=joints[mid],
+                parents=body.parents,
                 title=f"{name}, frame {mid} (t = {mid / motion.fps:.2f} s): {body.kind} body, "
                 f"{body.num_vertices} vertices",
             )

@@ -147,8 +147,16 @@ def _penetration_figure(depth_mm: np.ndarray, path: Path, title: str) -> Path:
     return save_figure(fig, path)
 
 
-def simulate_scene(frames: int = 30, object: str = "box", views: int = 3, width: int = 160, height: int = 120,
-                   depth_points: int = 512, seed: int = 0, body="default-low"):
+def simulate_scene(
+    frames: int = 30,
+    object: str = "box",
+    views: int = 3,
+    width: int = 160,
+    height: int = 120,
+    depth_points: int = 512,
+    seed: int = 0,
+    body="default-low",
+):
     """The demo's scene: (body, scenario, observations) of the library walk carrying `object`
     (`sensors.scenario.interaction_config`; `scenarios.interaction_observations`)."""
     from ..body.io import resolve_body
@@ -225,8 +233,9 @@ def score_fit(body, obs, truth: dict, true_part: str, fit: dict) -> tuple[dict, 
     return m, verts
 
 
-def write_outputs(out_dir, body, obs, truth: dict, true_part: str, fit: dict, settings: dict | None = None,
-                  log=print) -> dict:
+def write_outputs(
+    out_dir, body, obs, truth: dict, true_part: str, fit: dict, settings: dict | None = None, log=print
+) -> dict:
     """Score `fit` (keys of `fit_scene`'s result; "separate" optional) against the truth and
     write the files of the module docstring into `out_dir`; returns the report (metrics.json)."""
     from ..viz.mesh import export_mesh

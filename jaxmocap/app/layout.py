@@ -136,7 +136,9 @@ def check_layout(subject, P, body, count: int, named: str | None = None, named_b
                 f"too few detections to tell {' from '.join(candidates)} apart (the files have {count} points "
                 "either way); name the OpenPose model with --layout (or pose_model in Config.toml)."
             )
-        return LayoutCheck(named, scores, "unchecked", f"layout   {named} (from {named_by}; too few detections to check it)")
+        return LayoutCheck(
+            named, scores, "unchecked", f"layout   {named} (from {named_by}; too few detections to check it)"
+        )
     best = min(judged, key=judged.get)
     if named is None:
         return LayoutCheck(best, scores, "detected",

@@ -128,8 +128,10 @@ def read_masks(masks_dir, views, frame_numbers, cameras) -> np.ndarray:
         raise ValueError(f"{masks_dir}: no such folder (masks_dir: one folder of PNG masks per camera).")
     frame_numbers = [int(f) for f in frame_numbers]
     if any(c.width <= 0 for c in cameras):
-        raise ValueError("masks need the image size of every camera; the calibration gives none for "
-                         f"{[c.name for c in cameras if c.width <= 0]}.")
+        raise ValueError(
+            "masks need the image size of every camera; the calibration gives none for "
+            f"{[c.name for c in cameras if c.width <= 0]}."
+        )
     T, V = len(frame_numbers), len(cameras)
     H, W = max(c.height for c in cameras), max(c.width for c in cameras)
     if T * V * H * W * 4 > MAX_MASK_BYTES:
@@ -164,8 +166,10 @@ def read_masks(masks_dir, views, frame_numbers, cameras) -> np.ndarray:
         for frame, path in files.items():
             image = _mask_image(path)
             if image.shape != (cam.height, cam.width):
-                raise ValueError(f"{path}: mask is {image.shape[1]} x {image.shape[0]} px but camera {cam.name!r} "
-                                 f"records {cam.width} x {cam.height}.")
+                raise ValueError(
+                    f"{path}: mask is {image.shape[1]} x {image.shape[0]} px but camera {cam.name!r} "
+                    f"records {cam.width} x {cam.height}."
+                )
             out[index[frame], v, : cam.height, : cam.width] = image[sv, su] & inside
     return out
 
@@ -191,7 +195,8 @@ def _frame_filter(frames: np.ndarray, selection: slice | None) -> np.ndarray:
     keep = (frames >= start) & (frames < stop) & ((frames - start) % step == 0)
     if not keep.any():
         raise ValueError(
-            f"frames {start}:{stop}" + (f":{step}" if step != 1 else "")
+            f"frames {start}:{stop}"
+            + (f":{step}" if step != 1 else "")
             + f" selects no frame; the recording has frame numbers {frames.min()}..{frames.max()}."
         )
     return np.flatnonzero(keep)
@@ -242,8 +247,10 @@ def _one_view_warning(keypoints, frames) -> str | None:
     one = frames[(keypoints[..., 2] > 0).any(-1).sum(1) == 1]
     if keypoints.shape[1] < 2 or not len(one):
         return None
-    return (f"warning: {len(one)} of {len(frames)} frames have the subject in one camera only (frame numbers "
-            f"{_ranges(one)}): depth there is not observed, it follows the neighbouring frames and the body's size.")
+    return (
+        f"warning: {len(one)} of {len(frames)} frames have the subject in one camera only (frame numbers "
+        f"{_ranges(one)}): depth there is not observed, it follows the neighbouring frames and the body's size."
+    )
 
 
 def _blind_view_warning(keypoints, views) -> str | None:
@@ -253,9 +260,11 @@ def _blind_view_warning(keypoints, views) -> str | None:
         return None
     folders = f"camera folder {blind[0]!r} never shows" if len(blind) == 1 else \
         f"camera folders {', '.join(map(repr, blind))} never show"  # fmt: skip
-    return (f"warning: {folders} the "
-            "subject the other cameras agree on (no one detected, another person, or a wrong camera in the "
-            "calibration); fitted without them.")
+    return (
+        f"warning: {folders} the "
+        "subject the other cameras agree on (no one detected, another person, or a wrong camera in the "
+        "calibration); fitted without them."
+    )
 
 
 def _overlap_warnings(recording) -> list[str]:
@@ -279,8 +288,10 @@ def _ignored_warning(recording) -> list[str]:
     if not ignored:
         return []
     shown = ", ".join(ignored[:4]) + (f", ... ({len(ignored)} in all)" if len(ignored) > 4 else "")
-    return [f"warning: not read, named unlike the other frames of their camera: {shown}; rename them like "
-            "the others if they are frames of this recording."]
+    return [
+        f"warning: not read, named unlike the other frames of their camera: {shown}; rename them like "
+        "the others if they are frames of this recording."
+    ]
 
 
 def _read_summary(recording) -> str:
@@ -425,19 +436,30 @@ def _overlay(path, cam, view, frame_numbers, picks, detections, model_kp, vertic
         lo, hi = box.min(0), box.max(0)
         centre, half = 0.5 * (lo + hi), 0.6 * max(hi - lo) + 10.0
         for row, ax in enumerate(axes[:, col]):
-            ax.add_patch(Rectangle((-0.5, -0.5), W, H, facecolor="#f4f4f4", edgecolor="#888888", lw=0.8,
-                                   zorder=0))
+            ax.add_patch(Rectangle((-0.5, -0.5), W, H, facecolor="#f4f4f4", edgecolor="#888888", lw=0.8, zorder=0))
             ax.imshow(rgba, extent=(-0.5, W - 0.5, H - 0.5, -0.5), interpolation="nearest", zorder=0.5)
-            ax.add_collection(LineCollection([np.stack([a, b]) for a, b in zip(duv[seen], model[seen])],
-                                             colors="#c53030", lw=0.8))
+            ax.add_collection(
+                LineCollection([np.stack([a, b]) for a, b in zip(duv[seen], model[seen])], colors="#c53030", lw=0.8)
+            )
             ax.scatter(*model[zk > 0].T, marker="x", s=22, c="#c53030", lw=1.2, label="model keypoint")
-            sc = ax.scatter(*duv[seen].T, s=16, c=det[seen, 2], cmap=colormaps["viridis"], norm=norm,
-                            edgecolors="k", linewidths=0.3, label="detection")
+            sc = ax.scatter(
+                *duv[seen].T,
+                s=16,
+                c=det[seen, 2],
+                cmap=colormaps["viridis"],
+                norm=norm,
+                edgecolors="k",
+                linewidths=0.3,
+                label="detection",
+            )
             if row == 0:
                 ax.set_xlim(-0.5, W - 0.5)
                 ax.set_ylim(H - 0.5, -0.5)  # image rows grow downwards
-                ax.set_title(f"{view}, frame {frame_numbers[t]}: "
-                             + (f"median {np.median(err):.1f} px" if seen.any() else "no detection"), fontsize=9)
+                ax.set_title(
+                    f"{view}, frame {frame_numbers[t]}: "
+                    + (f"median {np.median(err):.1f} px" if seen.any() else "no detection"),
+                    fontsize=9,
+                )
             else:
                 ax.set_xlim(centre[0] - half, centre[0] + half)
                 ax.set_ylim(centre[1] + half, centre[1] - half)
@@ -507,7 +529,14 @@ def fit_recording(
     """
     from ..formats import align_views, load_calibration, read_config, read_openpose
     from ..methods.multiview import (
-        camera_data, final_depth, initialise, place_monocular, preset, resolve_left_right, stage_one, stage_two,
+        camera_data,
+        final_depth,
+        initialise,
+        place_monocular,
+        preset,
+        resolve_left_right,
+        stage_one,
+        stage_two,
     )
     from ..geometry.keypoints import KEYPOINT_FORMATS, keypoint_regressor
     from ..geometry.triangulation import projection_matrices, select_person
@@ -585,8 +614,10 @@ def fit_recording(
             if not len(keep):
                 raise ValueError(f"{config.sources['frame_range']}: frame_range = [{start}, {stop}] selects no frame; the "
                                  f"recording has {recording.num_frames}.")  # fmt: skip
-            say(f"frames   positions {start}..{min(stop, recording.num_frames) - 1} (frame numbers "
-                f"{recording.frames[keep[0]]}..{recording.frames[keep[-1]]}), from {config.sources['frame_range']} (frame_range)")
+            say(
+                f"frames   positions {start}..{min(stop, recording.num_frames) - 1} (frame numbers "
+                f"{recording.frames[keep[0]]}..{recording.frames[keep[-1]]}), from {config.sources['frame_range']} (frame_range)"
+            )
         recording = _complete_frames(dataclasses.replace(
             recording, frames=recording.frames[keep], keypoints=tuple(k[keep] for k in recording.keypoints),
             present=None if recording.present is None else tuple(p[keep] for p in recording.present),
@@ -688,8 +719,25 @@ def fit_recording(
     return report
 
 
-def _write_outputs(out_dir, sources, recording, cameras, body, layout, keypoints, empty, p1, final, costs, fps,
-                   regressor, names, temporal, weights, silhouettes) -> dict:
+def _write_outputs(
+    out_dir,
+    sources,
+    recording,
+    cameras,
+    body,
+    layout,
+    keypoints,
+    empty,
+    p1,
+    final,
+    costs,
+    fps,
+    regressor,
+    names,
+    temporal,
+    weights,
+    silhouettes,
+) -> dict:
     from ..motion.amass import rotate_world, pelvis_rest, save_amass
     from ..motion.sequence import Motion
     from ..geometry.triangulation import projection_matrices
@@ -803,11 +851,17 @@ def _save_reports(out_dir: Path, report: dict) -> None:
     ]
     for view, info in report["views"].items():
         s1, fin = r["stage1"]["per_view"][view], r["final"]["per_view"][view]
-        lines.append(f"| {view} | {info['frames_with_subject']} | {_fmt(s1['median_px'])} | "
-                     f"{_fmt(fin['median_px'])} | {_fmt(fin['mean_px'])} | {fin['count']} |")
+        lines.append(
+            f"| {view} | {info['frames_with_subject']} | {_fmt(s1['median_px'])} | "
+            f"{_fmt(fin['median_px'])} | {_fmt(fin['mean_px'])} | {fin['count']} |"
+        )
     s1, fin = r["stage1"]["overall"], r["final"]["overall"]
-    lines += [f"| **all** | | {_fmt(s1['median_px'])} | {_fmt(fin['median_px'])} | {_fmt(fin['mean_px'])} | "
-              f"{fin['count']} |", "", "| keypoint | final median | final mean | detections |", "|---|---|---|---|"]
+    lines += [
+        f"| **all** | | {_fmt(s1['median_px'])} | {_fmt(fin['median_px'])} | {_fmt(fin['mean_px'])} | {fin['count']} |",
+        "",
+        "| keypoint | final median | final mean | detections |",
+        "|---|---|---|---|",
+    ]
     for name, s in r["final"]["per_keypoint"].items():
         lines.append(f"| {name} | {_fmt(s['median_px'])} | {_fmt(s['mean_px'])} | {s['count']} |")
     j = report["jitter_mm_s2"]
@@ -815,10 +869,15 @@ def _save_reports(out_dir: Path, report: dict) -> None:
         "",
         "Jitter of the 24 SMPL joints, mean ‖second difference‖·fps² (mm/s²): "
         f"stage 1 {_fmt(j['stage1'], '.0f')}, final {_fmt(j['final'], '.0f')}"
-        + ("" if report["temporal"] else " (stage 2 skipped: --no-temporal)") + ".",
+        + ("" if report["temporal"] else " (stage 2 skipped: --no-temporal)")
+        + ".",
         "",
-        "Stage 1 " + ("fitted keypoints, then keypoints and silhouettes (person masks)." if report["silhouettes"]
-                      else "fitted keypoints only (no person masks given)."),
+        "Stage 1 "
+        + (
+            "fitted keypoints, then keypoints and silhouettes (person masks)."
+            if report["silhouettes"]
+            else "fitted keypoints only (no person masks given)."
+        ),
         "",
         "Timings (s): " + ", ".join(f"{k} {v:.1f}" for k, v in report["timings_s"].items()) + ".",
         "",

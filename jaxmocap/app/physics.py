@@ -37,8 +37,12 @@ def run_check(motion_path, body="default-low", fps=None, ground="0", out=None) -
         import numpy as np
 
         ply = export_mesh(
-            np.asarray(body.v_template), body.faces, Path(out) / f"{stem}_contact_heatmap.ply",
-            colors=report.heatmap, vmin=0.0, vmax=max(float(report.heatmap.max()), 1e-6),
+            np.asarray(body.v_template),
+            body.faces,
+            Path(out) / f"{stem}_contact_heatmap.ply",
+            colors=report.heatmap,
+            vmin=0.0,
+            vmax=max(float(report.heatmap.max()), 1e-6),
         )
         print(f"wrote {png}")
         print(f"wrote {ply} (rest mesh coloured by ground-contact frequency, 4.5 mm)")

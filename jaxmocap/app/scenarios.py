@@ -26,7 +26,9 @@ from ..sensors.segmentation import object_candidates
 __all__ = ["inertial_setup", "vip_sequence", "tracker_keypoints", "associated_keypoints", "interaction_observations"]
 
 
-def inertial_setup(scenario, index: int, body: Body, person: int = 0, truth_init: bool = True, start: int = 0, **kw) -> InertialSetup:
+def inertial_setup(
+    scenario, index: int, body: Body, person: int = 0, truth_init: bool = True, start: int = 0, **kw
+) -> InertialSetup:
     """Calibrate sequence `index` of a `jaxmocap.sensors.Scenario` (measured IMU readings).
 
     x₀ is the true pose at frame `start` (the thesis's "initial pose provided with the
@@ -91,8 +93,16 @@ def tracker_keypoints(scenario, index: int, body: Body, people=(0, 1), x0s=None,
     return tracker_hypotheses([d for d, _, _ in datas], datas[0][2])
 
 
-def associated_keypoints(scenario, index: int, body: Body, people=(0, 1), x0s=None, model: AssociationModel | None = None,
-                         prior: PosePrior | None = None, **kw) -> Association:
+def associated_keypoints(
+    scenario,
+    index: int,
+    body: Body,
+    people=(0, 1),
+    x0s=None,
+    model: AssociationModel | None = None,
+    prior: PosePrior | None = None,
+    **kw,
+) -> Association:
     """Detections of a scenario assigned to its wearers `people` by association (eq.
     4.11-4.18) from their Inertial Tracker keypoints (`tracker_keypoints`). `.keypoints[k]`
     (T, 18, 3) is person people[k]'s input to `vip_sequence(keypoints=…)`; kw go to

@@ -99,7 +99,10 @@ def validate_config(raw: dict, source: str = "config") -> dict:
         if key in sw and not isinstance(sw[key], str):
             _fail(source, f"[sweep] {key} must be a string, got {sw[key]!r}.")
     if not isinstance(sw.get("baseline", {}), dict):
-        _fail(source, f"[sweep] baseline must be a table of weights, e.g. baseline = {{acc = 2.0}}; got {sw['baseline']!r}.")
+        _fail(
+            source,
+            f"[sweep] baseline must be a table of weights, e.g. baseline = {{acc = 2.0}}; got {sw['baseline']!r}.",
+        )
     for k, v in dict(sw.get("baseline", {})).items():
         _check_number(source, f"[sweep] baseline.{k}", v, 0.0, None, "a weight")
     for d, spec in dict(raw.get("datasets", {})).items():
@@ -136,10 +139,16 @@ def validate_config(raw: dict, source: str = "config") -> dict:
     for name, m in methods.items():
         for w in gw:
             if w not in m.defaults:
-                _fail(source, f"[grid.weights] {w!r} is not a weight of method {name!r}; its weights are {sorted(m.defaults)}.")
+                _fail(
+                    source,
+                    f"[grid.weights] {w!r} is not a weight of method {name!r}; its weights are {sorted(m.defaults)}.",
+                )
         for t in gt:
             if t not in m.terms:
-                _fail(source, f"[grid.terms] {t!r} is not a switchable term of method {name!r}; its terms are {sorted(m.terms)}.")
+                _fail(
+                    source,
+                    f"[grid.terms] {t!r} is not a switchable term of method {name!r}; its terms are {sorted(m.terms)}.",
+                )
     for axis, table, ok in (("weights", gw, lambda v: isinstance(v, (int, float)) and not isinstance(v, bool) and 0 <= v < math.inf),
                             ("terms", gt, lambda v: isinstance(v, bool))):  # fmt: skip
         for k, vals in table.items():
@@ -204,7 +213,9 @@ def validate_config(raw: dict, source: str = "config") -> dict:
     metric = sw.get("metric", "mpjae")
     for name, m in methods.items():
         if metric not in getattr(m, "metrics", (metric,)):
-            _fail(source, f"[sweep] metric {metric!r} is not reported by method {name!r}; it reports {list(m.metrics)}.")
+            _fail(
+                source, f"[sweep] metric {metric!r} is not reported by method {name!r}; it reports {list(m.metrics)}."
+            )
     bs = sw.get("batch_size", 256)
     if not isinstance(bs, int) or bs < 1:
         _fail(source, f"[sweep] batch_size must be a positive integer, got {bs!r}.")
@@ -218,7 +229,9 @@ def validate_config(raw: dict, source: str = "config") -> dict:
     for d, spec in datasets.items():
         where = f"[datasets.{d}]"
         if "fps" in spec:
-            _check_number(source, f"{where} fps", spec["fps"], 0.0, None, "frames per second, e.g. fps = 30", open_low=True)
+            _check_number(
+                source, f"{where} fps", spec["fps"], 0.0, None, "frames per second, e.g. fps = 30", open_low=True
+            )
         if "frames" in spec:
             _check_int(source, f"{where} frames", spec["frames"], 1, "the most frames per sequence, e.g. frames = 120")
         if "sequences" in spec:
@@ -453,7 +466,9 @@ def run_sweep(config: dict, out=None, *, prepare_only: bool = False, summary: bo
         store.open(log)
     else:
         # Process 0 alone writes (or takes over) the folder: wait for this config's manifest.
-        _wait_for(root / "sweep.json", 600, lambda p: isinstance(m := _try_json(p), dict) and m.get("hash") == store.hash)
+        _wait_for(
+            root / "sweep.json", 600, lambda p: isinstance(m := _try_json(p), dict) and m.get("hash") == store.hash
+        )
         store.open(log)
     var = variants(config)
     cache = root / "datasets"
@@ -636,4 +651,3 @@ def configure_parser(p) -> None:
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--distributed", action="store_true",
                    help="join jax.distributed first (SLURM etc.); processes share the cells")  # fmt: skip
-

@@ -218,8 +218,12 @@ class InertialMethod:
 
     name: str = "sip"
     metrics: tuple = ("mpjae", "mpjpe", "cost")
-    defaults: dict = dataclasses.field(default_factory=lambda: dict(ori=1.0, acc=0.05, anthro=1.0, mahal=0.003, limit=0.1))
-    terms: dict = dataclasses.field(default_factory=lambda: dict(ori=("ori",), acc=("acc",), mahal=("mahal",), limit=("limit",)))
+    defaults: dict = dataclasses.field(
+        default_factory=lambda: dict(ori=1.0, acc=0.05, anthro=1.0, mahal=0.003, limit=0.1)
+    )
+    terms: dict = dataclasses.field(
+        default_factory=lambda: dict(ori=("ori",), acc=("acc",), mahal=("mahal",), limit=("limit",))
+    )
 
     def __post_init__(self):
         if self.name not in ("sip", "sop", "it"):
@@ -244,7 +248,9 @@ class InertialMethod:
         for i in range(sc.num_sequences):
             seq = sc.sequence(i)
             try:
-                setup = inertial_setup(sc, i, self.body, prior=_prior(dataset.get("prior", "bundled"), sc.meta["names"][i]))
+                setup = inertial_setup(
+                    sc, i, self.body, prior=_prior(dataset.get("prior", "bundled"), sc.meta["names"][i])
+                )
             except ValueError as e:  # e.g. a dropout at frame 0: no calibration, this sequence only
                 out.append(FailedItem(f"{type(e).__name__}: {e}", int(sc["length"][i])))
                 continue
@@ -326,7 +332,11 @@ def _sop_batch(stacked, term_weights=None, steps=20):
     return poses if term_weights is None else (poses, codes)
 
 
-METHODS = {"sip": lambda: InertialMethod("sip"), "sop": lambda: InertialMethod("sop"), "it": lambda: InertialMethod("it")}
+METHODS = {
+    "sip": lambda: InertialMethod("sip"),
+    "sop": lambda: InertialMethod("sop"),
+    "it": lambda: InertialMethod("it"),
+}
 
 
 def resolve_method(name: str) -> SweepMethod:

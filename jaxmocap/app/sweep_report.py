@@ -44,7 +44,14 @@ def paired_stats(a: np.ndarray, b: np.ndarray, seed: int = 0) -> dict:
     n = len(d)
     out = {"n": n, "mean_diff": float(d.mean()) if n else float("nan")}
     if n < 2:
-        return {**out, "ci_low": np.nan, "ci_high": np.nan, "wilcoxon_p": np.nan, "ttest_p": np.nan, "effect_dz": np.nan}
+        return {
+            **out,
+            "ci_low": np.nan,
+            "ci_high": np.nan,
+            "wilcoxon_p": np.nan,
+            "ttest_p": np.nan,
+            "effect_dz": np.nan,
+        }
     rng = np.random.default_rng(seed)
     boot = d[rng.integers(0, n, (BOOTSTRAP, n))].mean(1)
     lo, hi = np.quantile(boot, [0.025, 0.975])
@@ -81,8 +88,10 @@ def _baseline_id(config: dict, variants: dict, method: str) -> str | None:
 
     want = {**resolve_method(method).defaults, **config["baseline"]}
     for vid, v in variants.items():
-        if v["method"] == method and all(v["terms"].values()) and all(
-            np.isclose(v["weights"][k], want[k]) for k in want
+        if (
+            v["method"] == method
+            and all(v["terms"].values())
+            and all(np.isclose(v["weights"][k], want[k]) for k in want)
         ):
             return vid
     return None
@@ -109,7 +118,9 @@ def held_out_best(by_var: dict) -> dict | None:
     halves = (index[0::2], index[1::2])
     chosen, scored = [], []
     for pick, score in (halves, halves[::-1]):
-        means = {v: float(np.mean([x[i] for i in pick if i in x])) for v, x in by_var.items() if any(i in x for i in pick)}
+        means = {
+            v: float(np.mean([x[i] for i in pick if i in x])) for v, x in by_var.items() if any(i in x for i in pick)
+        }
         if not means or not score:
             return None
         b = min(means, key=means.get)
@@ -137,7 +148,7 @@ def _analyse(records, metric, config, variants):
                "variants": {}}  # fmt: skip
         for vid, x in sorted(by_var.items()):
             arr = np.asarray(list(x.values()))
-            stat = (lambda f, arr=arr: float(f(arr)) if len(arr) else float("nan"))  # noqa: E731
+            stat = lambda f, arr=arr: float(f(arr)) if len(arr) else float("nan")  # noqa: E731
             row = {"metric": metric, "method": method, "dataset": dataset, "errors": errors, "variant": vid,
                    "n": len(arr), "failed": failed.get((key, vid), 0), "mean": stat(np.mean), "std": stat(np.std),
                    "median": stat(np.median), **{f"w_{k}": w for k, w in variants[vid]["weights"].items()},
@@ -257,11 +268,17 @@ def _plots(root, config, values, variants, metric, analysis, primary=True) -> No
     keys = sorted(values)
     if primary:
         _boxplot(plt, root, keys, values, metric, analysis)
-    _weight_plot(plt, root / ("weights.png" if primary else f"weights_{metric}.png"), config, keys, values, variants, metric)
+    _weight_plot(
+        plt, root / ("weights.png" if primary else f"weights_{metric}.png"), config, keys, values, variants, metric
+    )
 
 
 #: Axis labels with units of the built-in methods' metrics (others are shown by name).
-METRIC_LABELS = {"mpjpe": "MPJPE (mm, Procrustes-aligned)", "mpjae": "MPJAE (degrees)", "cost": "final cost (objective units)"}
+METRIC_LABELS = {
+    "mpjpe": "MPJPE (mm, Procrustes-aligned)",
+    "mpjae": "MPJAE (degrees)",
+    "cost": "final cost (objective units)",
+}
 
 
 def _metric_label(metric: str, prefix: str = "") -> str:
@@ -284,7 +301,9 @@ def _boxplot(plt, root, keys, values, metric, analysis) -> None:
         order = sorted(by_var, key=lambda v: np.mean(list(by_var[v].values())))
         ax.boxplot([list(by_var[v].values()) for v in order], showfliers=False, widths=0.6)
         ax.set_xticks(range(1, len(order) + 1))
-        ax.set_xticklabels([_variant_label(v) for v in order], rotation=60, ha="right", rotation_mode="anchor", fontsize=8)
+        ax.set_xticklabels(
+            [_variant_label(v) for v in order], rotation=60, ha="right", rotation_mode="anchor", fontsize=8
+        )
         base = analysis["|".join(key)]["baseline"]
         if base in order:
             ax.axvline(order.index(base) + 1, color="r", lw=0.8, ls="--", label="baseline")
@@ -318,8 +337,18 @@ def _weight_plot(plt, path, config, keys, values, variants, metric) -> None:
                 pts.sort()
                 x, y = zip(*pts)
                 # A weight whose term is off has no value ("-term" says so instead).
-                parts = [f"{o}={_g(v)}" for o, v in zip(others, label[1]) if v is not None] + [f"-{t}" for t in label[0]]
-                ax.plot(x, y, "o-", ms=2.5, lw=0.8, color=cmap(k / max(1, len(lines) - 1)), label=", ".join(parts) or "all on")
+                parts = [f"{o}={_g(v)}" for o, v in zip(others, label[1]) if v is not None] + [
+                    f"-{t}" for t in label[0]
+                ]
+                ax.plot(
+                    x,
+                    y,
+                    "o-",
+                    ms=2.5,
+                    lw=0.8,
+                    color=cmap(k / max(1, len(lines) - 1)),
+                    label=", ".join(parts) or "all on",
+                )
             xs = sorted({x for pts in lines.values() for x, _ in pts})
             if xs and min(xs) > 0:
                 ax.set_xscale("log")

@@ -81,7 +81,9 @@ def _count(name, value, low, high=None):
         raise ValueError(f"{name} must be an integer in {low} .. {high or 'any'}, got {value!r}.")
 
 
-def demo_inputs(frames: int = 60, wearers: int = 2, bystanders: int = 2, seed: int = 0, body="default-low") -> VIPInputs:
+def demo_inputs(
+    frames: int = 60, wearers: int = 2, bystanders: int = 2, seed: int = 0, body="default-low"
+) -> VIPInputs:
     """The demo scene: `wearers` people with 13 IMUs and `bystanders` without, from
     `DEMO_MOTIONS`, filmed by a hand-held camera with an IMU (`sensors.vip_config`)."""
     from ..body.io import resolve_body
@@ -297,14 +299,23 @@ def _run(out_dir, make_inputs, max_steps, log) -> dict:
     return report
 
 
-def run_vip_demo(out_dir, frames: int = 60, wearers: int = 2, bystanders: int = 2, seed: int = 0, body="default-low",
-                 max_steps: int = 30, log=print) -> dict:
+def run_vip_demo(
+    out_dir,
+    frames: int = 60,
+    wearers: int = 2,
+    bystanders: int = 2,
+    seed: int = 0,
+    body="default-low",
+    max_steps: int = 30,
+    log=print,
+) -> dict:
     """Simulate the demo scene (`demo_inputs`), fit it and write the outputs; returns the report."""
     return _run(out_dir, lambda: demo_inputs(frames, wearers, bystanders, seed, body), max_steps, log)
 
 
-def run_vip_fit(path, out_dir, people=None, frames: slice | None = None, body="default-low", max_steps: int = 30,
-                log=print) -> dict:
+def run_vip_fit(
+    path, out_dir, people=None, frames: slice | None = None, body="default-low", max_steps: int = 30, log=print
+) -> dict:
     """Fit a 3DPW sequence file (`threedpw_inputs`) and write the outputs; returns the report."""
     from ..motion.skeleton import check_file
 

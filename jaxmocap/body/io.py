@@ -129,13 +129,13 @@ def _read_dict(path: Path) -> dict[str, np.ndarray]:
                 with open(path, "rb") as f, np.load(f, allow_pickle=True) as z:
                     raw.update({k: z[k] for k in needed})
         else:
-            raise BodyFileError(
-                f"{path}: unknown model file type {suffix!r}; expected an SMPL-family .pkl or .npz."
-            )
+            raise BodyFileError(f"{path}: unknown model file type {suffix!r}; expected an SMPL-family .pkl or .npz.")
     except BodyFileError:
         raise
     except Exception as e:  # a corrupt pickle or zip can raise almost anything
-        raise BodyFileError(f"{path}: cannot read the file ({type(e).__name__}: {e}); it may be corrupt or truncated.") from e
+        raise BodyFileError(
+            f"{path}: cannot read the file ({type(e).__name__}: {e}); it may be corrupt or truncated."
+        ) from e
     out = {}
     for k, v in raw.items():
         if not isinstance(k, str):
@@ -146,9 +146,7 @@ def _read_dict(path: Path) -> dict[str, np.ndarray]:
             continue
     missing = [k for k in _REQUIRED if k not in out]
     if missing:
-        raise BodyFileError(
-            f"{path}: not an SMPL-family model, missing {missing}. Found keys: {sorted(raw)}."
-        )
+        raise BodyFileError(f"{path}: not an SMPL-family model, missing {missing}. Found keys: {sorted(raw)}.")
     return out
 
 
@@ -176,9 +174,7 @@ def _reduce_to_smpl_tree(path: Path, d: dict[str, np.ndarray]) -> tuple[dict, st
     weights = np.zeros((d["weights"].shape[0], 24), d["weights"].dtype)
     for j in range(num_joints):
         weights[:, j if j < 22 else hand_of(j)] += d["weights"][:, j]
-    regressor = np.concatenate(
-        [d["J_regressor"][:22], d["J_regressor"][[left_base, right_base]]], 0
-    )
+    regressor = np.concatenate([d["J_regressor"][:22], d["J_regressor"][[left_base, right_base]]], 0)
     posedirs = d["posedirs"].reshape(d["posedirs"].shape[0], 3, -1)
     posedirs = np.concatenate([posedirs[..., : 21 * 9], np.zeros_like(posedirs[..., :18])], -1)
     shapedirs = d["shapedirs"]
@@ -190,7 +186,13 @@ def _reduce_to_smpl_tree(path: Path, d: dict[str, np.ndarray]) -> tuple[dict, st
 
 def _gender_from(path: Path) -> str:
     name = path.name.lower()
-    for key, gender in (("female", "female"), ("_f_", "female"), ("neutral", "neutral"), ("male", "male"), ("_m_", "male")):
+    for key, gender in (
+        ("female", "female"),
+        ("_f_", "female"),
+        ("neutral", "neutral"),
+        ("male", "male"),
+        ("_m_", "male"),
+    ):
         if key in name or key in str(path.parent.name).lower():
             return gender
     return "neutral"

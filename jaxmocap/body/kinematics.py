@@ -20,7 +20,17 @@ from .._checks import check_finite, concrete
 from ..rotation import axis_angle_to_matrix
 from .model import Body
 
-__all__ = ["BodyOutput", "forward", "forward_rotations", "forward_kinematics", "chain_transforms", "mat3_apply", "mat3_mul", "shaped_joints", "as_float_array"]
+__all__ = [
+    "BodyOutput",
+    "forward",
+    "forward_rotations",
+    "forward_kinematics",
+    "chain_transforms",
+    "mat3_apply",
+    "mat3_mul",
+    "shaped_joints",
+    "as_float_array",
+]
 
 
 class BodyOutput(eqx.Module):
@@ -88,9 +98,7 @@ def chain_transforms(
     return rotations, positions
 
 
-def forward_kinematics(
-    parents: Sequence[int], local_rotations: Array, rest_joints: Array
-) -> tuple[Array, Array]:
+def forward_kinematics(parents: Sequence[int], local_rotations: Array, rest_joints: Array) -> tuple[Array, Array]:
     """Global rotations (..., J, 3, 3) and positions (..., J, 3) of every joint.
 
     See `chain_transforms` (von Marcard eq. 2.29-2.32).
@@ -187,9 +195,9 @@ def _blend_dense(weights: Array, transforms: Array, v_posed: Array) -> Array:
     N, J = transforms.shape[:2]
     # Full float32 here: GPUs' default TF32 products moved vertices by ~0.5 mm
     # (benchmarks/results/body_forward_gpu.json).
-    blended = jnp.matmul(
-        weights, transforms.reshape(N, J, 12), precision=jax.lax.Precision.HIGHEST
-    ).reshape(N, weights.shape[0], 3, 4)
+    blended = jnp.matmul(weights, transforms.reshape(N, J, 12), precision=jax.lax.Precision.HIGHEST).reshape(
+        N, weights.shape[0], 3, 4
+    )
     return _apply_blended(blended, v_posed)
 
 
@@ -307,13 +315,17 @@ def _skin(body: Body, transforms: Array, v_posed: Array, skinning: str = "auto")
         return _skin_sparse(body, transforms, v_posed)
     if skinning != "auto":
         raise ValueError(f"skinning must be 'auto', 'dense' or 'sparse', got {skinning!r}.")
-    return jax.lax.platform_dependent(
-        body, transforms, v_posed, cpu=_skin_dense, default=_skin_sparse
-    )
+    return jax.lax.platform_dependent(body, transforms, v_posed, cpu=_skin_dense, default=_skin_sparse)
 
 
-def _blend_shapes(body: Body, betas: Array, pose_feature: Array | None, joint: bool | None = None, blend_dtype=None,
-                  pad_columns: bool = True) -> Array:
+def _blend_shapes(
+    body: Body,
+    betas: Array,
+    pose_feature: Array | None,
+    joint: bool | None = None,
+    blend_dtype=None,
+    pad_columns: bool = True,
+) -> Array:
     """Rest-pose vertices T(β, θ) = T̄ + B_s(β) + B_p(θ) (Huang eq. 2.2-2.3), (N, V, 3).
 
     The offsets are matrix products in the default precision (TF32 on GPUs); the template
@@ -455,8 +467,15 @@ def _check_values(pose_name: str, pose, betas, trans) -> None:
 
 
 def forward_rotations_unchecked(
-    body: Body, local_rotations, betas=None, trans=None, skinning: str = "auto", joint_blend=None, blend_dtype=None,
-    pose_blend: bool = True, pad_columns: bool = True,
+    body: Body,
+    local_rotations,
+    betas=None,
+    trans=None,
+    skinning: str = "auto",
+    joint_blend=None,
+    blend_dtype=None,
+    pose_blend: bool = True,
+    pad_columns: bool = True,
 ) -> BodyOutput:
     """`forward_rotations` without its value checks and with its implementation choices
     open (for energies, tests and benchmarks): `skinning` as in `_skin`, `joint_blend`,
@@ -488,4 +507,3 @@ def forward_rotations_unchecked(
         joints=unflat(global_pos + trans[:, None]),
         joint_rotations=unflat(global_rot),
     )
-

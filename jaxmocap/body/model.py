@@ -52,11 +52,7 @@ class StaticArray:
         return self._hash
 
     def __eq__(self, other: object) -> bool:
-        return (
-            isinstance(other, StaticArray)
-            and self._hash == other._hash
-            and np.array_equal(self.array, other.array)
-        )
+        return isinstance(other, StaticArray) and self._hash == other._hash and np.array_equal(self.array, other.array)
 
     def __repr__(self) -> str:
         return f"StaticArray(shape={self.array.shape}, dtype={self.array.dtype})"
@@ -110,16 +106,14 @@ class Body(eqx.Module):
             got = getattr(self, name).shape
             if got != shape:
                 raise ValueError(
-                    f"Body.{name} has shape {got}; expected {shape} for a model with "
-                    f"{V} vertices and {J} joints."
+                    f"Body.{name} has shape {got}; expected {shape} for a model with {V} vertices and {J} joints."
                 )
         if len(self.joint_names) != J:
             raise ValueError(f"{len(self.joint_names)} joint names for {J} joints.")
         for j, p in enumerate(self.parents):
             if not (p == -1 if j == 0 else 0 <= p < j):
                 raise ValueError(
-                    f"parents must list each joint after its parent with the root first; "
-                    f"joint {j} has parent {p}."
+                    f"parents must list each joint after its parent with the root first; joint {j} has parent {p}."
                 )
         if self.max_influences is not None:
             K = self.max_influences
@@ -129,9 +123,7 @@ class Body(eqx.Module):
                 # Sparse skinning would silently drop any joint beyond the K largest weights.
                 most = int(np.max(np.count_nonzero(np.asarray(self.weights), axis=1)))
                 if most > K:
-                    raise ValueError(
-                        f"max_influences={K} but a vertex has {most} non-zero skinning weights."
-                    )
+                    raise ValueError(f"max_influences={K} but a vertex has {most} non-zero skinning weights.")
         faces = self.faces_static.array
         if faces.ndim != 2 or faces.shape[1] != 3 or faces.min() < 0 or faces.max() >= V:
             raise ValueError(f"faces must be (F, 3) indices into {V} vertices.")

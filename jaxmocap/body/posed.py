@@ -89,4 +89,3 @@ def posed_vertices(
         vertices[start:stop] = np.asarray(v)[:n]
         joints[start:stop] = np.asarray(j)[:n]
     return vertices, joints
-

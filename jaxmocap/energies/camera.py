@@ -223,8 +223,9 @@ def mask_to_model(uv: Array, silhouettes: Silhouettes, slack: float = 2.0, loss=
     return per_point * loss(e * (jnp.maximum(d - slack, 0.0) / d))  # (T, V, M, 2)
 
 
-def silhouette_terms(w_model: float = 1.0, w_mask: float = 1.0, stride: int = 1, slack: float = 2.0,
-                     huber: float = 1.0) -> list[Term]:
+def silhouette_terms(
+    w_model: float = 1.0, w_mask: float = 1.0, stride: int = 1, slack: float = 2.0, huber: float = 1.0
+) -> list[Term]:
     """E_S (eq. 4.5) as two terms: model→mask (squared) and mask→model (L1 tails).
 
     `stride` keeps every stride-th vertex as a model point (fewer residuals, faster),

@@ -175,7 +175,9 @@ class AccelerationResidual(eqx.Module):
             out["trans"] = eye
         # Row t reads frames t-1, t, t+1 with weights fps² (1, -2, 1) (eq. 3.10).
         c = self.fps**2
-        return {k: jnp.stack([c * shift_frames(v, 1), -2.0 * c * v, c * shift_frames(v, -1)], 1) for k, v in out.items()}
+        return {
+            k: jnp.stack([c * shift_frames(v, 1), -2.0 * c * v, c * shift_frames(v, -1)], 1) for k, v in out.items()
+        }
 
 
 def _chain_blocks(parents, bones, R, block, with_joint=False) -> Array:
@@ -190,8 +192,7 @@ def _chain_blocks(parents, bones, R, block, with_joint=False) -> Array:
     for j in range(len(parents)):
         Rp = eye if parents[j] < 0 else R.get(parents[j])
         per_s = [
-            (block(s, Rp, j) if with_joint else block(s, Rp)) if j in chains[s] else zero
-            for s in range(len(bones))
+            (block(s, Rp, j) if with_joint else block(s, Rp)) if j in chains[s] else zero for s in range(len(bones))
         ]
         per_joint.append(jnp.stack(per_s, 1))  # (T, S, 3, 3)
     return jnp.stack(per_joint, -2)

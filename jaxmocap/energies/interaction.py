@@ -206,7 +206,9 @@ def body_spheres(body: Body, betas=None, per_bone: int = 2, min_links: int = 3) 
         b = np.asarray(betas, np.float64).reshape(-1)[: body.num_betas]
         full[: len(b)] = b
     rest = np.asarray(shaped_joints(body, jnp.asarray(full[None], body.dtype)))[0].astype(np.float64)
-    verts = np.asarray(body.v_template, np.float64) + np.einsum("k,kvc->vc", full, np.asarray(body.shapedirs, np.float64))
+    verts = np.asarray(body.v_template, np.float64) + np.einsum(
+        "k,kvc->vc", full, np.asarray(body.shapedirs, np.float64)
+    )
     owner = np.argmax(np.asarray(body.weights), 1)
     parents = np.asarray(body.parents)
     weights, radii, joint_of = [], [], []

@@ -43,6 +43,7 @@ def posed_body(params, body: Body, betas=None) -> BodyOutput:
     Memoised under one key per evaluation: every term of a problem must pose the same
     body and betas (they come from the problem's one `data`).
     """
+
     def compute():
         return forward_rotations(body, params["pose"], betas, params.get("trans"))
 

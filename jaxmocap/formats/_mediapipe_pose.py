@@ -48,8 +48,11 @@ def main(argv=None) -> int:
 
     model = Path(mp.__file__).parent / "modules" / "pose_landmark" / "pose_landmark_full.tflite"
     if not hasattr(getattr(mp, "solutions", None), "pose") or not model.is_file():
-        _fail(MISSING, f"mediapipe {mp.__version__} has no pose model (mediapipe/modules/pose_landmark/"
-                       "pose_landmark_full.tflite); 0.10.21 is the last release that ships it.")
+        _fail(
+            MISSING,
+            f"mediapipe {mp.__version__} has no pose model (mediapipe/modules/pose_landmark/"
+            "pose_landmark_full.tflite); 0.10.21 is the last release that ships it.",
+        )
     if args.check:
         print(f"mediapipe {mp.__version__}, opencv {cv2.__version__}, numpy {np.__version__}")
         return 0

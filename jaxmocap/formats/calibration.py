@@ -99,9 +99,7 @@ class CalibratedCamera:
         t = np.asarray(self.t, np.float64).reshape(-1)
         where = f"camera {self.name!r}"
         if K.shape != (3, 3) or R.shape != (3, 3) or t.shape != (3,):
-            raise ValueError(
-                f"{where}: K and R must be (3, 3) and t (3,); got {K.shape}, {R.shape}, {t.shape}."
-            )
+            raise ValueError(f"{where}: K and R must be (3, 3) and t (3,); got {K.shape}, {R.shape}, {t.shape}.")
         if dist.size in (4, 5):
             dist = np.concatenate([dist, np.zeros(5 - dist.size)])
         elif dist.size == 0:
@@ -115,20 +113,12 @@ class CalibratedCamera:
             )
         if not all(np.isfinite(a).all() for a in (K, R, t, dist)):
             raise ValueError(f"{where}: K, dist, R and t must be finite.")
-        if (
-            K[0, 0] <= 0
-            or K[1, 1] <= 0
-            or np.any(K[1:, 0] != 0)
-            or K[2, 1] != 0
-            or not np.isclose(K[2, 2], 1.0)
-        ):
+        if K[0, 0] <= 0 or K[1, 1] <= 0 or np.any(K[1:, 0] != 0) or K[2, 1] != 0 or not np.isclose(K[2, 2], 1.0):
             raise ValueError(
                 f"{where}: K must be [[fx, s, cx], [0, fy, cy], [0, 0, 1]] with fx, fy > 0; got {K.tolist()}."
             )
         if np.abs(R @ R.T - np.eye(3)).max() > 1e-4 or np.linalg.det(R) < 0:
-            raise ValueError(
-                f"{where}: R is not a rotation matrix (RRᵀ ≠ I or det < 0): {R.tolist()}."
-            )
+            raise ValueError(f"{where}: R is not a rotation matrix (RRᵀ ≠ I or det < 0): {R.tolist()}.")
         # files round R to ~6 decimals (QTM, EasyMocap's Rot_): use the nearest rotation
         U, _, Vt = np.linalg.svd(R)
         R = U @ Vt
@@ -199,8 +189,7 @@ def _infer_format(path: Path) -> str:
     if head.startswith("%YAML"):
         return "easymocap"
     raise CalibrationError(
-        f"{path}: cannot tell the calibration format from the name or the contents; "
-        f"pass format= one of {FORMATS}."
+        f"{path}: cannot tell the calibration format from the name or the contents; pass format= one of {FORMATS}."
     )
 
 
@@ -219,16 +208,12 @@ def load_calibration(path, format: str | None = None) -> list[CalibratedCamera]:
     """
     path = Path(path)
     if format is not None and format not in FORMATS:
-        raise CalibrationError(
-            f"{path}: unknown calibration format {format!r}; choose from {FORMATS}."
-        )
+        raise CalibrationError(f"{path}: unknown calibration format {format!r}; choose from {FORMATS}.")
     if not path.exists():
         raise CalibrationError(f"{path}: no such file or folder.")
     if path.is_dir() and format != "easymocap" and not (path / "intri.yml").exists():
         # a calibration folder (Pose2Sim's calibration/) holding a single calibration file
-        found = [
-            p for p in sorted(path.iterdir()) if p.name.lower().endswith(_CALIBRATION_SUFFIXES)
-        ]
+        found = [p for p in sorted(path.iterdir()) if p.name.lower().endswith(_CALIBRATION_SUFFIXES)]
         if len(found) != 1:
             raise CalibrationError(
                 f"{path}: a folder needs intri.yml + extri.yml (EasyMocap) or exactly one "
@@ -258,14 +243,10 @@ def save_calibration(path, cameras, format: str) -> None:
     """
     path = Path(path)
     if format not in FORMATS:
-        raise CalibrationError(
-            f"{path}: unknown calibration format {format!r}; choose from {FORMATS}."
-        )
+        raise CalibrationError(f"{path}: unknown calibration format {format!r}; choose from {FORMATS}.")
     cameras = list(cameras)
     if not cameras or not all(isinstance(c, CalibratedCamera) for c in cameras):
-        raise ValueError(
-            "save_calibration: `cameras` must be a non-empty sequence of CalibratedCamera."
-        )
+        raise ValueError("save_calibration: `cameras` must be a non-empty sequence of CalibratedCamera.")
     {
         "pose2sim": _write_toml,
         "qualisys": _write_qualisys,
@@ -308,9 +289,7 @@ def _read_toml(path: Path) -> list[CalibratedCamera]:
                 "distortions, rotation (Rodrigues) and translation."
             )
         if table.get("fisheye", False):
-            raise CalibrationError(
-                f"{where}: fisheye cameras are not supported (OpenCV pinhole model only)."
-            )
+            raise CalibrationError(f"{where}: fisheye cameras are not supported (OpenCV pinhole model only).")
         try:
             size = np.asarray(table["size"], np.float64).reshape(-1)
             K = np.asarray(table["matrix"], np.float64)
@@ -319,9 +298,7 @@ def _read_toml(path: Path) -> list[CalibratedCamera]:
         except (TypeError, ValueError) as e:
             raise CalibrationError(f"{where}: numbers expected ({e}).") from None
         if size.shape != (2,) or np.any(size != np.round(size)):
-            raise CalibrationError(
-                f"{where}: size must be [width, height] in whole pixels, got {table['size']}."
-            )
+            raise CalibrationError(f"{where}: size must be [width, height] in whole pixels, got {table['size']}.")
         cameras.append(_camera(
             where, name=str(table.get("name", key)), K=K, dist=dist, R=_rodrigues(table["rotation"], where),
             t=t, width=int(size[0]), height=int(size[1]),
@@ -342,9 +319,7 @@ def _write_toml(path: Path, cameras) -> None:
             f"[{key}]",
             'name = "' + cam.name.replace('"', '\\"') + '"',
             f"size = [ {float(cam.width)}, {float(cam.height)}]",
-            "matrix = [ "
-            + ", ".join("[ " + ", ".join(_num(v) for v in row) + "]" for row in K)
-            + "]",
+            "matrix = [ " + ", ".join("[ " + ", ".join(_num(v) for v in row) + "]" for row in K) + "]",
             "distortions = [ " + ", ".join(_num(v) for v in dist) + "]",
             "rotation = [ " + ", ".join(_num(v) for v in host_log(cam.R)) + "]",
             "translation = [ " + ", ".join(_num(v) for v in cam.t) + "]",
@@ -365,23 +340,17 @@ def _attr(element, key, where) -> float:
     try:
         return float(value)
     except ValueError:
-        raise CalibrationError(
-            f"{where}: <{element.tag} {key}={value!r}> is not a number."
-        ) from None
+        raise CalibrationError(f"{where}: <{element.tag} {key}={value!r}> is not a number.") from None
 
 
 def _read_qualisys(path: Path) -> list[CalibratedCamera]:
     try:
         root = ET.parse(path).getroot()
     except (ET.ParseError, LookupError, ValueError) as e:  # LookupError: an unknown encoding= in the header
-        raise CalibrationError(
-            f"{path}: not valid XML ({e}); expected a QTM .qca.txt calibration."
-        ) from None
+        raise CalibrationError(f"{path}: not valid XML ({e}); expected a QTM .qca.txt calibration.") from None
     elements = root.findall("cameras/camera") or root.findall(".//calibration/cameras/camera")
     if root.tag != "calibration" and not elements:
-        raise CalibrationError(
-            f"{path}: no <calibration><cameras><camera> elements; not a QTM calibration."
-        )
+        raise CalibrationError(f"{path}: no <calibration><cameras><camera> elements; not a QTM calibration.")
     cameras = []
     for i, el in enumerate(elements):
         name = el.get("serial") or f"camera_{i + 1}"
@@ -393,16 +362,12 @@ def _read_qualisys(path: Path) -> list[CalibratedCamera]:
         centre = np.array([_attr(transform, k, where) for k in ("x", "y", "z")]) / 1000.0  # mm -> m
         R = _QUALISYS_TO_OPENCV @ M
         if _attr_or(intrinsic, "skew", 0.0, where) != 0.0:
-            raise CalibrationError(
-                f"{where}: nonzero skew is not supported (its unit is undocumented)."
-            )
+            raise CalibrationError(f"{where}: nonzero skew is not supported (its unit is undocumented).")
         fu, fv = (_attr(intrinsic, k, where) / _SUBPIXELS for k in ("focalLengthU", "focalLengthV"))
         cu, cv = (_attr(intrinsic, k, where) / _SUBPIXELS for k in ("centerPointU", "centerPointV"))
         fov = el.find("fov_video")
         if fov is not None:
-            left, top, right, bottom = (
-                _attr(fov, k, where) for k in ("left", "top", "right", "bottom")
-            )
+            left, top, right, bottom = (_attr(fov, k, where) for k in ("left", "top", "right", "bottom"))
         else:  # the whole sensor
             left = _attr(intrinsic, "sensorMinU", where) / _SUBPIXELS
             top = _attr(intrinsic, "sensorMinV", where) / _SUBPIXELS
@@ -435,9 +400,7 @@ def _attr_or(element, key, default, where) -> float:
     try:
         return default if value in (None, "", "none") else float(value)
     except ValueError:
-        raise CalibrationError(
-            f"{where}: <{element.tag} {key}={value!r}> is not a number."
-        ) from None
+        raise CalibrationError(f"{where}: <{element.tag} {key}={value!r}> is not a number.") from None
 
 
 def _video_scale(resolution: str, where) -> float:
@@ -446,9 +409,7 @@ def _video_scale(resolution: str, where) -> float:
         return 1.0
     m = re.fullmatch(r"(\d+)p", resolution)
     if not m:
-        raise CalibrationError(
-            f"{where}: unknown video_resolution {resolution!r} (expected e.g. '1080p', '540p')."
-        )
+        raise CalibrationError(f"{where}: unknown video_resolution {resolution!r} (expected e.g. '1080p', '540p').")
     return int(m.group(1)) / 1080.0
 
 
@@ -458,13 +419,9 @@ def _write_qualisys(path: Path, cameras) -> None:
     group = ET.SubElement(root, "cameras")
     for cam in cameras:
         if cam.width <= 0:
-            raise CalibrationError(
-                f"{path}: camera {cam.name!r} has no image size; QTM files need one."
-            )
+            raise CalibrationError(f"{path}: camera {cam.name!r} has no image size; QTM files need one.")
         if cam.K[0, 1] != 0:
-            raise CalibrationError(
-                f"{path}: camera {cam.name!r} has skew; the QTM writer does not store it."
-            )
+            raise CalibrationError(f"{path}: camera {cam.name!r} has skew; the QTM writer does not store it.")
         el = ET.SubElement(group, "camera", {
             "active": "1", "avg-residual": "0.0", "model": "Miqus Video", "point-count": "0",
             "serial": cam.name, "viewrotation": "0", "video_resolution": "",
@@ -489,9 +446,7 @@ def _write_qualisys(path: Path, cameras) -> None:
         })  # fmt: skip
     ET.indent(root)
     # us-ascii: no declaration from ElementTree, non-ASCII names become character references
-    path.write_bytes(
-        b"<?xml version='1.0' encoding='ASCII'?>\n" + ET.tostring(root, encoding="us-ascii") + b"\n"
-    )
+    path.write_bytes(b"<?xml version='1.0' encoding='ASCII'?>\n" + ET.tostring(root, encoding="us-ascii") + b"\n")
 
 
 # ------------------------------------------------------------------- EasyMocap (OpenCV YAML)
@@ -541,9 +496,7 @@ def _parse_opencv_yaml(path: Path) -> dict:
         if not line.strip() or line.lstrip().startswith(("#", "%", "---", "...")):
             continue
         if line[0] in " \t-":
-            raise CalibrationError(
-                f"{path}:{i}: unexpected indented line {line.strip()!r} outside a key."
-            )
+            raise CalibrationError(f"{path}:{i}: unexpected indented line {line.strip()!r} outside a key.")
         key, sep, rest = line.partition(":")
         if not sep:
             raise CalibrationError(f"{path}:{i}: expected 'key: value', got {line!r}.")
@@ -560,15 +513,11 @@ def _parse_opencv_yaml(path: Path) -> dict:
                         value += " " + lines[i].strip()
                         i += 1
                     if not (value.startswith("[") and value.endswith("]")):
-                        raise CalibrationError(
-                            f"{path}: matrix {key!r} has unterminated data {value[:40]!r}."
-                        )
+                        raise CalibrationError(f"{path}: matrix {key!r} has unterminated data {value[:40]!r}.")
                     try:
                         fields["data"] = [float(x) for x in _flow_items(value)]
                     except ValueError as e:
-                        raise CalibrationError(
-                            f"{path}: matrix {key!r} data is not numeric ({e})."
-                        ) from None
+                        raise CalibrationError(f"{path}: matrix {key!r} data is not numeric ({e}).") from None
                 else:
                     fields[name.strip()] = _yaml_scalar(value)
             try:
@@ -578,9 +527,7 @@ def _parse_opencv_yaml(path: Path) -> dict:
                     f"{path}: matrix {key!r} needs rows, cols and data; got {sorted(fields)}."
                 ) from None
             if len(data) != rows * cols:
-                raise CalibrationError(
-                    f"{path}: matrix {key!r} is {rows}x{cols} but has {len(data)} numbers."
-                )
+                raise CalibrationError(f"{path}: matrix {key!r} is {rows}x{cols} but has {len(data)} numbers.")
             out[key] = np.asarray(data, np.float64).reshape(rows, cols)
         elif rest == "":
             items = []
@@ -603,11 +550,7 @@ def _easymocap_paths(path: Path) -> tuple[Path, Path]:
     intri, extri = folder / "intri.yml", folder / "extri.yml"
     if not path.is_dir() and path.name not in ("intri.yml", "extri.yml"):
         # Custom names: the other file is the one with the other prefix.
-        other = (
-            path.name.replace("intri", "extri")
-            if "intri" in path.name
-            else path.name.replace("extri", "intri")
-        )
+        other = path.name.replace("intri", "extri") if "intri" in path.name else path.name.replace("extri", "intri")
         intri, extri = (path, folder / other) if "intri" in path.name else (folder / other, path)
     for p in (intri, extri):
         if not p.exists():
@@ -653,18 +596,15 @@ def _read_easymocap(path: Path) -> list[CalibratedCamera]:
         else:
             R = _numeric(need(extri, f"Rot_{name}", extri_path, name), extri_path, f"Rot_{name}", (9,)).reshape(3, 3)
         both = f"R_{name}" in extri and f"Rot_{name}" in extri
-        if both and np.abs(_numeric(extri[f"Rot_{name}"], extri_path, f"Rot_{name}", (9,)).reshape(3, 3) - R).max() > 1e-3:
-            raise CalibrationError(
-                f"{extri_path}: camera {name!r}: R_{name} (Rodrigues) and Rot_{name} disagree."
-            )
+        if (
+            both
+            and np.abs(_numeric(extri[f"Rot_{name}"], extri_path, f"Rot_{name}", (9,)).reshape(3, 3) - R).max() > 1e-3
+        ):
+            raise CalibrationError(f"{extri_path}: camera {name!r}: R_{name} (Rodrigues) and Rot_{name} disagree.")
         T = need(extri, f"T_{name}", extri_path, name)
         if not isinstance(width, int) or not isinstance(height, int):
-            raise CalibrationError(
-                f"{intri_path}: W_{name}/H_{name} must be integers, got {width!r}, {height!r}."
-            )
-        cameras.append(
-            _camera(where, name=name, K=K, dist=dist, R=R, t=T, width=width, height=height)
-        )
+            raise CalibrationError(f"{intri_path}: W_{name}/H_{name} must be integers, got {width!r}, {height!r}.")
+        cameras.append(_camera(where, name=name, K=K, dist=dist, R=R, t=T, width=width, height=height))
     return cameras
 
 
@@ -688,9 +628,7 @@ def _write_easymocap(path: Path, cameras) -> None:
         intri += _yaml_matrix(f"K_{c.name}", c.K) + _yaml_matrix(f"dist_{c.name}", c.dist[None])
         if c.width > 0:
             intri += [f"H_{c.name}: {c.height}", f"W_{c.name}: {c.width}"]
-        extri += _yaml_matrix(f"R_{c.name}", host_log(c.R)[:, None]) + _yaml_matrix(
-            f"Rot_{c.name}", c.R
-        )
+        extri += _yaml_matrix(f"R_{c.name}", host_log(c.R)[:, None]) + _yaml_matrix(f"Rot_{c.name}", c.R)
         extri += _yaml_matrix(f"T_{c.name}", c.t[:, None])
     # EasyMocap writes CRLF line ends; keep them so its tools see the same bytes.
     (folder / "intri.yml").write_bytes(("\r\n".join(intri) + "\r\n").encode())

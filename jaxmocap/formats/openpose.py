@@ -63,7 +63,13 @@ __all__ = [
     "write_openpose",
 ]
 
-KEYPOINT_COUNTS = {"body25": 25, "body25b": 25, "coco18": 18, "halpe26": 26, "mediapipe33": 33}  # mediapipe33: formats.video
+KEYPOINT_COUNTS = {
+    "body25": 25,
+    "body25b": 25,
+    "coco18": 18,
+    "halpe26": 26,
+    "mediapipe33": 33,
+}  # mediapipe33: formats.video
 # the last digit run of the stem (module docstring)
 _FRAME = re.compile(r"(\d+)\D*\.json$", re.IGNORECASE)
 _EMPTY_PARTS = (
@@ -130,9 +136,7 @@ def _frame_map(folder: Path, files: list[Path]) -> dict[int, Path]:
     for f in files:
         frame = int(_FRAME.search(f.name).group(1))
         if frame in by_frame:
-            raise KeypointFileError(
-                f"{folder}: frame {frame} appears twice: {by_frame[frame].name} and {f.name}."
-            )
+            raise KeypointFileError(f"{folder}: frame {frame} appears twice: {by_frame[frame].name} and {f.name}.")
         by_frame[frame] = f
     return by_frame
 
@@ -191,9 +195,7 @@ def _layout_of(files: Sequence[Path]) -> str | None:
                 if not fits:
                     raise KeypointFileError(
                         f"{path}: people[{i}] has {len(flat)} numbers in pose_keypoints_2d; no known "
-                        "layout has that many ("
-                        + ", ".join(f"{n}: {3 * k}" for n, k in KEYPOINT_COUNTS.items())
-                        + ")."
+                        "layout has that many (" + ", ".join(f"{n}: {3 * k}" for n, k in KEYPOINT_COUNTS.items()) + ")."
                     )
                 return fits[0] if len(fits) == 1 else None
     return None
@@ -223,18 +225,14 @@ def _read_people(path: Path, layout: str) -> list[np.ndarray]:
         try:
             rows = np.asarray(flat, np.float64).reshape(K, 3)
         except (TypeError, ValueError):
-            raise KeypointFileError(
-                f"{path}: people[{i}].pose_keypoints_2d holds non-numbers."
-            ) from None
+            raise KeypointFileError(f"{path}: people[{i}].pose_keypoints_2d holds non-numbers.") from None
         if not np.all(np.isfinite(rows)):
             raise KeypointFileError(f"{path}: people[{i}].pose_keypoints_2d holds NaN or infinity.")
         people.append(rows)
     return people
 
 
-def read_openpose(
-    root, layout: str | None = "body25", views: Sequence[str] | None = None
-) -> KeypointRecording:
+def read_openpose(root, layout: str | None = "body25", views: Sequence[str] | None = None) -> KeypointRecording:
     """Read OpenPose JSON from one folder per camera under `root`.
 
     Args:
@@ -251,13 +249,9 @@ def read_openpose(
     """
     root = Path(root)
     if layout is not None and layout not in KEYPOINT_COUNTS:
-        raise KeypointFileError(
-            f"layout={layout!r} is not known; choose from {sorted(KEYPOINT_COUNTS)}."
-        )
+        raise KeypointFileError(f"layout={layout!r} is not known; choose from {sorted(KEYPOINT_COUNTS)}.")
     if not root.is_dir():
-        raise KeypointFileError(
-            f"{root}: no such folder; give the folder holding one keypoint folder per camera."
-        )
+        raise KeypointFileError(f"{root}: no such folder; give the folder holding one keypoint folder per camera.")
     if views is not None:
         views = [views] if isinstance(views, str) else list(views)
     subfolders = sorted(
@@ -298,10 +292,7 @@ def read_openpose(
     _check_overlap(names, per_view)
     found = layout or _layout_of([f for by_frame in per_view for f in by_frame.values()])
     # undecided (25 points, none named): read as BODY_25, whose count is the same
-    per_view = [
-        {frame: _read_people(f, found or "body25") for frame, f in by_frame.items()}
-        for by_frame in per_view
-    ]
+    per_view = [{frame: _read_people(f, found or "body25") for frame, f in by_frame.items()} for by_frame in per_view]
     frames = np.array(sorted(set().union(*per_view)), np.int64)
     index = {int(f): i for i, f in enumerate(frames)}
     K = KEYPOINT_COUNTS[found or "body25"]
@@ -356,14 +347,10 @@ def write_openpose(root, views, keypoints, layout, frames=None, name: str = OPEN
     """
     root = Path(root)
     if layout not in KEYPOINT_COUNTS:
-        raise KeypointFileError(
-            f"layout={layout!r} is not known; choose from {sorted(KEYPOINT_COUNTS)}."
-        )
+        raise KeypointFileError(f"layout={layout!r} is not known; choose from {sorted(KEYPOINT_COUNTS)}.")
     views = [views] if isinstance(views, str) else list(views)
     if len(views) != len(keypoints):
-        raise ValueError(
-            f"write_openpose: {len(views)} views but {len(keypoints)} keypoint arrays."
-        )
+        raise ValueError(f"write_openpose: {len(views)} views but {len(keypoints)} keypoint arrays.")
     K = KEYPOINT_COUNTS[layout]
     for view, kp in zip(views, keypoints):
         kp = np.asarray(kp, np.float64)
@@ -403,9 +390,7 @@ def _camera_number(name: str) -> int | None:
     return int(numbers[0]) if len(numbers) == 1 else None
 
 
-def align_views(
-    recording: KeypointRecording, cameras: Sequence[CalibratedCamera]
-) -> list[CalibratedCamera]:
+def align_views(recording: KeypointRecording, cameras: Sequence[CalibratedCamera]) -> list[CalibratedCamera]:
     """The cameras of `recording.views`, in that order, matched by name.
 
     A view takes, in this order of rules: the camera of the same name; the one camera with

@@ -150,7 +150,9 @@ def read_config(folder) -> ProjectConfig:
     model = pose.get("pose_model") if isinstance(pose, dict) else None
     rate = project.get("frame_rate") if isinstance(project, dict) else None
     if model is not None and not isinstance(model, str):
-        raise ProjectError(f"{sources['pose_model']}: [pose] pose_model must be a name such as 'BODY_25B', got {model!r}.")
+        raise ProjectError(
+            f"{sources['pose_model']}: [pose] pose_model must be a name such as 'BODY_25B', got {model!r}."
+        )
     fps, fps_from = None, sources.get("frame_rate")
     if isinstance(rate, str) and rate.strip().lower() == "auto":
         videos = sorted((p for p in (start / "videos").glob("*") if p.suffix.lower() in VIDEO_SUFFIXES),
@@ -175,8 +177,9 @@ def read_config(folder) -> ProjectConfig:
             )
         frame_range = (span[0], span[1])
     elif span is not None and not (isinstance(span, str) and span.strip().lower() in ("auto", "all")) and span != []:
-        raise ProjectError(f"{sources['frame_range']}: [project] frame_range must be [start, stop], 'auto' or 'all'; "
-                           f"got {span!r}.")
+        raise ProjectError(
+            f"{sources['frame_range']}: [project] frame_range must be [start, stop], 'auto' or 'all'; got {span!r}."
+        )
     return ProjectConfig(tuple(files), model, fps, frame_range, fps_from if fps is not None else None, sources)
 
 
@@ -257,8 +260,7 @@ def _calibration(root: Path) -> Path | None:
             tomls = sorted(p for p in folder.iterdir() if p.suffix.lower() == ".toml")
             if len(tomls) > 1:
                 raise ProjectError(
-                    f"{folder}: several calibration files {[p.name for p in tomls]}; pass the one to "
-                    "use with --calib."
+                    f"{folder}: several calibration files {[p.name for p in tomls]}; pass the one to use with --calib."
                 )
             return tomls[0] if tomls else folder
     return None

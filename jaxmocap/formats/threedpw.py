@@ -237,7 +237,8 @@ def load_threedpw(path, image_size: tuple[int, int] | None = None, world_rotatio
             poses[p], trans[p] = _rotate_motion(R, poses[p], trans[p], j0)
             if len(sixty) == 2 and len(sixty["poses_60Hz"][p]) == len(sixty["trans_60Hz"][p]):
                 sixty["poses_60Hz"][p], sixty["trans_60Hz"][p] = _rotate_motion(
-                    R, sixty["poses_60Hz"][p], sixty["trans_60Hz"][p], j0)
+                    R, sixty["poses_60Hz"][p], sixty["trans_60Hz"][p], j0
+                )
             else:
                 sixty = {}  # a translation cannot be rotated without its pose: not returned
         joints = None if joints is None else joints @ R.T

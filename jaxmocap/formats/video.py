@@ -109,7 +109,9 @@ def detector_python(python=None) -> str:
         source = "--detector-python" if python else DETECTOR_ENV
         raise DetectorMissing(f"{source} = {candidate}: no such file; {INSTALL_HINT}")
     try:
-        run = subprocess.run([candidate, str(_WORKER), "-", "-", "--check"], capture_output=True, text=True, timeout=120)
+        run = subprocess.run(
+            [candidate, str(_WORKER), "-", "-", "--check"], capture_output=True, text=True, timeout=120
+        )
     except (OSError, subprocess.SubprocessError) as e:
         raise DetectorMissing(f"{candidate} cannot be run ({e}); {INSTALL_HINT}") from None
     if run.returncode != 0:

@@ -124,9 +124,7 @@ def ring_cameras(
 def _dist5(dist) -> np.ndarray:
     d = np.asarray(dist, np.float64).reshape(-1)
     if d.size not in (0, 4, 5):
-        raise ValueError(
-            f"dist must hold 4 or 5 OpenCV coefficients (k1, k2, p1, p2[, k3]); got {d.size}."
-        )
+        raise ValueError(f"dist must hold 4 or 5 OpenCV coefficients (k1, k2, p1, p2[, k3]); got {d.size}.")
     return np.concatenate([d, np.zeros(5 - d.size)])
 
 

@@ -199,7 +199,9 @@ def _surface_vertex(body: Body, name: str, joints: np.ndarray) -> int:
 def keypoint_regressor(body: Body, layout: str = "coco18") -> np.ndarray:
     """(K, V) keypoint regressor for `layout` (a `KEYPOINT_FORMATS` name) on `body`."""
     if not hasattr(body, "J_regressor") or not hasattr(body, "num_vertices"):
-        raise ValueError(f"keypoint_regressor: body must be a jaxmocap Body (e.g. default_body()), got {type(body).__name__}.")
+        raise ValueError(
+            f"keypoint_regressor: body must be a jaxmocap Body (e.g. default_body()), got {type(body).__name__}."
+        )
     if layout not in KEYPOINT_FORMATS:
         raise ValueError(f"Unknown keypoint layout {layout!r}; choose from {sorted(KEYPOINT_FORMATS)}.")
     names = KEYPOINT_FORMATS[layout]

@@ -102,7 +102,7 @@ def rasterize(
             q[:, 1, None, None] - p[:, 1, None, None]
         ) * (px - p[:, 0, None, None])
 
-    area = ((b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0]))
+    area = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])
     w0, w1, w2 = edge(b, c), edge(c, a), edge(a, b)
     sgn = jnp.sign(area)[:, None, None]
     inside = (w0 * sgn >= 0) & (w1 * sgn >= 0) & (w2 * sgn >= 0) & (jnp.abs(area) > 1e-12)[:, None, None]
@@ -140,7 +140,9 @@ def _rasterize_batch(K, R, t, vertices, face_labels, faces_key, width, height, w
 
     def one(args):
         Rv, tv, verts = args
-        return rasterize(K, Rv, tv, verts, faces, face_labels, width, height, window, floor=floor, floor_height=floor_height)
+        return rasterize(
+            K, Rv, tv, verts, faces, face_labels, width, height, window, floor=floor, floor_height=floor_height
+        )
 
     return jax.lax.map(one, (R, t, vertices), batch_size=batch_size)
 

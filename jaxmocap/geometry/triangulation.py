@@ -66,12 +66,7 @@ def triangulate(P, uv, conf, min_views: int = 2) -> tuple[np.ndarray, np.ndarray
     uv = np.asarray(uv, np.float64)
     conf = np.asarray(conf, np.float64)
     V = P.shape[0]
-    if (
-        P.shape[1:] != (3, 4)
-        or uv.shape[0] != V
-        or uv.shape[-1] != 2
-        or conf.shape != uv.shape[:-1]
-    ):
+    if P.shape[1:] != (3, 4) or uv.shape[0] != V or uv.shape[-1] != 2 or conf.shape != uv.shape[:-1]:
         raise ValueError(
             f"triangulate: need P (V, 3, 4), uv (V, ..., 2), conf (V, ...); got {P.shape}, {uv.shape}, {conf.shape}."
         )
@@ -79,9 +74,7 @@ def triangulate(P, uv, conf, min_views: int = 2) -> tuple[np.ndarray, np.ndarray
     Pb = P.reshape((V,) + (1,) * len(batch) + (3, 4))
     w = np.where(np.isfinite(uv).all(-1) & (conf > 0), conf, 0.0)
     u, v = np.nan_to_num(uv[..., 0]), np.nan_to_num(uv[..., 1])
-    raw = np.stack(
-        [u[..., None] * Pb[..., 2, :] - Pb[..., 0, :], v[..., None] * Pb[..., 2, :] - Pb[..., 1, :]]
-    )
+    raw = np.stack([u[..., None] * Pb[..., 2, :] - Pb[..., 0, :], v[..., None] * Pb[..., 2, :] - Pb[..., 1, :]])
     # (2, V, ..., 4) rows; a first solve with unit rows gives the depths for the second
     unit = raw / np.maximum(np.linalg.norm(raw[..., :3], axis=-1, keepdims=True), 1e-300)
     X = _solve_rows(unit * w[..., None])
@@ -177,9 +170,7 @@ def select_person(
     if V == 1:
         return _follow_2d(dets[0])[None]
     if not 2 <= min_views <= V:
-        raise ValueError(
-            f"select_person: min_views must be in 2..{V} with {V} views (got {min_views})."
-        )
+        raise ValueError(f"select_person: min_views must be in 2..{V} with {V} views (got {min_views}).")
     P = projection_matrices(cams)
     tau = max_error * np.array([0.5 * (c.K[0, 0] + c.K[1, 1]) for c in cams])  # (V,) px
     previous, gap = None, 1
@@ -199,13 +190,7 @@ def select_person(
                     True,
                 )
         if best is None:
-            seeds = [
-                (a, i, b, j)
-                for a in range(V)
-                for b in range(a + 1, V)
-                for i in real[a]
-                for j in real[b]
-            ]
+            seeds = [(a, i, b, j) for a in range(V) for b in range(a + 1, V) for i in real[a] for j in real[b]]
             if seeds:
                 choice = np.full((len(seeds), V), -1)
                 for s, (a, i, b, j) in enumerate(seeds):
@@ -266,9 +251,7 @@ def _evaluate(P, frame, real, tau, min_views, min_joints, choice):
     seen = (_chosen_conf(frame, choice) > 0) & np.isfinite(err)
     views = (choice >= 0).sum(1)
     joints = (seen & (err < tau[:, None, None])).sum((0, 2))
-    median = _masked_median(
-        np.moveaxis(err, 0, 1).reshape(S, -1), np.moveaxis(seen, 0, 1).reshape(S, -1)
-    )
+    median = _masked_median(np.moveaxis(err, 0, 1).reshape(S, -1), np.moveaxis(seen, 0, 1).reshape(S, -1))
     ok = (views >= min_views) & (np.isfinite(X).all(-1).sum(-1) >= min_joints)
     return choice, X, views, joints, median, ok
 
@@ -278,9 +261,7 @@ def _pick(choice, X, views, joints, median, ok, previous, gate, near_only):
     then most views, most joints, lowest median error. None if there is none."""
     if previous is not None:
         both = np.isfinite(X).all(-1) & np.isfinite(previous).all(-1)
-        dist = _masked_median(
-            np.linalg.norm(np.nan_to_num(X) - np.nan_to_num(previous), axis=-1), both
-        )
+        dist = _masked_median(np.linalg.norm(np.nan_to_num(X) - np.nan_to_num(previous), axis=-1), both)
         near = ok & (dist < gate)
         if near.any() or near_only:
             ok = near
@@ -300,9 +281,7 @@ def _chosen_conf(frame, choice):
 
 
 def _triangulate_choice(P, frame, choice):
-    uv = np.stack(
-        [frame[v][np.maximum(choice[:, v], 0), :, :2] for v in range(len(frame))]
-    )  # (V, S, K, 2)
+    uv = np.stack([frame[v][np.maximum(choice[:, v], 0), :, :2] for v in range(len(frame))])  # (V, S, K, 2)
     return triangulate(P, uv, _chosen_conf(frame, choice))
 
 

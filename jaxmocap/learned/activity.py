@@ -367,9 +367,7 @@ def labels_from_signals(signals: dict, fps: float, rule: LabelRule = LabelRule()
     return _merge_short_segments(labels, int(round(rule.min_segment * fps))).astype(np.int32)
 
 
-def activity_labels(
-    motion: Motion, body: Body | None = None, rule: LabelRule = LabelRule()
-) -> np.ndarray:
+def activity_labels(motion: Motion, body: Body | None = None, rule: LabelRule = LabelRule()) -> np.ndarray:
     """The class of every frame of `motion` by the labelling rule (module docstring).
 
     Args:
@@ -440,17 +438,13 @@ def watch_readings(
             f"resample it first (motion.resample({rate:g}) or more)."
         )
     if motion.num_frames < 4:
-        raise ValueError(
-            f"the motion has {motion.num_frames} frames; at least 4 are needed to differentiate twice."
-        )
+        raise ValueError(f"the motion has {motion.num_frames} frames; at least 4 are needed to differentiate twice.")
     body = _default_body(body)
     rng = np.random.default_rng(0) if rng is None else rng
     error_model = IMUErrorModel.xsens() if error_model is None else error_model
     placement = imu_placement(body, "sip6").subset([sensor])
     poses, trans, output = _posed(body, motion)
-    _, measured, _ = simulate_imu(
-        body, placement, poses, None, trans, motion.fps, error_model, rng, output=output
-    )
+    _, measured, _ = simulate_imu(body, placement, poses, None, trans, motion.fps, error_model, rng, output=output)
     T = motion.num_frames
     signal = np.concatenate([measured.acceleration[:T, 0], measured.angular_velocity[:T, 0]], -1)
     n = _watch_frames(T, motion.fps, rate)
@@ -508,9 +502,7 @@ def window_features(readings, window: int = WINDOW) -> Array:
     padded = jnp.concatenate([jnp.repeat(x[:1], window - 1, 0), x], 0)
     idx = jnp.arange(x.shape[0])[:, None] + jnp.arange(window)[None, :]  # (N, M)
     w = padded[idx]  # (N, M, 6)
-    return jnp.concatenate(
-        [w[..., :3].reshape(x.shape[0], -1), w[..., 3:].reshape(x.shape[0], -1)], -1
-    )
+    return jnp.concatenate([w[..., :3].reshape(x.shape[0], -1), w[..., 3:].reshape(x.shape[0], -1)], -1)
 
 
 #: Window lengths (watch frames: 1 s, 3 s, 6 s) of `summary_features`.
@@ -539,9 +531,7 @@ def _moving_mean(x: np.ndarray, length: int, centred: bool) -> np.ndarray:
     return (cs[length:] - cs[:-length]) / length
 
 
-def summary_features(
-    readings, windows: Sequence[int] = SUMMARY_WINDOWS, centred: bool = True
-) -> np.ndarray:
+def summary_features(readings, windows: Sequence[int] = SUMMARY_WINDOWS, centred: bool = True) -> np.ndarray:
     """Window statistics of the raw watch readings, per frame (an alternative to the
     thesis's raw windows, `window_features`; compact enough for a few subjects of data).
 
@@ -610,13 +600,9 @@ def fit_standardiser(readings: Sequence) -> Standardiser:
     """Mean and standard deviation of each channel over a list of (N_i, 6) readings."""
     if len(readings) == 0:
         raise ValueError("fit_standardiser needs at least one (N, 6) readings array.")
-    x = np.concatenate(
-        [np.asarray(_check_readings(f"readings[{i}]", r)) for i, r in enumerate(readings)]
-    )
+    x = np.concatenate([np.asarray(_check_readings(f"readings[{i}]", r)) for i, r in enumerate(readings)])
     std = x.std(0)
-    return Standardiser(
-        jnp.asarray(x.mean(0), jnp.float32), jnp.asarray(np.maximum(std, 1e-6), jnp.float32)
-    )
+    return Standardiser(jnp.asarray(x.mean(0), jnp.float32), jnp.asarray(np.maximum(std, 1e-6), jnp.float32))
 
 
 # --- MLP ---------------------------------------------------------------------------------------
@@ -643,9 +629,7 @@ class ActivityMLP(eqx.Module):
             raise ValueError(f"dropout is a rate in [0, 1), got {dropout}.")
         sizes = (int(in_size), *(int(h) for h in hidden), num_classes)
         keys = jax.random.split(key, len(sizes) - 1)
-        self.layers = tuple(
-            eqx.nn.Linear(a, b, key=k) for a, b, k in zip(sizes[:-1], sizes[1:], keys)
-        )
+        self.layers = tuple(eqx.nn.Linear(a, b, key=k) for a, b, k in zip(sizes[:-1], sizes[1:], keys))
         self.dropout = float(dropout)
 
     @property
@@ -662,11 +646,7 @@ class ActivityMLP(eqx.Module):
 
     def __call__(self, x: Array, key: Array | None = None) -> Array:
         """Logits (C,) of one input vector x (in_size,); dropout only when `key` is given."""
-        keys = (
-            [None] * len(self.layers)
-            if key is None
-            else list(jax.random.split(key, len(self.layers)))
-        )
+        keys = [None] * len(self.layers) if key is None else list(jax.random.split(key, len(self.layers)))
         for layer, k in zip(self.layers[:-1], keys[:-1]):
             x = jax.nn.relu(layer(x))
             if k is not None and self.dropout > 0:
@@ -708,16 +688,12 @@ def _check_chain(unary, transitions, mask, labels=None):
         raise ValueError(f"unary has shape {unary.shape}; expected (T, C) with T >= 1.")
     C = unary.shape[1]
     if transitions.shape != (C, C):
-        raise ValueError(
-            f"transitions has shape {transitions.shape}; expected ({C}, {C}) for C = {C} classes."
-        )
+        raise ValueError(f"transitions has shape {transitions.shape}; expected ({C}, {C}) for C = {C} classes.")
     check_finite("unary", unary)
     check_finite("transitions", transitions)
     mask = jnp.ones(unary.shape[0], bool) if mask is None else jnp.asarray(mask)
     if mask.shape != unary.shape[:1] or mask.dtype != jnp.bool_:
-        raise ValueError(
-            f"mask has shape {mask.shape} and dtype {mask.dtype}; expected ({unary.shape[0]},) bool."
-        )
+        raise ValueError(f"mask has shape {mask.shape} and dtype {mask.dtype}; expected ({unary.shape[0]},) bool.")
     if labels is not None:
         labels = jnp.asarray(labels)
         if labels.shape != unary.shape[:1] or not jnp.issubdtype(labels.dtype, jnp.integer):
@@ -726,9 +702,7 @@ def _check_chain(unary, transitions, mask, labels=None):
             )
         v = np.asarray(labels) if not isinstance(labels, jax.core.Tracer) else None
         if v is not None and ((v < 0) | (v >= C))[np.asarray(mask)].any():
-            raise ValueError(
-                f"labels must lie in 0 .. {C - 1} at the unmasked frames; got {sorted(set(v.tolist()))}."
-            )
+            raise ValueError(f"labels must lie in 0 .. {C - 1} at the unmasked frames; got {sorted(set(v.tolist()))}.")
     return unary, transitions, mask, labels
 
 
@@ -760,9 +734,7 @@ def crf_log_partition(unary, transitions, mask=None) -> Array:
         return (jnp.where(m, new, alpha), started | m), None
 
     C = unary.shape[1]
-    (alpha, started), _ = lax.scan(
-        step, (jnp.zeros(C, unary.dtype), jnp.zeros((), bool)), (unary, mask)
-    )
+    (alpha, started), _ = lax.scan(step, (jnp.zeros(C, unary.dtype), jnp.zeros((), bool)), (unary, mask))
     return jnp.where(started, jax.nn.logsumexp(alpha), 0.0)
 
 
@@ -797,9 +769,7 @@ def viterbi(unary, transitions, mask=None) -> Array:
         pointer = jnp.where(m & started, scores.argmax(0), identity)
         return (jnp.where(m, new, delta), started | m), pointer
 
-    (delta, _), pointers = lax.scan(
-        forward, (jnp.zeros(C, unary.dtype), jnp.zeros((), bool)), (unary, mask)
-    )
+    (delta, _), pointers = lax.scan(forward, (jnp.zeros(C, unary.dtype), jnp.zeros((), bool)), (unary, mask))
 
     def back(label, pointer):
         return pointer[label], label
@@ -837,9 +807,7 @@ def transition_counts(label_sequences: Sequence, num_classes: int) -> np.ndarray
     return counts
 
 
-def init_crf(
-    label_sequences: Sequence, num_classes: int, smoothing: float = 1.0, weight: float = 1.0
-) -> ActivityCRF:
+def init_crf(label_sequences: Sequence, num_classes: int, smoothing: float = 1.0, weight: float = 1.0) -> ActivityCRF:
     """A from the log transition frequencies of training labels, log P(j | i) with add-
     `smoothing` counts (the thesis's T, Fig. 7.5); λ = `weight`."""
     counts = transition_counts(label_sequences, num_classes) + smoothing
@@ -947,19 +915,13 @@ def _check_training(features, labels, num_inputs: int, num_classes: int, name: s
     if x.ndim != 2 or x.shape[1] != num_inputs:
         raise ValueError(f"{name} has shape {x.shape}; expected (n, {num_inputs}).")
     if y.shape != (x.shape[0],) or not np.issubdtype(y.dtype, np.integer):
-        raise ValueError(
-            f"labels has shape {y.shape} and dtype {y.dtype}; expected ({x.shape[0]},) int."
-        )
+        raise ValueError(f"labels has shape {y.shape} and dtype {y.dtype}; expected ({x.shape[0]},) int.")
     if x.shape[0] == 0:
         raise ValueError(f"{name} has no samples.")
     if not np.isfinite(x).all():
-        raise ValueError(
-            f"{name} contains NaN or inf (sample {int(np.argmax(~np.isfinite(x).all(1)))})."
-        )
+        raise ValueError(f"{name} contains NaN or inf (sample {int(np.argmax(~np.isfinite(x).all(1)))}).")
     if (y < 0).any() or (y >= num_classes).any():
-        raise ValueError(
-            f"labels must lie in 0 .. {num_classes - 1}; got values {sorted(set(y.tolist()))[:10]}."
-        )
+        raise ValueError(f"labels must lie in 0 .. {num_classes - 1}; got values {sorted(set(y.tolist()))[:10]}.")
     return x, y.astype(np.int32)
 
 
@@ -999,12 +961,8 @@ def train_mlp(
     import optax
 
     x, y = _check_training(features, labels, mlp.in_size, mlp.num_classes)
-    if not (isinstance(epochs, int) and epochs >= 0) or not (
-        isinstance(batch_size, int) and batch_size >= 1
-    ):
-        raise ValueError(
-            f"epochs must be an int >= 0 and batch_size an int >= 1; got {epochs!r}, {batch_size!r}."
-        )
+    if not (isinstance(epochs, int) and epochs >= 0) or not (isinstance(batch_size, int) and batch_size >= 1):
+        raise ValueError(f"epochs must be an int >= 0 and batch_size an int >= 1; got {epochs!r}, {batch_size!r}.")
     C = mlp.num_classes
     w = jnp.ones(C, jnp.float32) if weights is None else jnp.asarray(weights, jnp.float32)
     if w.shape != (C,) or not bool(jnp.all(jnp.isfinite(w) & (w >= 0))):
@@ -1036,9 +994,7 @@ def train_mlp(
         losses.append(total / per_epoch)
         if validation is not None:
             lp = mlp_log_probs(mlp, vx)
-            val_losses.append(
-                float(-jnp.mean(jnp.take_along_axis(lp, jnp.asarray(vy)[:, None], 1)))
-            )
+            val_losses.append(float(-jnp.mean(jnp.take_along_axis(lp, jnp.asarray(vy)[:, None], 1))))
             scores = classification_scores(confusion_matrix(vy, np.asarray(jnp.argmax(lp, -1)), C))
             val_acc.append(scores["accuracy"])
             val_f1.append(scores["macro_f1"])
@@ -1108,9 +1064,7 @@ def train_crf(
     def loss_fn(params):
         A, log_w = params
         A = A if fit_transitions else lax.stop_gradient(A)
-        ll = jax.vmap(lambda u, y, m: crf_log_likelihood(jnp.exp(log_w) * u, A, y, m))(
-            lp, lab, mask
-        )
+        ll = jax.vmap(lambda u, y, m: crf_log_likelihood(jnp.exp(log_w) * u, A, y, m))(lp, lab, mask)
         return -ll.sum() / frames + prior_weight * jnp.sum((A - A0) ** 2) / C
 
     optimiser = optax.adam(learning_rate)
@@ -1154,9 +1108,7 @@ def classification_scores(confusion: np.ndarray) -> dict:
     predicted = m.sum(0)
     precision = np.where(predicted > 0, tp / np.maximum(predicted, 1), 0.0)
     recall = np.where(support > 0, tp / np.maximum(support, 1), 0.0)
-    f1 = np.where(
-        precision + recall > 0, 2 * precision * recall / np.maximum(precision + recall, 1e-12), 0.0
-    )
+    f1 = np.where(precision + recall > 0, 2 * precision * recall / np.maximum(precision + recall, 1e-12), 0.0)
     present = support > 0
     return {
         "accuracy": float(tp.sum() / max(m.sum(), 1)),

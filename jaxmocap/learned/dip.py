@@ -306,7 +306,12 @@ def birnn_poses(setup, network: DIPNetwork | None = None) -> Array:
 def save_dip_model(path, network: DIPNetwork, meta: dict | None = None, dtype=np.float16) -> Path:
     """Write the weights (as `dtype`, float16 by default: half the size, error far below the
     network's own) with the configuration and `meta` (provenance) as JSON; atomic."""
-    header = {"format": FORMAT, "version": FORMAT_VERSION, "config": dataclasses.asdict(network.config), "meta": meta or {}}
+    header = {
+        "format": FORMAT,
+        "version": FORMAT_VERSION,
+        "config": dataclasses.asdict(network.config),
+        "meta": meta or {},
+    }
     return save_module(path, network, header, dtype)
 
 

@@ -327,7 +327,10 @@ def hypothesis_features(joints3d, K, cam_orientation, detections) -> HypothesisF
     P, T = joints3d.shape[:2]
     D = detections.shape[1]
     uv, w = _normalised(detections, K)
-    valid = np.broadcast_to(((w > 0).sum(-1) >= MIN_KEYPOINTS)[None], (P, T, D)) & np.isfinite(joints3d).all((-1, -2))[:, :, None]
+    valid = (
+        np.broadcast_to(((w > 0).sum(-1) >= MIN_KEYPOINTS)[None], (P, T, D))
+        & np.isfinite(joints3d).all((-1, -2))[:, :, None]
+    )
     l, t, v = np.nonzero(valid)
     R_imu = np.eye(3)[None].repeat(T, 0) if cam_orientation is None else np.swapaxes(cam_orientation, -1, -2)
     f_un = np.full((P, T, D), np.inf)
@@ -405,8 +408,17 @@ def unary_design(f_un):
     return np.stack([np.ones_like(f_un), _log(f_un)], -1)
 
 
-def pair_features(hyp: HypothesisFeatures, keep, joints3d, K, detections, window: int = 30,
-                  positions_known: bool = False, imu_rotation: bool = True, tracks=None):
+def pair_features(
+    hyp: HypothesisFeatures,
+    keep,
+    joints3d,
+    K,
+    detections,
+    window: int = 30,
+    positions_known: bool = False,
+    imu_rotation: bool = True,
+    tracks=None,
+):
     """Inter- and intra-frame pairs among the kept hypotheses (keep (P, T, D) bool).
 
     Returns (inter, intra): inter {a, b: flat hypothesis indices into (P, T, D), f (n, 4)
@@ -478,8 +490,17 @@ def intra_design(f):
 # ----------------------------------------------------------------------------- labelling
 
 
-def solve_labelling(shape, nodes, unary, pairs, pair_costs, chunk: int = 100, time_limit: float = TIME_LIMIT_S,
-                    tracks=None, mip_rel_gap: float = MIP_REL_GAP):
+def solve_labelling(
+    shape,
+    nodes,
+    unary,
+    pairs,
+    pair_costs,
+    chunk: int = 100,
+    time_limit: float = TIME_LIMIT_S,
+    tracks=None,
+    mip_rel_gap: float = MIP_REL_GAP,
+):
     """Minimise eq. 4.11 subject to eq. 4.12 with HiGHS, chunk frames at a time.
 
     shape (P, T, D); nodes: flat indices of the candidate hypotheses; unary: their costs
@@ -506,8 +527,15 @@ def solve_labelling(shape, nodes, unary, pairs, pair_costs, chunk: int = 100, ti
     past alone. status: one HiGHS message per chunk, then one line per exchange.
     """
     P, T, D = shape
-    track_of, span0, span1 = (np.full(P * T * D, -1), np.zeros(0, int), np.zeros(0, int)) if tracks is None else (
-        np.broadcast_to(np.asarray(tracks[0])[None], shape).reshape(-1), np.asarray(tracks[1]), np.asarray(tracks[2]))
+    track_of, span0, span1 = (
+        (np.full(P * T * D, -1), np.zeros(0, int), np.zeros(0, int))
+        if tracks is None
+        else (
+            np.broadcast_to(np.asarray(tracks[0])[None], shape).reshape(-1),
+            np.asarray(tracks[1]),
+            np.asarray(tracks[2]),
+        )
+    )
     taken = [set() for _ in range(P)]
     nodes = np.asarray(nodes, int)
     frame_of = lambda f: np.unravel_index(f, shape)[1]  # noqa: E731
@@ -574,7 +602,11 @@ def solve_labelling(shape, nodes, unary, pairs, pair_costs, chunk: int = 100, ti
             kk = np.array(ks)
             cliques = {tuple(kk[(span0[kk] <= span0[k]) & (span0[k] <= span1[kk])]) for k in ks}
             for q in (q for q in cliques if len(q) > 1):
-                rows.append(np.full(len(q), r)), cols.append(np.array([col[k] for k in q])), vals.append(np.ones(len(q)))
+                (
+                    rows.append(np.full(len(q), r)),
+                    cols.append(np.array([col[k] for k in q])),
+                    vals.append(np.ones(len(q))),
+                )
                 ub.append(np.ones(1))
                 r += 1
             lb_u += [1.0 if k in taken[li] else 0.0 for k in ks]
@@ -588,9 +620,13 @@ def solve_labelling(shape, nodes, unary, pairs, pair_costs, chunk: int = 100, ti
         )  # fmt: skip
         status.append(res.message)
         if "time limit" in str(res.message).lower():
-            warnings.warn(f"association: HiGHS stopped at its time limit ({time_limit} s) on frames {s}-{e - 1}; "
-                          "the labelling there is its best so far, not the optimum: raise time_limit or "
-                          "use a smaller chunk", RuntimeWarning, stacklevel=2)
+            warnings.warn(
+                f"association: HiGHS stopped at its time limit ({time_limit} s) on frames {s}-{e - 1}; "
+                "the labelling there is its best so far, not the optimum: raise time_limit or "
+                "use a smaller chunk",
+                RuntimeWarning,
+                stacklevel=2,
+            )
         if res.x is None:  # no feasible point within the limit: leave the chunk unassigned
             continue
         pick = here[res.x[:n] > 0.5]
@@ -696,8 +732,15 @@ class AssociationGraph:
     tracks: tuple | None = None  # `detection_tracks` when cross_tracks (solve_labelling's constraint)
 
 
-def association_graph(joints3d, K, cam_orientation, detections, model: AssociationModel | None = None,
-                      window: int = 30, positions_known: bool = False) -> AssociationGraph:
+def association_graph(
+    joints3d,
+    K,
+    cam_orientation,
+    detections,
+    model: AssociationModel | None = None,
+    window: int = 30,
+    positions_known: bool = False,
+) -> AssociationGraph:
     """Features and log-odds of every hypothesis and pair (arguments as in `associate`)."""
     joints3d, K, cam_orientation, detections = _check(joints3d, K, cam_orientation, detections)
     if not (isinstance(window, (int, np.integer)) and window >= 1):
@@ -726,8 +769,13 @@ def _check_chunk(chunk):
         raise ValueError(f"chunk must be an int >= 1, got {chunk!r}.")
 
 
-def solve_graph(graph: AssociationGraph, detections, model: AssociationModel | None = None, chunk: int = 100,
-                time_limit: float = TIME_LIMIT_S) -> Association:
+def solve_graph(
+    graph: AssociationGraph,
+    detections,
+    model: AssociationModel | None = None,
+    chunk: int = 100,
+    time_limit: float = TIME_LIMIT_S,
+) -> Association:
     """Eq. 4.11 on `graph` with the model's costs: c_v = −z_v + assignment_cost (ours: a
     threshold on the evidence a detection needs), c_vv' = −pair_scale · z_vv'."""
     _check_chunk(chunk)
@@ -748,8 +796,17 @@ def solve_graph(graph: AssociationGraph, detections, model: AssociationModel | N
                        {"features": graph.seconds, "solve": time.perf_counter() - t1})  # fmt: skip
 
 
-def associate(joints3d, K, cam_orientation, detections, model: AssociationModel | None = None, window: int = 30,
-              positions_known: bool = False, chunk: int = 100, time_limit: float = TIME_LIMIT_S) -> Association:
+def associate(
+    joints3d,
+    K,
+    cam_orientation,
+    detections,
+    model: AssociationModel | None = None,
+    window: int = 30,
+    positions_known: bool = False,
+    chunk: int = 100,
+    time_limit: float = TIME_LIMIT_S,
+) -> Association:
     """Assign 2D detections to the P IMU wearers (eq. 4.11-4.18).
 
     Args:

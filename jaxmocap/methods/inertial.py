@@ -136,7 +136,9 @@ def preset(weights: SIPWeights | str = "validated") -> InertialPreset:
             raise ValueError(f"weights={weights!r}: pass a preset name {sorted(PRESETS)} or SIPWeights(...).")
         return PRESETS[weights]
     if not isinstance(weights, SIPWeights):
-        raise ValueError(f"weights must be SIPWeights or a preset name {sorted(PRESETS)}, got {type(weights).__name__}.")
+        raise ValueError(
+            f"weights must be SIPWeights or a preset name {sorted(PRESETS)}, got {type(weights).__name__}."
+        )
     return dataclasses.replace(PRESETS["validated"], weights=weights, source="user weights, validated stopping rule")
 
 
@@ -242,7 +244,8 @@ def calibrate(
         hint = (
             f"the first frame where every sensor reports is {first}: pass the readings from "
             f"there on (orientation[{first}:], acceleration[{first}:]) with the pose of that frame"
-            if first is not None else "no frame has every sensor"
+            if first is not None
+            else "no frame has every sensor"
         )
         raise ValueError(
             f"orientation: frame 0 has dropped samples (sensors {missing}); calibration needs "
@@ -267,7 +270,9 @@ def first_complete_frame(orientation) -> int | None:
     return int(np.argmax(ok)) if ok.any() else None
 
 
-def from_dip(path_or_dict, body: Body, bones, vertices, pose0=None, fps: float = 60.0, sensors=None, **kw) -> InertialSetup:
+def from_dip(
+    path_or_dict, body: Body, bones, vertices, pose0=None, fps: float = 60.0, sensors=None, **kw
+) -> InertialSetup:
     """Calibrate a DIP-IMU-layout pickle (keys imu_ori (T, S, 3, 3), imu_acc (T, S, 3) global).
 
     DIP stores accelerations in the world frame with gravity removed, so eq. 3.9 is
@@ -293,7 +298,9 @@ def from_dip(path_or_dict, body: Body, bones, vertices, pose0=None, fps: float =
     return calibrate(body, bones, vertices, ori, acc, pose0, fps, acceleration_frame="global", **kw)
 
 
-def inertial_problem(setup: InertialSetup, weights: SIPWeights | str = "validated", acceleration: bool = True) -> Problem:
+def inertial_problem(
+    setup: InertialSetup, weights: SIPWeights | str = "validated", acceleration: bool = True
+) -> Problem:
     """E_motion (eq. 3.5) for `setup` as a `Problem`.
 
     Which terms exist is structure (E_acc only with `acceleration`); how much each counts
@@ -316,7 +323,9 @@ def inertial_problem(setup: InertialSetup, weights: SIPWeights | str = "validate
 def _frame_data(data: InertialData, t) -> InertialData:
     """Frame t of `data` as a one-frame sequence."""
     take = lambda x: jax.lax.dynamic_slice_in_dim(x, t, 1, axis=0)  # noqa: E731
-    return eqx.tree_at(lambda d: (d.orientation, d.acceleration), data, (take(data.orientation), take(data.acceleration)))
+    return eqx.tree_at(
+        lambda d: (d.orientation, d.acceleration), data, (take(data.orientation), take(data.acceleration))
+    )
 
 
 def orientation_poser(
@@ -387,7 +396,9 @@ def solve_frames_sequentially(problem, data, x0, progress=False, **kw):
     return poses, results
 
 
-def sparse_orientation_poser(setup: InertialSetup, weights: SIPWeights | str = "validated", **kw) -> tuple[Array, Array]:
+def sparse_orientation_poser(
+    setup: InertialSetup, weights: SIPWeights | str = "validated", **kw
+) -> tuple[Array, Array]:
     """SOP (§3.4.2): `orientation_poser`, sequential, on the sensors of `setup` (6 IMUs)."""
     return orientation_poser(setup, weights, **kw)
 
@@ -499,7 +510,9 @@ def stack_setups(setups: Sequence[InertialSetup]) -> InertialSetup:
 
 def _check_setups(who: str, setups) -> None:
     if isinstance(setups, InertialSetup) or len(setups) == 0:
-        raise ValueError(f"{who}: setups must be a non-empty list of InertialSetup (from calibrate), got {setups!r:.80}.")
+        raise ValueError(
+            f"{who}: setups must be a non-empty list of InertialSetup (from calibrate), got {setups!r:.80}."
+        )
     bad = [type(s).__name__ for s in setups if not isinstance(s, InertialSetup)]
     if bad:
         raise ValueError(f"{who}: setups must hold InertialSetup objects (from calibrate), got {bad}.")
@@ -684,7 +697,9 @@ def estimate_body_scale(
         raise ValueError(f"criterion must be one of {sorted(SCALE_CRITERIA)}, got {criterion!r}.")
     s = np.asarray(scales, dtype=float) if np.ndim(scales) == 1 else None
     if s is None or len(s) < 3:
-        raise ValueError(f"scales must be a 1-D sequence of at least 3 candidates (a parabola needs 3), got {scales!r}.")
+        raise ValueError(
+            f"scales must be a 1-D sequence of at least 3 candidates (a parabola needs 3), got {scales!r}."
+        )
     if not (np.all(np.isfinite(s)) and np.all(s > 0)):
         raise ValueError(f"scales must be finite and > 0 (a body scale), got {s.tolist()}.")
     if len(np.unique(s)) != len(s):
@@ -718,7 +733,9 @@ def estimate_body_scale(
     sol = fits(setups)
     profile = _profile({k: np.asarray(v, float) for k, v in sol.costs.items()}, criterion)
     if not np.isfinite(profile).any():
-        raise ValueError("estimate_body_scale: no candidate fit ended with a finite cost (non-finite readings or start?).")
+        raise ValueError(
+            "estimate_body_scale: no candidate fit ended with a finite cost (non-finite readings or start?)."
+        )
     lo, hi = s[0], s[-1]
     at_edge = s[int(np.argmin(profile))] in (lo, hi)
     for _ in range(refine if not at_edge else 0):

@@ -169,7 +169,9 @@ class InteractionObservations:
         for name in ("body_points", "object_points"):
             valid = np.asarray(getattr(self, name.replace("points", "valid")), bool)
             if not np.isfinite(np.asarray(getattr(self, name))[valid]).all():
-                raise ValueError(f"InteractionObservations.{name} has NaN or inf among its valid points; mark them invalid.")
+                raise ValueError(
+                    f"InteractionObservations.{name} has NaN or inf among its valid points; mark them invalid."
+                )
 
     @property
     def num_frames(self) -> int:
@@ -247,7 +249,9 @@ _JOINT_TERMS = _HUMAN_TERMS + _OBJECT_TERMS + ("smooth", "object_smooth", "penet
 
 
 @functools.lru_cache(maxsize=None)
-def _problem(names: tuple[str, ...], sigma: float, depth_sigma: float = 0.02, accel_delta: float | None = None) -> Problem:
+def _problem(
+    names: tuple[str, ...], sigma: float, depth_sigma: float = 0.02, accel_delta: float | None = None
+) -> Problem:
     makers = {
         "keypoints": lambda: keypoint_term(sigma), "pose_prior": pose_prior_term, "shape": shape_term,
         "body_depth": body_depth_term, "bend": bend_term, "self_penetration": self_penetration_term,
@@ -304,8 +308,17 @@ def _subsample(points, valid, count: int, seed: int = 0):
     return np.nan_to_num(pts).astype(np.float64), ok
 
 
-def _interaction_data(obs: InteractionObservations, body: Body, masks, weights: InterCapWeights, betas=None,
-                      contact=None, body_match=None, contact_ids=None, dtype=jnp.float32) -> InteractionData:
+def _interaction_data(
+    obs: InteractionObservations,
+    body: Body,
+    masks,
+    weights: InterCapWeights,
+    betas=None,
+    contact=None,
+    body_match=None,
+    contact_ids=None,
+    dtype=jnp.float32,
+) -> InteractionData:
     T, V = obs.num_frames, len(obs.K)
     obj = obs.obj
     surface = _surface(obj)
@@ -344,8 +357,13 @@ def _render_masks(obs: InteractionObservations, R, t, window: int) -> np.ndarray
     return np.stack(out)
 
 
-def track_object(obs: InteractionObservations, weights: InterCapWeights = InterCapWeights(), max_steps: int = 30,
-                 body: Body | None = None, progress: bool = False) -> dict:
+def track_object(
+    obs: InteractionObservations,
+    weights: InterCapWeights = InterCapWeights(),
+    max_steps: int = 30,
+    body: Body | None = None,
+    progress: bool = False,
+) -> dict:
     """Object-only tracking, frame by frame (module docstring, step 1).
 
     Returns {"R": (T, 3, 3), "t": (T, 3), "masks": (T, V, H, W) the kept candidates,
@@ -475,16 +493,26 @@ def _correspondences(obs, body, poses, betas, trans, points, valid) -> np.ndarra
     return match
 
 
-def fit_human(obs: InteractionObservations, body: Body | None = None, weights: InterCapWeights = InterCapWeights(),
-              prior: PosePrior | None = None, max_steps: int = 40) -> dict:
+def fit_human(
+    obs: InteractionObservations,
+    body: Body | None = None,
+    weights: InterCapWeights = InterCapWeights(),
+    prior: PosePrior | None = None,
+    max_steps: int = 40,
+) -> dict:
     """Human-only, per frame (module docstring, step 2): {pose, trans, betas (T, B)}."""
     from ..body.io import default_body
 
     body = default_body("low") if body is None else body
     dtype = jnp.float32
     cam = _cameras(obs, body, dtype, prior)
-    muvs = MuVSWeights(keypoints=weights.keypoints, sigma=weights.sigma, pose_prior=weights.pose_prior,
-                       shape=weights.shape, reference_focal=None)  # fmt: skip  (InterCap's weights are in its own pixels)
+    muvs = MuVSWeights(
+        keypoints=weights.keypoints,
+        sigma=weights.sigma,
+        pose_prior=weights.pose_prior,
+        shape=weights.shape,
+        reference_focal=None,
+    )  # fmt: skip  (InterCap's weights are in its own pixels)
     p, _ = stage_one(cam, initialise(cam, muvs.num_betas), muvs, silhouettes=False, max_steps=max_steps)
     names = ("keypoints", "pose_prior", "shape", "body_depth", "bend", "self_penetration")
     problem = _weighted(names, weights, dtype)
@@ -501,11 +529,19 @@ def fit_human(obs: InteractionObservations, body: Body | None = None, weights: I
 # --- 4. contact frames (ours) -------------------------------------------------------------------
 
 
-def detect_contact(body: Body, human: dict, obj: dict, sdf_object: RigidObject, fps: float,
-                   parts=("left_grip", "right_grip", "left_hand", "right_hand"), reach: float = 0.08,
-                   speed: float = 0.1, moving: float = 0.15, touch: float = 0.03,
-                   min_frames: int = 3,
-                   ) -> tuple[np.ndarray, str]:
+def detect_contact(
+    body: Body,
+    human: dict,
+    obj: dict,
+    sdf_object: RigidObject,
+    fps: float,
+    parts=("left_grip", "right_grip", "left_hand", "right_hand"),
+    reach: float = 0.08,
+    speed: float = 0.1,
+    moving: float = 0.15,
+    touch: float = 0.03,
+    min_frames: int = 3,
+) -> tuple[np.ndarray, str]:
     """Frames in which a hand holds the object, from the two fits alone (no annotation).
 
     Per part (a `contact_region`) and frame, on trajectories smoothed over 5 frames (the
@@ -567,9 +603,18 @@ def _hysteresis(on: np.ndarray, off: np.ndarray, min_frames: int) -> np.ndarray:
 # --- 3. joint fit over all frames (eq. 5.6-5.7) -------------------------------------------------
 
 
-def fit_joint(obs: InteractionObservations, human: dict, obj: dict, contact, body: Body | None = None,
-              weights: InterCapWeights = InterCapWeights(), off=(), parts=("right_hand", "left_hand"),
-              prior: PosePrior | None = None, max_steps: int = 40) -> dict:
+def fit_joint(
+    obs: InteractionObservations,
+    human: dict,
+    obj: dict,
+    contact,
+    body: Body | None = None,
+    weights: InterCapWeights = InterCapWeights(),
+    off=(),
+    parts=("right_hand", "left_hand"),
+    prior: PosePrior | None = None,
+    max_steps: int = 40,
+) -> dict:
     """Joint fit of every frame (module docstring, step 3) from the human-only and object
     fits; `contact` (T,) Q_t; `off`: term names switched off (ablations).
 
@@ -602,8 +647,13 @@ def fit_joint(obs: InteractionObservations, human: dict, obj: dict, contact, bod
             "object_t": t, "costs": costs}  # fmt: skip
 
 
-def accept_object(obs: InteractionObservations, obj: dict, joint: dict, body: Body | None = None,
-                  weights: InterCapWeights = InterCapWeights()) -> dict:
+def accept_object(
+    obs: InteractionObservations,
+    obj: dict,
+    joint: dict,
+    body: Body | None = None,
+    weights: InterCapWeights = InterCapWeights(),
+) -> dict:
     """Acceptance rule after the joint fit (ours; the thesis has none): per frame, the joint
     fit's object pose is kept only if it explains the object's own observations at least
     as well as the object-only track, i.e. E_O (eq. 5.1, the tracker's energy: the kept
@@ -637,8 +687,15 @@ def accept_object(obs: InteractionObservations, obj: dict, joint: dict, body: Bo
             "cost_separate": sep, "cost_joint": jnt}  # fmt: skip
 
 
-def intercap(obs: InteractionObservations, body: Body | None = None, weights: InterCapWeights = InterCapWeights(),
-             contact=None, off=(), prior: PosePrior | None = None, progress: bool = False) -> InterCapResult:
+def intercap(
+    obs: InteractionObservations,
+    body: Body | None = None,
+    weights: InterCapWeights = InterCapWeights(),
+    contact=None,
+    off=(),
+    prior: PosePrior | None = None,
+    progress: bool = False,
+) -> InterCapResult:
     """The whole method: object tracking, human fit, contact frames (detected unless
     `contact` (T,) is given; E_C then acts on the grips of both hands), joint fit."""
     from ..body.io import default_body

@@ -80,9 +80,28 @@ from ..priors.pose_prior import PosePrior, default_pose_prior
 from ..rotation import matrix_to_axis_angle
 from ..solve import Problem, frame, solve, solve_batch, with_weights
 
-__all__ = ["MuVSWeights", "PRESETS", "preset", "MuVSResult", "camera_data", "compact", "initialise", "resolve_left_right", "stage_one", "stage_two",
-           "multiview_smplify", "mask_views", "stack", "monocular_view", "monocular_depth", "place_monocular", "final_depth",
-           "rescale_about_camera", "STATURE_CV", "reprojection_px"]
+__all__ = [
+    "MuVSWeights",
+    "PRESETS",
+    "preset",
+    "MuVSResult",
+    "camera_data",
+    "compact",
+    "initialise",
+    "resolve_left_right",
+    "stage_one",
+    "stage_two",
+    "multiview_smplify",
+    "mask_views",
+    "stack",
+    "monocular_view",
+    "monocular_depth",
+    "place_monocular",
+    "final_depth",
+    "rescale_about_camera",
+    "STATURE_CV",
+    "reprojection_px",
+]
 
 
 #: Focal length (px) of the cameras MuVSWeights were tuned with: 256 x 192 px, 55° vertical.
@@ -198,7 +217,9 @@ def preset(weights: MuVSWeights | str = "validated") -> MuVSWeights:
             raise ValueError(f"weights={weights!r}: pass a preset name {sorted(PRESETS)} or MuVSWeights(...).")
         return PRESETS[weights]
     if not isinstance(weights, MuVSWeights):
-        raise ValueError(f"weights must be MuVSWeights or a preset name {sorted(PRESETS)}, got {type(weights).__name__}.")
+        raise ValueError(
+            f"weights must be MuVSWeights or a preset name {sorted(PRESETS)}, got {type(weights).__name__}."
+        )
     return weights
 
 
@@ -372,8 +393,9 @@ def initialise(data: CameraData, num_betas: int = 10) -> dict:
     return {"pose": pose, "trans": trans, "betas": np.zeros((T, num_betas))}
 
 
-def resolve_left_right(data: CameraData, truncation: float = 0.05, margin: float = 0.005, max_views: int = 6,
-                       temporal: float = 1.0) -> CameraData:
+def resolve_left_right(
+    data: CameraData, truncation: float = 0.05, margin: float = 0.005, max_views: int = 6, temporal: float = 1.0
+) -> CameraData:
     """`data` with each view's leg keypoints swapped back where that view swapped left and right.
 
     Detectors confuse the legs of a person seen from the side or the back, one view at a
@@ -400,7 +422,11 @@ def resolve_left_right(data: CameraData, truncation: float = 0.05, margin: float
         return stack([resolve_left_right(_member(data, i), truncation, margin, max_views, temporal)
                       for i in range(data.keypoints.shape[0])])  # fmt: skip
     names = KEYPOINT_FORMATS[data.layout]
-    pairs = [(a, b) for a, b in flip_pairs(names) if not any(k in names[a] for k in ("eye", "ear", "shoulder", "elbow", "wrist"))]
+    pairs = [
+        (a, b)
+        for a, b in flip_pairs(names)
+        if not any(k in names[a] for k in ("eye", "ear", "shoulder", "elbow", "wrist"))
+    ]
     conf = np.asarray(data.confidence, np.float64)  # (T, V, K)
     seen = np.flatnonzero((conf > 0).any((0, 2)))[:max_views]
     if not pairs or len(seen) == 0 or (len(seen) < 2 and temporal <= 0):
@@ -414,7 +440,9 @@ def resolve_left_right(data: CameraData, truncation: float = 0.05, margin: float
     flips = np.array(np.meshgrid(*[[0, 1]] * len(seen), indexing="ij")).reshape(len(seen), -1).T  # (H, V')
     # uv of the leg points under every hypothesis: (V', H, T, 2L, 2)
     swapped = np.concatenate([right, left])
-    u = np.stack([np.where(f[None, :, None, None] > 0, uv[:, :, swapped], uv[:, :, legs]).swapaxes(0, 1) for f in flips], 1)
+    u = np.stack(
+        [np.where(f[None, :, None, None] > 0, uv[:, :, swapped], uv[:, :, legs]).swapaxes(0, 1) for f in flips], 1
+    )
     c = np.stack([np.where(f[None, :, None] > 0, cf[:, :, swapped], cf[:, :, legs]).swapaxes(0, 1) for f in flips], 1)
     tau = truncation * float(np.mean(K[:, 0, 0]))
     threshold = (margin * float(np.mean(K[:, 0, 0]))) ** 2 * np.maximum((c[:, 0] > 0).sum((0, 2)), 1)  # (T,)
@@ -446,7 +474,9 @@ def resolve_left_right(data: CameraData, truncation: float = 0.05, margin: float
         ti = np.flatnonzero(best[:, j])[:, None]
         out[ti, v, legs[None]] = kp[ti, v, swapped[None]]
         out_c[ti, v, legs[None]] = cn[ti, v, swapped[None]]
-    return dataclasses_replace(data, keypoints=jnp.asarray(out, data.keypoints.dtype), confidence=jnp.asarray(out_c, data.confidence.dtype))
+    return dataclasses_replace(
+        data, keypoints=jnp.asarray(out, data.keypoints.dtype), confidence=jnp.asarray(out_c, data.confidence.dtype)
+    )
 
 
 def _reprojection_costs(P, u, c, uv, cf, names, legs, tau, threshold) -> np.ndarray:
@@ -530,16 +560,26 @@ def _monocular_root(data, uv, conf, torso: float = 0.5):
 
 
 @functools.lru_cache(maxsize=None)
-def _stage_one_problem(sigma: float, stride: int, slack: float, silhouettes: bool, huber: float = 1.0,
-                       floor: tuple | None = None) -> Problem:
+def _stage_one_problem(
+    sigma: float, stride: int, slack: float, silhouettes: bool, huber: float = 1.0, floor: tuple | None = None
+) -> Problem:
     # Cached: a term's function is static, so a new closure would mean a new compile.
     terms = [keypoint_term(sigma), pose_prior_term(), shape_term()] + _silhouettes(silhouettes, stride, slack, huber)
     return Problem(terms + _floor_terms(floor), {"pose": frame("so3"), "trans": frame(), "betas": frame()})
 
 
 @functools.lru_cache(maxsize=None)
-def _stage_two_problem(sigma: float, stride: int, slack: float, silhouettes: bool, length: int, num_dct: int,
-                       temporal_sigma: float, huber: float = 1.0, floor: tuple | None = None) -> Problem:
+def _stage_two_problem(
+    sigma: float,
+    stride: int,
+    slack: float,
+    silhouettes: bool,
+    length: int,
+    num_dct: int,
+    temporal_sigma: float,
+    huber: float = 1.0,
+    floor: tuple | None = None,
+) -> Problem:
     terms = [keypoint_term(sigma), pose_prior_term(), temporal_term(length, num_dct, temporal_sigma)]
     terms += _silhouettes(silhouettes, stride, slack, huber) + _floor_terms(floor)
     return Problem(terms, {"pose": frame("so3"), "trans": frame(), "coef": dct_window(length)})
@@ -644,8 +684,14 @@ def _solve(problem: Problem, params: dict, data: CameraData, max_steps: int):
     return run(problem, params, data, max_steps=max_steps)
 
 
-def stage_one(data: CameraData, params0: dict, weights: MuVSWeights | str = "validated", silhouettes: bool = True,
-              max_steps: int | None = None, floor=None) -> tuple[dict, dict]:
+def stage_one(
+    data: CameraData,
+    params0: dict,
+    weights: MuVSWeights | str = "validated",
+    silhouettes: bool = True,
+    max_steps: int | None = None,
+    floor=None,
+) -> tuple[dict, dict]:
     """Per-frame fit (eq. 4.1-4.6): joints with an annealed prior, then + silhouettes.
 
     `max_steps` (default `weights.steps`) caps each solve. The terms run on the
@@ -680,8 +726,14 @@ def stage_one(data: CameraData, params0: dict, weights: MuVSWeights | str = "val
     return {k: np.asarray(v) for k, v in p.items()}, costs
 
 
-def stage_two(data: CameraData, params1: dict, weights: MuVSWeights | str = "validated", silhouettes: bool = False,
-              max_steps: int | None = None, floor=None) -> tuple[dict, dict]:
+def stage_two(
+    data: CameraData,
+    params1: dict,
+    weights: MuVSWeights | str = "validated",
+    silhouettes: bool = False,
+    max_steps: int | None = None,
+    floor=None,
+) -> tuple[dict, dict]:
     """Temporal fit (eq. 4.7-4.8) with β = median of the stage-1 shapes; `floor` as in
     `stage_one`.
 
@@ -750,8 +802,9 @@ def _temporal_weight(data: CameraData, params1: dict, weights: MuVSWeights, scal
 def dataclasses_replace(data: CameraData, **changes) -> CameraData:
     """`data` with fields replaced (an equinox Module is immutable)."""
     keys = list(changes)
-    return eqx.tree_at(lambda d: [getattr(d, k) for k in keys], data, [changes[k] for k in keys],
-                       is_leaf=lambda x: x is None)
+    return eqx.tree_at(
+        lambda d: [getattr(d, k) for k in keys], data, [changes[k] for k in keys], is_leaf=lambda x: x is None
+    )
 
 
 # --- one camera: depth from the body's size and the ground -------------------------------
@@ -828,7 +881,9 @@ def monocular_depth(data: CameraData, params: dict, floor=None) -> dict:
     depth = float(np.median(per_frame))
     # frames fitted independently (stage 1) scatter in depth as much as their poses can
     # trade depth for foreshortening: their spread about a running median is an error too
-    scatter = 1.4826 * float(np.median(np.abs(per_frame - median_filter(per_frame, min(9, len(per_frame)), mode="nearest"))))
+    scatter = 1.4826 * float(
+        np.median(np.abs(per_frame - median_filter(per_frame, min(9, len(per_frame)), mode="nearest")))
+    )
     # the detections' scale error: reprojection over the body's extent in the image
     reg = np.asarray(data.regressor, np.float64)
     kp = np.einsum("kn,tnc->tkc", reg, verts) @ R.T + t
@@ -900,7 +955,9 @@ def place_monocular(data: CameraData, params: dict, floor=None) -> tuple[dict, d
         each = [place_monocular(_member(data, i), {k: v[i] for k, v in params.items()}, floor)
                 for i in range(data.keypoints.shape[0])]  # fmt: skip
         depths = [e[1] for e in each]
-        return {k: np.stack([e[0][k] for e in each]) for k in params}, None if depths == [None] * len(depths) else depths
+        return {k: np.stack([e[0][k] for e in each]) for k in params}, None if depths == [None] * len(
+            depths
+        ) else depths
     view = monocular_view(data)
     if view is None:
         return params, None
@@ -913,8 +970,13 @@ def place_monocular(data: CameraData, params: dict, floor=None) -> tuple[dict, d
 def final_depth(data: CameraData, final: dict, placed: dict) -> dict:
     """`MuVSResult.depth`: `monocular_depth` of the final fit, with the scale k that
     `place_monocular` applied after stage 1 and that record's uncertainty (`placed`)."""
-    depth = {**monocular_depth(data, final), "scale": placed["scale"], "from": placed["from"],
-             "relative": placed["relative"], "ground": placed["ground"]}
+    depth = {
+        **monocular_depth(data, final),
+        "scale": placed["scale"],
+        "from": placed["from"],
+        "relative": placed["relative"],
+        "ground": placed["ground"],
+    }
     depth["depth_uncertainty_m"] = depth["depth_m"] * depth["relative"]
     return depth
 

@@ -159,7 +159,9 @@ def vip_data(
                          f"and {cam_acceleration.shape}.")  # fmt: skip
     keypoints = np.asarray(keypoints, np.float64)
     if keypoints.shape != (T, 18, 3):
-        raise ValueError(f"keypoints have shape {keypoints.shape}; expected (T, 18, 3) COCO-18 rows (u, v, confidence), T = {T}.")
+        raise ValueError(
+            f"keypoints have shape {keypoints.shape}; expected (T, 18, 3) COCO-18 rows (u, v, confidence), T = {T}."
+        )
     K = np.asarray(K, np.float64)
     if K.shape != (3, 3):
         raise ValueError(f"K has shape {K.shape}; expected (3, 3).")
@@ -214,8 +216,9 @@ def _bones(data: VIPData, bones) -> tuple[int, ...]:
     return bones
 
 
-def inertial_tracker(data: VIPData, bones, heading=None, x0=None, mahal: float = 0.003, limit: float = 0.1,
-                     max_steps: int = 20) -> Array:
+def inertial_tracker(
+    data: VIPData, bones, heading=None, x0=None, mahal: float = 0.003, limit: float = 0.1, max_steps: int = 20
+) -> Array:
     """The Inertial Tracker (eq. 4.10): E_ori + prior per frame (all frames solved at once;
     the problem is block-diagonal in time). heading (S,) and x0 (24, 3) default to no
     correction and the given initial pose; with VIP's estimates this is VIP-IT. -> (T, 24, 3)."""
@@ -225,7 +228,9 @@ def inertial_tracker(data: VIPData, bones, heading=None, x0=None, mahal: float =
     if x0 is not None:
         data = eqx.tree_at(lambda d: d.x0, data, axis_angle_to_matrix(jnp.asarray(x0, data.x0.dtype)))
     S = len(bones)
-    problem = _weighted(_tracker_problem(bones), {"ori": 1.0 / S, "mahal": mahal, "limit": limit}, data.orientation.dtype)
+    problem = _weighted(
+        _tracker_problem(bones), {"ori": 1.0 / S, "mahal": mahal, "limit": limit}, data.orientation.dtype
+    )
     T = data.num_frames
     pose0 = jnp.broadcast_to(matrix_to_axis_angle(data.x0), (T, 24, 3))
     sol = solve(problem, {"pose": pose0}, data, max_steps=max_steps)
@@ -274,8 +279,9 @@ def initial_camera(data: VIPData, poses, trans) -> np.ndarray:
 
 
 @functools.lru_cache(maxsize=None)
-def _vip_problem(bones: tuple[int, ...], fps: float, free_heading: bool, free_x0: bool, free_camera: bool,
-                 sigma: float) -> Problem:
+def _vip_problem(
+    bones: tuple[int, ...], fps: float, free_heading: bool, free_x0: bool, free_camera: bool, sigma: float
+) -> Problem:
     terms = [
         heading_orientation_term(bones, 1.0, free_heading, free_x0),
         heading_acceleration_term(bones, fps, 1.0, free_heading),
@@ -385,7 +391,9 @@ def with_keypoints(data: VIPData, keypoints) -> VIPData:
         raise ValueError(f"keypoints have shape {keypoints.shape}; expected ({data.num_frames}, 18, 3).")
     uv, confidence = _detections(keypoints)
     dtype = data.keypoints.dtype
-    return eqx.tree_at(lambda d: (d.keypoints, d.confidence), data, (jnp.asarray(uv, dtype), jnp.asarray(confidence, dtype)))
+    return eqx.tree_at(
+        lambda d: (d.keypoints, d.confidence), data, (jnp.asarray(uv, dtype), jnp.asarray(confidence, dtype))
+    )
 
 
 def _detections(keypoints: np.ndarray):
@@ -412,8 +420,17 @@ class VIPScene:
     seconds: dict
 
 
-def video_inertial_scene(datas, bones, detections, weights: VIPWeights = VIPWeights(), rounds: int = 2,
-                         model: AssociationModel | None = None, max_steps: int = 30, log=None, **fusion) -> VIPScene:
+def video_inertial_scene(
+    datas,
+    bones,
+    detections,
+    weights: VIPWeights = VIPWeights(),
+    rounds: int = 2,
+    model: AssociationModel | None = None,
+    max_steps: int = 30,
+    log=None,
+    **fusion,
+) -> VIPScene:
     """The whole Video Inertial Poser (§4.3) for the IMU wearers of one recording.
 
     Inertial Tracker per wearer (eq. 4.10) → association of the detections with the wearers

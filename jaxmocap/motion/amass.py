@@ -105,9 +105,7 @@ def _from_arrays(path: Path, d: dict, body) -> Motion:
     if "poses" in d:
         poses = np.asarray(d["poses"], np.float64)
     elif "root_orient" in d and "pose_body" in d:
-        poses = np.concatenate(
-            [np.asarray(d["root_orient"]), np.asarray(d["pose_body"])], -1
-        ).astype(np.float64)
+        poses = np.concatenate([np.asarray(d["root_orient"]), np.asarray(d["pose_body"])], -1).astype(np.float64)
     else:
         raise MotionFileError(
             f"{path}: no 'poses' (or 'root_orient' + 'pose_body') key; keys are {sorted(d)}. "
@@ -127,9 +125,7 @@ def _from_arrays(path: Path, d: dict, body) -> Motion:
     T = poses.shape[0]
     trans = np.asarray(d["trans"], np.float64)
     if trans.shape != (T, 3):
-        raise MotionFileError(
-            f"{path}: trans has shape {trans.shape}; expected ({T}, 3) to match poses."
-        )
+        raise MotionFileError(f"{path}: trans has shape {trans.shape}; expected ({T}, 3) to match poses.")
     betas = np.asarray(d.get("betas", np.zeros(0)), np.float64).reshape(-1)
     rate = np.asarray(d[rate_key]).reshape(-1)
     if rate.size != 1:
@@ -139,9 +135,7 @@ def _from_arrays(path: Path, d: dict, body) -> Motion:
         if not np.isfinite(value).all():
             raise MotionFileError(f"{path}: {key} contains NaN or inf.")
     if T == 0 or not (np.isfinite(fps) and fps > 0):
-        raise MotionFileError(
-            f"{path}: needs at least one frame and a positive frame rate (got {T}, {fps})."
-        )
+        raise MotionFileError(f"{path}: needs at least one frame and a positive frame rate (got {T}, {fps}).")
 
     smpl = np.zeros((T, 24, 3))
     if _LAYOUTS[poses.shape[1]] == "smpl":

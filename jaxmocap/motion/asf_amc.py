@@ -111,9 +111,7 @@ def _floats(path, lineno, tokens, n=None) -> np.ndarray:
     try:
         values = np.array([float(t) for t in tokens], np.float64)
     except ValueError:
-        raise MotionFileError(
-            f"{path}, line {lineno}: non-numeric value in {' '.join(tokens)!r}."
-        ) from None
+        raise MotionFileError(f"{path}, line {lineno}: non-numeric value in {' '.join(tokens)!r}.") from None
     if n is not None and values.size != n:
         raise MotionFileError(f"{path}, line {lineno}: expected {n} numbers, got {values.size}.")
     if not np.isfinite(values).all():
@@ -241,9 +239,7 @@ def read_asf(path) -> AsfSkeleton:
         p = queue.pop(0)
         for c in children.get(p, []):
             if c not in by_name:
-                raise MotionFileError(
-                    f"{path}: :hierarchy names unknown bone {c!r} (child of {p!r})."
-                )
+                raise MotionFileError(f"{path}: :hierarchy names unknown bone {c!r} (child of {p!r}).")
             if c in seen:
                 raise MotionFileError(f"{path}: bone {c!r} appears twice in :hierarchy.")
             seen.add(c)
@@ -252,9 +248,7 @@ def read_asf(path) -> AsfSkeleton:
             queue.append(c)
     unplaced = [b.name for b in bones if b.name not in seen]
     if unplaced:
-        raise MotionFileError(
-            f"{path}: bones {unplaced} are not connected to the root in :hierarchy."
-        )
+        raise MotionFileError(f"{path}: bones {unplaced} are not connected to the root in :hierarchy.")
     return AsfSkeleton(
         name=name,
         length_unit=0.0254 / length_scale,
@@ -307,14 +301,10 @@ def read_amc(path, skeleton: AsfSkeleton) -> tuple[dict[str, np.ndarray], float 
             frame_line.append(lineno)
             continue
         if not frames:
-            raise MotionFileError(
-                f"{path}, line {lineno}: bone values before the first frame number."
-            )
+            raise MotionFileError(f"{path}, line {lineno}: bone values before the first frame number.")
         name = tok[0]
         if name not in dof:
-            raise MotionFileError(
-                f"{path}, line {lineno}: bone {name!r} is not in {skeleton.path}."
-            )
+            raise MotionFileError(f"{path}, line {lineno}: bone {name!r} is not in {skeleton.path}.")
         if len(tok) - 1 != len(dof[name]):
             # Either file may be at fault: name both.
             raise MotionFileError(
@@ -353,9 +343,7 @@ def _motion_rotation(channels, values: np.ndarray, degrees: bool) -> np.ndarray 
     return _euler(order, values[:, cols], degrees)
 
 
-def skeleton_motion(
-    skeleton: AsfSkeleton, values: dict[str, np.ndarray], fps: float, name: str = ""
-) -> SkeletonMotion:
+def skeleton_motion(skeleton: AsfSkeleton, values: dict[str, np.ndarray], fps: float, name: str = "") -> SkeletonMotion:
     """Forward kinematics of AMC `values` on `skeleton` (see the module docstring)."""
     T = next(iter(values.values())).shape[0]
     deg = skeleton.angle_unit == "deg"
@@ -435,8 +423,16 @@ def _named(what, fn, *args, **kwargs):
         return fn(*args, **kwargs)
     except MotionFileError:
         raise
-    except (ValueError, KeyError, IndexError, TypeError, ZeroDivisionError, OverflowError, StopIteration,
-            np.linalg.LinAlgError) as e:
+    except (
+        ValueError,
+        KeyError,
+        IndexError,
+        TypeError,
+        ZeroDivisionError,
+        OverflowError,
+        StopIteration,
+        np.linalg.LinAlgError,
+    ) as e:
         raise MotionFileError(f"{what}: inconsistent content ({type(e).__name__}: {e}).") from e
 
 

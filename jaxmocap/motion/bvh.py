@@ -132,9 +132,7 @@ def read_bvh(path) -> tuple[BvhSkeleton, np.ndarray, float]:
             try:
                 n = int(tokens[k + 1][0])
             except ValueError:
-                raise MotionFileError(
-                    f"{path}, line {line}: bad channel count {tokens[k + 1][0]!r}."
-                ) from None
+                raise MotionFileError(f"{path}, line {line}: bad channel count {tokens[k + 1][0]!r}.") from None
             need(2 + n)
             if not stack:
                 raise MotionFileError(f"{path}, line {line}: CHANNELS outside a joint.")
@@ -149,9 +147,7 @@ def read_bvh(path) -> tuple[BvhSkeleton, np.ndarray, float]:
         else:
             raise MotionFileError(f"{path}, line {line}: unexpected {tok!r} in HIERARCHY.")
     if stack or k >= len(tokens):
-        raise MotionFileError(
-            f"{path}: HIERARCHY is not closed or MOTION is missing (truncated file?)."
-        )
+        raise MotionFileError(f"{path}: HIERARCHY is not closed or MOTION is missing (truncated file?).")
     if not names:
         raise MotionFileError(f"{path}: no joints in HIERARCHY.")
     skel = BvhSkeleton(names, parents, offsets, channels, is_end)
@@ -159,18 +155,12 @@ def read_bvh(path) -> tuple[BvhSkeleton, np.ndarray, float]:
     # MOTION / Frames: N / Frame Time: dt / values.
     rest = tokens[k + 1 :]
     try:
-        assert (
-            rest[0][0].lower() == "frames:"
-            and rest[2][0].lower() == "frame"
-            and rest[3][0].lower() == "time:"
-        )
+        assert rest[0][0].lower() == "frames:" and rest[2][0].lower() == "frame" and rest[3][0].lower() == "time:"
         num_frames = int(rest[1][0])
         frame_time = float(rest[4][0])
     except (AssertionError, IndexError, ValueError):
         line = rest[0][1] if rest else tokens[k][1]
-        raise MotionFileError(
-            f"{path}, line {line}: expected 'Frames: N' and 'Frame Time: dt' after MOTION."
-        ) from None
+        raise MotionFileError(f"{path}, line {line}: expected 'Frames: N' and 'Frame Time: dt' after MOTION.") from None
     if num_frames < 1 or not frame_time > 0:
         raise MotionFileError(f"{path}: Frames must be >= 1 and Frame Time > 0.")
     data = rest[5:]
@@ -185,9 +175,7 @@ def read_bvh(path) -> tuple[BvhSkeleton, np.ndarray, float]:
         values = np.array([float(t) for t, _ in data[: num_frames * C]], np.float64)
     except ValueError:
         bad = next(i for i, (t, _) in enumerate(data) if not _is_float(t))
-        raise MotionFileError(
-            f"{path}, line {data[bad][1]}: non-numeric value {data[bad][0]!r}."
-        ) from None
+        raise MotionFileError(f"{path}, line {data[bad][1]}: non-numeric value {data[bad][0]!r}.") from None
     if not np.isfinite(values).all():
         bad = int(np.flatnonzero(~np.isfinite(values))[0])
         raise MotionFileError(f"{path}, line {data[bad][1]}: NaN or inf value.")
@@ -227,9 +215,7 @@ def choose_scale(skel: BvhSkeleton) -> float:
     return min(UNIT_CANDIDATES.values(), key=lambda s: abs(np.log(height * s / 1.7)))
 
 
-def skeleton_motion(
-    skel: BvhSkeleton, values: np.ndarray, fps: float, scale: float, name: str = ""
-) -> SkeletonMotion:
+def skeleton_motion(skel: BvhSkeleton, values: np.ndarray, fps: float, scale: float, name: str = "") -> SkeletonMotion:
     """Forward kinematics of BVH channel `values` (T, C); positions in metres (x `scale`)."""
     T = values.shape[0]
     N = len(skel.names)
@@ -245,9 +231,7 @@ def skeleton_motion(
                 t[:, "xyz".index(c[0])] += v[:, i]
         rcols = [i for i, c in enumerate(chans) if c.endswith("rotation")]
         local = (
-            Rotation.from_euler(
-                "".join(chans[i][0] for i in rcols).upper(), v[:, rcols], degrees=True
-            ).as_matrix()
+            Rotation.from_euler("".join(chans[i][0] for i in rcols).upper(), v[:, rcols], degrees=True).as_matrix()
             if rcols
             else np.broadcast_to(np.eye(3), (T, 3, 3))
         )

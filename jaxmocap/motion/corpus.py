@@ -24,7 +24,16 @@ import re
 from pathlib import Path
 from typing import Iterable, Sequence
 
-__all__ = ["Clip", "corpus", "subject_of", "training_clips", "interleave", "find_cmu_cc_dir", "GROUPS", "MOTION_SUFFIXES"]
+__all__ = [
+    "Clip",
+    "corpus",
+    "subject_of",
+    "training_clips",
+    "interleave",
+    "find_cmu_cc_dir",
+    "GROUPS",
+    "MOTION_SUFFIXES",
+]
 
 MOTION_SUFFIXES = (".amc", ".bvh", ".npz")
 GROUPS = ("walking", "freestyle", "acting")

@@ -119,17 +119,11 @@ def _ground_height(pose: _Pose, rest, sole, tau=0.005):
     return -softmin
 
 
-def _arms_down(
-    p: _Pose, down=70.0, swing_left=0.0, swing_right=0.0, elbow_left=10.0, elbow_right=10.0
-):
+def _arms_down(p: _Pose, down=70.0, swing_left=0.0, swing_right=0.0, elbow_left=10.0, elbow_right=10.0):
     # First lower the arms about z, then swing them about x (forward = +z).
     p.rot("left_shoulder", "z", -down).rot("right_shoulder", "z", down)
-    p.rot("left_shoulder", "x", -np.asarray(swing_left)).rot(
-        "right_shoulder", "x", -np.asarray(swing_right)
-    )
-    p.rot("left_elbow", "y", -np.asarray(elbow_left)).rot(
-        "right_elbow", "y", np.asarray(elbow_right)
-    )
+    p.rot("left_shoulder", "x", -np.asarray(swing_left)).rot("right_shoulder", "x", -np.asarray(swing_right))
+    p.rot("left_elbow", "y", -np.asarray(elbow_left)).rot("right_elbow", "y", np.asarray(elbow_right))
     return p
 
 
@@ -143,10 +137,7 @@ def _gait(s, run: bool):
         hip = 10 + 20 * np.cos(2 * np.pi * s)
         knee = 5 + 15 * _bump(s, 0.15, 0.3) + 55 * _bump(s, 0.72, 0.52)
         ankle = (
-            -5 * _bump(s, 0.05, 0.2)
-            + 10 * _bump(s, 0.42, 0.35)
-            - 18 * _bump(s, 0.63, 0.25)
-            + 3 * _bump(s, 0.85, 0.35)
+            -5 * _bump(s, 0.05, 0.2) + 10 * _bump(s, 0.42, 0.35) - 18 * _bump(s, 0.63, 0.25) + 3 * _bump(s, 0.85, 0.35)
         )
     return hip, knee, ankle
 
@@ -159,9 +150,7 @@ def _locomotion(num_frames, fps, frequency, run, body, name):
         p = _Pose(len(s))
         for side, phase in (("right", s), ("left", s + 0.5)):
             hip, knee, ankle = _gait(phase, run)
-            p.rot(f"{side}_hip", "x", -hip).rot(f"{side}_knee", "x", knee).rot(
-                f"{side}_ankle", "x", -ankle
-            )
+            p.rot(f"{side}_hip", "x", -hip).rot(f"{side}_knee", "x", knee).rot(f"{side}_ankle", "x", -ankle)
         c = np.cos(2 * np.pi * s)  # +1 when the right leg is forward
         swing = (30.0 if run else 15.0) * c
         _arms_down(
@@ -188,12 +177,7 @@ def _locomotion(num_frames, fps, frequency, run, body, name):
     joints = smpl_joint_positions(cycle.globals(), rest, np.zeros((n, 3)))
     ankles = joints[:, [J["left_ankle"], J["right_ankle"]]]
     stance = np.argmin(ankles[:, :, 1], axis=1)
-    dz = (
-        (np.roll(ankles[:, :, 2], -1, axis=0) - np.roll(ankles[:, :, 2], 1, axis=0))
-        * n
-        / 2
-        * frequency
-    )
+    dz = (np.roll(ankles[:, :, 2], -1, axis=0) - np.roll(ankles[:, :, 2], 1, axis=0)) * n / 2 * frequency
     speed = -float(np.mean(dz[np.arange(n), stance]))
 
     s = frequency * t
@@ -220,9 +204,7 @@ def _cycle(num_frames, fps, period):
     return t, 0.5 * (1.0 - np.cos(2 * np.pi * t / period))  # 0 → 1 → 0 each period
 
 
-def jumping_jacks(
-    num_frames: int = 120, fps: float = 30.0, period: float = 1.0, body=None
-) -> Motion:
+def jumping_jacks(num_frames: int = 120, fps: float = 30.0, period: float = 1.0, body=None) -> Motion:
     """Jumping jacks: arms from the sides to overhead while the legs spread, with hops."""
     rest, sole = _rest(body)
     t, a = _cycle(num_frames, fps, period)
@@ -249,27 +231,23 @@ def arm_raises(num_frames: int = 120, fps: float = 30.0, period: float = 2.0, bo
     return Motion(poses=p.axis_angle(), trans=trans, fps=fps, name="arm_raises")
 
 
-def squats(
-    num_frames: int = 120, fps: float = 30.0, period: float = 2.5, depth: float = 1.0, body=None
-) -> Motion:
+def squats(num_frames: int = 120, fps: float = 30.0, period: float = 2.5, depth: float = 1.0, body=None) -> Motion:
     """Squats: hips, knees and ankles flex together (depth 1: thighs near horizontal)."""
     rest, sole = _rest(body)
     t, a = _cycle(num_frames, fps, period)
     a = depth * a
     p = _Pose(len(t))
     for side in ("left", "right"):
-        p.rot(f"{side}_hip", "x", -95 * a).rot(f"{side}_knee", "x", 110 * a).rot(
-            f"{side}_ankle", "x", -25 * a
-        )
+        p.rot(f"{side}_hip", "x", -95 * a).rot(f"{side}_knee", "x", 110 * a).rot(f"{side}_ankle", "x", -25 * a)
     p.rot("spine1", "x", 25 * a).rot("spine2", "x", 10 * a).rot("neck", "x", -20 * a)
     _arms_down(p, down=75.0, swing_left=85 * a, swing_right=85 * a, elbow_left=5.0, elbow_right=5.0)
     y = _ground_height(p, rest, sole)
     # Keep the feet (not the pelvis) in place: shift back by the ankles' forward drift.
     from .retarget import smpl_joint_positions
 
-    z = smpl_joint_positions(p.globals(), rest, np.zeros((len(t), 3)))[
-        :, [J["left_ankle"], J["right_ankle"]], 2
-    ].mean(1)
+    z = smpl_joint_positions(p.globals(), rest, np.zeros((len(t), 3)))[:, [J["left_ankle"], J["right_ankle"]], 2].mean(
+        1
+    )
     trans = np.stack([np.zeros_like(t), y, -(z - z[0])], -1)
     return Motion(poses=p.axis_angle(), trans=trans, fps=fps, name="squats")
 
@@ -280,9 +258,7 @@ def static_hold(num_frames: int = 60, fps: float = 30.0, body=None) -> Motion:
     t = np.arange(num_frames) / fps
     p = _Pose(len(t))
     _arms_down(p, down=60.0, elbow_left=10.0, elbow_right=10.0)
-    p.rot("spine2", "x", np.sin(2 * np.pi * 0.25 * t)).rot(
-        "pelvis", "z", 0.5 * np.sin(2 * np.pi * 0.1 * t)
-    )
+    p.rot("spine2", "x", np.sin(2 * np.pi * 0.25 * t)).rot("pelvis", "z", 0.5 * np.sin(2 * np.pi * 0.1 * t))
     y = _ground_height(p, rest, sole)
     trans = np.stack([np.zeros_like(t), y, np.zeros_like(t)], -1)
     return Motion(poses=p.axis_angle(), trans=trans, fps=fps, name="static_hold")
@@ -302,9 +278,7 @@ def leg_raises(num_frames: int = 120, fps: float = 30.0, period: float = 2.0, bo
     p = _Pose(len(t))
     for side, on in (("left", left), ("right", 1.0 - left)):
         a = on * bump
-        p.rot(f"{side}_hip", "x", -60 * a).rot(f"{side}_knee", "x", 10 * a).rot(
-            f"{side}_ankle", "x", 10 * a
-        )
+        p.rot(f"{side}_hip", "x", -60 * a).rot(f"{side}_knee", "x", 10 * a).rot(f"{side}_ankle", "x", 10 * a)
     p.rot("spine1", "x", -5 * bump)
     _arms_down(p, down=75.0, elbow_left=10.0, elbow_right=10.0)
     y = _ground_height(p, rest, sole)
@@ -317,9 +291,7 @@ def _smoothstep(x):
     return x * x * (3 - 2 * x)
 
 
-def sit_stand(
-    num_frames: int = 150, fps: float = 30.0, period: float = 5.0, body=None
-) -> Motion:
+def sit_stand(num_frames: int = 150, fps: float = 30.0, period: float = 5.0, body=None) -> Motion:
     """Sit down on a (not modelled) seat of knee height and stand up again, every `period` s.
 
     Each period: stand 10 %, sit down over 30 %, stay seated 20 %, stand up over 30 %,
@@ -344,9 +316,9 @@ def sit_stand(
     y = _ground_height(p, rest, sole)
     from .retarget import smpl_joint_positions
 
-    z = smpl_joint_positions(p.globals(), rest, np.zeros((len(t), 3)))[
-        :, [J["left_ankle"], J["right_ankle"]], 2
-    ].mean(1)
+    z = smpl_joint_positions(p.globals(), rest, np.zeros((len(t), 3)))[:, [J["left_ankle"], J["right_ankle"]], 2].mean(
+        1
+    )
     trans = np.stack([np.zeros_like(t), y, -(z - z[0])], -1)
     return Motion(poses=p.axis_angle(), trans=trans, fps=fps, name="sit_stand")
 

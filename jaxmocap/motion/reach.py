@@ -80,9 +80,7 @@ def contact_vertices(body, part: str) -> np.ndarray:
     return np.flatnonzero(w[:, bones].sum(1) >= 0.5)
 
 
-def contact_point(
-    body, vertices, joints, joint_rotations, part: str
-) -> tuple[np.ndarray, np.ndarray, int]:
+def contact_point(body, vertices, joints, joint_rotations, part: str) -> tuple[np.ndarray, np.ndarray, int]:
     """(contact point c (3,), contact normal n (3,), c's vertex index) of one posed frame.
 
     vertices (V, 3), joints (J, 3), joint_rotations (J, 3, 3); c is the part's contact
@@ -208,9 +206,7 @@ def _frame(body, pose, betas, trans, part) -> tuple[np.ndarray, int, np.ndarray,
     return c, k, np.asarray(out.joints, np.float64), np.asarray(out.joint_rotations, np.float64)
 
 
-def blend_edit(
-    poses, trans, frame: int, pose_edit, trans_edit, blend: int
-) -> tuple[np.ndarray, np.ndarray]:
+def blend_edit(poses, trans, frame: int, pose_edit, trans_edit, blend: int) -> tuple[np.ndarray, np.ndarray]:
     """Blend a new pose at `frame` into the motion: R(t) = R(t) exp(w(t) log(R(frame)ᵀ R_edit))
     per joint, trans(t) + w(t) (trans_edit - trans(frame)), w a raised cosine over ±`blend`
     frames (1 at `frame`, 0 from `blend` frames away: those frames are returned unchanged)."""
@@ -265,14 +261,10 @@ def reach(
     """
     poses, trans = np.asarray(poses, np.float64), np.asarray(trans, np.float64)
     if poses.ndim != 3 or poses.shape[1:] != (24, 3) or trans.shape != (len(poses), 3):
-        raise ValueError(
-            f"reach needs poses (T, 24, 3) and trans (T, 3); got {poses.shape} and {trans.shape}."
-        )
+        raise ValueError(f"reach needs poses (T, 24, 3) and trans (T, 3); got {poses.shape} and {trans.shape}.")
     T = len(poses)
     if isinstance(frame, bool) or not isinstance(frame, (int, np.integer)) or not 0 <= frame < T:
-        raise ValueError(
-            f"reach frame {frame!r} is outside the motion's {T} frames: use an int in 0 .. {T - 1}."
-        )
+        raise ValueError(f"reach frame {frame!r} is outside the motion's {T} frames: use an int in 0 .. {T - 1}.")
     contact_joint(part)
     target = np.asarray(target, np.float64)
     if target.shape != (3,) or not np.all(np.isfinite(target)):
@@ -310,9 +302,7 @@ def reach(
     params = {"free": jnp.asarray(poses[frame : frame + 1, free], dtype), "trans": data["trans"]}
     steps = 0
     for _ in range(3):
-        sol = solve(
-            _problem(), params, with_vertex(vertex), max_steps=max_steps, rtol=1e-4, atol=1e-5
-        )
+        sol = solve(_problem(), params, with_vertex(vertex), max_steps=max_steps, rtol=1e-4, atol=1e-5)
         params, steps = sol.value, steps + int(sol.num_steps)
         pose = poses[frame].copy()
         pose[free] = np.asarray(params["free"][0], np.float64)

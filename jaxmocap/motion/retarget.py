@@ -229,11 +229,14 @@ def load_mapping(path) -> dict:
     except (ValueError, UnicodeDecodeError) as e:
         raise ValueError(f"{path}: not a TOML/JSON joint map ({type(e).__name__}: {e}).") from e
     table = table.get("map", table)
-    bad = {k: v for k, v in table.items() if not (isinstance(v, str) or (isinstance(v, list) and len(v) == 2 and all(isinstance(x, str) for x in v)))}
+    bad = {
+        k: v
+        for k, v in table.items()
+        if not (isinstance(v, str) or (isinstance(v, list) and len(v) == 2 and all(isinstance(x, str) for x in v)))
+    }
     if bad:
         raise ValueError(
-            f"{path}: each entry must be smpl_joint = \"source joint\" or [\"rotation joint\", \"point joint\"]; "
-            f"got {bad}."
+            f'{path}: each entry must be smpl_joint = "source joint" or ["rotation joint", "point joint"]; got {bad}.'
         )
     return {k: v if isinstance(v, str) else tuple(v) for k, v in table.items()}
 
@@ -299,9 +302,7 @@ def smpl_rest(body, betas=None) -> tuple[np.ndarray, float]:
 def _resolve(mapping: dict, src: SkeletonMotion) -> tuple[list, list]:
     unknown = [k for k in mapping if k not in SMPL_JOINT_NAMES]
     if unknown:
-        raise ValueError(
-            f"mapping has keys {unknown} that are not SMPL joints {list(SMPL_JOINT_NAMES)}."
-        )
+        raise ValueError(f"mapping has keys {unknown} that are not SMPL joints {list(SMPL_JOINT_NAMES)}.")
     missing = [n for n in SMPL_JOINT_NAMES if n not in mapping and n not in OPTIONAL_JOINTS]
     if missing:
         raise ValueError(
@@ -317,10 +318,7 @@ def _resolve(mapping: dict, src: SkeletonMotion) -> tuple[list, list]:
             if k in OPTIONAL_JOINTS:
                 continue  # a rig without toes or fingers: rest pose
             missing = r if r not in src.names else p
-            raise ValueError(
-                f"mapping[{k!r}] names {missing!r}, which {src.name or 'the skeleton'} "
-                "does not have."
-            )
+            raise ValueError(f"mapping[{k!r}] names {missing!r}, which {src.name or 'the skeleton'} does not have.")
         rot_idx[j], pt_idx[j] = src.names.index(r), src.names.index(p)
     return rot_idx, pt_idx
 
@@ -497,10 +495,7 @@ def retarget(
     trans = src.positions[:, pt_idx[0]] - rest_joints[0]
     if floor:
         joints = smpl_joint_positions(G, rest_joints, trans)
-        feet = [
-            SMPL_JOINT_NAMES.index(n)
-            for n in ("left_ankle", "right_ankle", "left_foot", "right_foot")
-        ]
+        feet = [SMPL_JOINT_NAMES.index(n) for n in ("left_ankle", "right_ankle", "left_foot", "right_foot")]
         clearance = (rest_joints[feet, 1] - sole).min()
         trans = trans + np.array([0.0, clearance - joints[:, feet, 1].min(), 0.0])
     nb = body.num_betas
@@ -515,9 +510,7 @@ def retarget(
     return motion if fps is None or float(fps) == src.fps else motion.resample(fps)
 
 
-def smpl_joint_positions(
-    global_rotations: np.ndarray, rest_joints: np.ndarray, trans: np.ndarray
-) -> np.ndarray:
+def smpl_joint_positions(global_rotations: np.ndarray, rest_joints: np.ndarray, trans: np.ndarray) -> np.ndarray:
     """(T, 24, 3) posed SMPL joints from global rotations (NumPy forward kinematics)."""
     T = global_rotations.shape[0]
     pos = np.zeros((T, 24, 3))

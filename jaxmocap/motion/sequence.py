@@ -43,9 +43,7 @@ class Motion:
         if poses.ndim != 3 or poses.shape[1:] != (24, 3):
             raise ValueError(f"Motion.poses has shape {poses.shape}; expected (T, 24, 3).")
         if trans.shape != (poses.shape[0], 3):
-            raise ValueError(
-                f"Motion.trans has shape {trans.shape}; expected ({poses.shape[0]}, 3) to match poses."
-            )
+            raise ValueError(f"Motion.trans has shape {trans.shape}; expected ({poses.shape[0]}, 3) to match poses.")
         if poses.shape[0] == 0:
             raise ValueError("Motion.poses has 0 frames; a motion needs at least one (empty slice?).")
         if not (np.isfinite(poses).all() and np.isfinite(trans).all()):
@@ -88,9 +86,7 @@ class Motion:
         if poses.ndim == 2:
             raise ValueError("Index a Motion with a slice or an index array, not a single frame.")
         if poses.shape[0] == 0:
-            raise ValueError(
-                f"motion[{frames!r}] selects no frames of the {self.num_frames}; a Motion needs >= 1."
-            )
+            raise ValueError(f"motion[{frames!r}] selects no frames of the {self.num_frames}; a Motion needs >= 1.")
         return dataclasses.replace(self, poses=poses, trans=self.trans[frames])
 
     def replace(self, **changes) -> Motion:

@@ -94,9 +94,7 @@ class SkeletonMotion:
         try:
             return self.names.index(name)
         except ValueError:
-            raise KeyError(
-                f"{self.name or 'skeleton'} has no joint {name!r}; it has {list(self.names)}."
-            ) from None
+            raise KeyError(f"{self.name or 'skeleton'} has no joint {name!r}; it has {list(self.names)}.") from None
 
     def end_positions(self) -> np.ndarray:
         """(T, N, 3) posed end point of each joint's own segment (`tips` rotated)."""

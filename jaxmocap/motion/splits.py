@@ -86,12 +86,16 @@ class Split:
     def __post_init__(self):
         if self.tuning != LEAVE_SUBJECT_OUT:
             if isinstance(self.tuning, str):
-                raise ValueError(f"Split {self.name!r}: tuning must be subjects or {LEAVE_SUBJECT_OUT!r}, got {self.tuning!r}.")
+                raise ValueError(
+                    f"Split {self.name!r}: tuning must be subjects or {LEAVE_SUBJECT_OUT!r}, got {self.tuning!r}."
+                )
             object.__setattr__(self, "tuning", _ids(self.tuning))
         object.__setattr__(self, "evaluation", _ids(self.evaluation))
         if self.training != LEAVE_SUBJECT_OUT:
             if isinstance(self.training, str):
-                raise ValueError(f"Split {self.name!r}: training must be subjects or {LEAVE_SUBJECT_OUT!r}, got {self.training!r}.")
+                raise ValueError(
+                    f"Split {self.name!r}: training must be subjects or {LEAVE_SUBJECT_OUT!r}, got {self.training!r}."
+                )
             object.__setattr__(self, "training", _ids(self.training))
         check_record(self.record())
 
@@ -126,7 +130,9 @@ def check_record(record: dict) -> None:
         raise ValueError(f"split record lacks {sorted(missing)}: write Split(...).record().")
     for role in ("tuning", "training"):
         if isinstance(record[role], str) and record[role] != LEAVE_SUBJECT_OUT:
-            raise ValueError(f"split {record['name']!r}: {role} must be subjects or {LEAVE_SUBJECT_OUT!r}, got {record[role]!r}.")
+            raise ValueError(
+                f"split {record['name']!r}: {role} must be subjects or {LEAVE_SUBJECT_OUT!r}, got {record[role]!r}."
+            )
     name, ev = record["name"], set(_ids(record["evaluation"]))
     # Per-fold tuning (fold_tuning) never reads the evaluated subject nor the locked one.
     tu = set() if record["tuning"] == LEAVE_SUBJECT_OUT else set(_ids(record["tuning"]))

@@ -106,7 +106,11 @@ def _import_mjx():
     captured = io.StringIO()
     with contextlib.redirect_stdout(captured):
         from mujoco import mjx
-    rest = [ln for ln in captured.getvalue().splitlines() if not ln.startswith(("Failed to import warp", "Failed to import mujoco_warp"))]
+    rest = [
+        ln
+        for ln in captured.getvalue().splitlines()
+        if not ln.startswith(("Failed to import warp", "Failed to import mujoco_warp"))
+    ]
     if rest:
         print("\n".join(rest))
     return mjx
@@ -152,9 +156,16 @@ def make_scene(
         table[g0, gid(part)] = table[gid(part), g0] = K + K * P + p
     mx = mjx.put_model(m)
     return Scene(
-        geometry=geometry, ground=ground, mjx_model=mx, mjx_data=mjx.make_data(mx), xml=xml,
-        parents=tuple(body.parents), joint_names=tuple(body.joint_names), object_names=tuple(o.name for o in objects),
-        part_object=tuple(o for o, _ in parts), slot_table=tuple(map(tuple, table.tolist())),
+        geometry=geometry,
+        ground=ground,
+        mjx_model=mx,
+        mjx_data=mjx.make_data(mx),
+        xml=xml,
+        parents=tuple(body.parents),
+        joint_names=tuple(body.joint_names),
+        object_names=tuple(o.name for o in objects),
+        part_object=tuple(o for o, _ in parts),
+        slot_table=tuple(map(tuple, table.tolist())),
     )
 
 
@@ -276,7 +287,9 @@ def check(
     try:
         trans = jnp.broadcast_to(trans, (*batch, 3))
     except (ValueError, TypeError):
-        raise ValueError(f"trans has shape {trans.shape}; expected (*batch, 3) = {(*batch, 3)} to match poses.") from None
+        raise ValueError(
+            f"trans has shape {trans.shape}; expected (*batch, 3) = {(*batch, 3)} to match poses."
+        ) from None
     if int(np.prod(batch)) == 0:
         raise ValueError(f"poses has shape {poses.shape}: no frames to check.")
     if not isinstance(chunk, (int, np.integer)) or chunk < 1:
@@ -297,7 +310,11 @@ def check(
     )
     n = int(np.prod(batch))
     out = _check_flat(
-        scene, poses.reshape(n, J, 3).astype(dtype), trans.reshape(n, 3),
-        rot.reshape(n, O, 3, 3), pos.reshape(n, O, 3), chunk,
+        scene,
+        poses.reshape(n, J, 3).astype(dtype),
+        trans.reshape(n, 3),
+        rot.reshape(n, O, 3, 3),
+        pos.reshape(n, O, 3),
+        chunk,
     )
     return jax.tree.map(lambda x: x.reshape(*batch, *x.shape[1:]), out)

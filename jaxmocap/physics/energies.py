@@ -126,9 +126,7 @@ class GroundSupportResidual(eqx.Module):
         return ground_support(vertices, data.ground, self.margin)[..., None]
 
 
-def ground_support_term(
-    vertex_ids=None, margin: float = 0.0, weight=1.0, loss=None, name: str = "ground"
-) -> Term:
+def ground_support_term(vertex_ids=None, margin: float = 0.0, weight=1.0, loss=None, name: str = "ground") -> Term:
     """`GroundSupportResidual` as a per-frame `Term`; it reads every unknown (through the
     pose blend shapes every vertex depends on every joint)."""
     return Term(name, GroundSupportResidual(vertex_ids, margin), weight, 0, loss)
@@ -188,9 +186,7 @@ class FootStationarityResidual(eqx.Module):
     Reads data.body, data.betas, data.contact_weights.
     """
 
-    joints: tuple[int, ...] = eqx.field(
-        static=True, default=_joint_ids(SMPL_FEET), converter=_joint_ids
-    )
+    joints: tuple[int, ...] = eqx.field(static=True, default=_joint_ids(SMPL_FEET), converter=_joint_ids)
 
     def __call__(self, params, data) -> Array:
         joints = posed_body(params, data.body, getattr(data, "betas", None)).joints
@@ -244,9 +240,7 @@ class ObjectPenetrationResidual(eqx.Module):
         return object_penetration(vertices, data.sdf, rotation, position, self.margin)[..., None]
 
 
-def object_penetration_term(
-    vertex_ids=None, margin: float = 0.0, weight=1.0, loss=None, name: str = "object"
-) -> Term:
+def object_penetration_term(vertex_ids=None, margin: float = 0.0, weight=1.0, loss=None, name: str = "object") -> Term:
     """`ObjectPenetrationResidual` as a per-frame `Term`."""
     return Term(name, ObjectPenetrationResidual(vertex_ids, margin), weight, 0, loss)
 

@@ -247,8 +247,14 @@ def fit_body_geometry(
             size.append([r, h]), rms.append(err)
     f = lambda x: jnp.asarray(np.asarray(x, np.float64))  # noqa: E731
     return BodyGeometry(
-        pos=f(pos), quat=f(quat), size=f(size), rest_joints=f(rest_joints),
-        betas=f(np.asarray(b)), fit_rms=f(rms), bone=tuple(bones), name=tuple(names),
+        pos=f(pos),
+        quat=f(quat),
+        size=f(size),
+        rest_joints=f(rest_joints),
+        betas=f(np.asarray(b)),
+        fit_rms=f(rms),
+        bone=tuple(bones),
+        name=tuple(names),
     )
 
 
@@ -282,15 +288,27 @@ def scene_mjcf(
     world = ET.SubElement(root, "worldbody")
     hidden = {"contype": "0", "conaffinity": "0"}  # collisions only through <pair>
     ET.SubElement(
-        world, "geom", name="ground", type="plane", size="0 0 1",
-        pos=_fmt(n * float(ground.height)), quat=_fmt(_z_to(n)), **hidden,
+        world,
+        "geom",
+        name="ground",
+        type="plane",
+        size="0 0 1",
+        pos=_fmt(n * float(ground.height)),
+        quat=_fmt(_z_to(n)),
+        **hidden,
     )
     for k in range(geometry.num_geoms):
         body = ET.SubElement(world, "body", name=f"bone_{geometry.name[k]}")
         ET.SubElement(body, "freejoint", name=f"bone_{geometry.name[k]}")
         ET.SubElement(
-            body, "geom", name=geometry.name[k], type="capsule", size=_fmt(geometry.size[k]),
-            pos=_fmt(geometry.pos[k]), quat=_fmt(geometry.quat[k]), **hidden,
+            body,
+            "geom",
+            name=geometry.name[k],
+            type="capsule",
+            size=_fmt(geometry.size[k]),
+            pos=_fmt(geometry.pos[k]),
+            quat=_fmt(geometry.quat[k]),
+            **hidden,
         )
     for obj in objects:
         body = ET.SubElement(world, "body", name=f"object_{obj.name}")

@@ -91,7 +91,9 @@ def plausibility_report(
     from ..body.posed import posed_vertices
 
     if not isinstance(body, Body):
-        raise ValueError(f"body must be a jaxmocap Body, got {type(body).__name__}: call plausibility_report(body, motion).")
+        raise ValueError(
+            f"body must be a jaxmocap Body, got {type(body).__name__}: call plausibility_report(body, motion)."
+        )
     if not isinstance(motion, Motion):
         raise ValueError(
             f"motion must be a jaxmocap.motion.Motion, got {type(motion).__name__}; wrap arrays as "
@@ -135,10 +137,17 @@ def plausibility_report(
         "capsules (MJX)": penetration_summary(ground_d.min(-1)),
     }
     return PlausibilityReport(
-        name=motion.name, fps=motion.fps, ground_height=float(ground.height),
-        lowest_mesh=heights.min(-1), lowest_capsules=ground_d.min(-1), foot_heights=foot_h,
-        foot_contact=contact, skating=skating, heatmap=contact_heatmap(heights, CONTACT_THRESHOLD),
-        summary=summary, feet=feet,
+        name=motion.name,
+        fps=motion.fps,
+        ground_height=float(ground.height),
+        lowest_mesh=heights.min(-1),
+        lowest_capsules=ground_d.min(-1),
+        foot_heights=foot_h,
+        foot_contact=contact,
+        skating=skating,
+        heatmap=contact_heatmap(heights, CONTACT_THRESHOLD),
+        summary=summary,
+        feet=feet,
     )
 
 
@@ -171,7 +180,9 @@ def format_report(report: PlausibilityReport) -> str:
             cells.append(fmt.format(*(s[k] for k in key)) if isinstance(key, tuple) else fmt.format(s[key]))
         lines.append(f"{label:40s}" + "".join(f"{x:>18s}" for x in cells))
     f = report.feet
-    contact = " ".join(f"{n.replace('left_', 'L ').replace('right_', 'R ')} {x:.0%}" for n, x in zip(SMPL_FEET, f["contact_fraction"]))
+    contact = " ".join(
+        f"{n.replace('left_', 'L ').replace('right_', 'R ')} {x:.0%}" for n, x in zip(SMPL_FEET, f["contact_fraction"])
+    )
     lines += [
         "feet",
         f"  in contact (< 2 cm)                  {contact}",

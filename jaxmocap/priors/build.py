@@ -40,8 +40,19 @@ import numpy as np
 
 from .pose_prior import DEFAULT_PRIOR_PATH, MixturePosePrior, PosePrior, joint_limits
 
-__all__ = ["FLOOR_DEG", "MAX_FRAMES_PER_CLIP", "MIXTURE_FRAMES_PER_CLIP", "clip_poses", "fit_prior", "prior_from_fit",
-           "save_prior", "build_prior", "held_out_prior", "evaluation_prior", "motion_files"]
+__all__ = [
+    "FLOOR_DEG",
+    "MAX_FRAMES_PER_CLIP",
+    "MIXTURE_FRAMES_PER_CLIP",
+    "clip_poses",
+    "fit_prior",
+    "prior_from_fit",
+    "save_prior",
+    "build_prior",
+    "held_out_prior",
+    "evaluation_prior",
+    "motion_files",
+]
 
 FLOOR_DEG = 5.0
 MAX_FRAMES_PER_CLIP = 600
@@ -228,8 +239,12 @@ def evaluation_prior(clip, dtype=None, components: int = 1) -> PosePrior | Mixtu
 
 
 def configure(p: argparse.ArgumentParser) -> None:
-    p.add_argument("paths", nargs="*", metavar="DIR",
-                   help="motion files or folders (AMASS .npz, ASF/AMC, BVH); default: every CMU clip found")
+    p.add_argument(
+        "paths",
+        nargs="*",
+        metavar="DIR",
+        help="motion files or folders (AMASS .npz, ASF/AMC, BVH); default: every CMU clip found",
+    )
     p.add_argument("--out", default=None, help="output .npz (default: out/pose_prior.npz, or the bundled prior "
                    "with --bundled)")  # fmt: skip
     p.add_argument("--bundled", action="store_true", help="rebuild the bundled jaxmocap/priors/pose_prior.npz")

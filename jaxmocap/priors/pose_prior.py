@@ -44,8 +44,15 @@ import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
-__all__ = ["PosePrior", "MixturePosePrior", "DEFAULT_PRIOR_PATH", "default_pose_prior", "load_pose_prior",
-           "JOINT_LIMITS_DEG", "joint_limits"]
+__all__ = [
+    "PosePrior",
+    "MixturePosePrior",
+    "DEFAULT_PRIOR_PATH",
+    "default_pose_prior",
+    "load_pose_prior",
+    "JOINT_LIMITS_DEG",
+    "joint_limits",
+]
 
 DEFAULT_PRIOR_PATH = Path(__file__).with_name("pose_prior.npz")
 
@@ -173,7 +180,9 @@ class MixturePosePrior(eqx.Module):
     upper: Array
 
     @classmethod
-    def from_moments(cls, means, covariances, weights=None, lower=None, upper=None, dtype=jnp.float32) -> MixturePosePrior:
+    def from_moments(
+        cls, means, covariances, weights=None, lower=None, upper=None, dtype=jnp.float32
+    ) -> MixturePosePrior:
         """The mixture from μ_k (K, 69), Σ_k (K, 69, 69) and w_k (K,) (default 1/K each).
 
         A single μ (69,), Σ (69, 69) is the K = 1 mixture. Limits default to `joint_limits()`.
@@ -190,7 +199,9 @@ class MixturePosePrior(eqx.Module):
         if weights.shape != (K,):
             raise ValueError(f"weights must be ({K},), one per component; got {weights.shape}.")
         if not np.all(np.isfinite(weights)) or weights.min() <= 0 or abs(weights.sum() - 1.0) > 1e-5:
-            raise ValueError(f"weights must be positive and sum to 1; got {weights.tolist()} (sum {weights.sum():.6g}).")
+            raise ValueError(
+                f"weights must be positive and sum to 1; got {weights.tolist()} (sum {weights.sum():.6g})."
+            )
         weights = weights / weights.sum()
         if not (np.all(np.isfinite(means)) and np.all(np.isfinite(covs))):
             raise ValueError("means and covariances must be finite (found NaN or inf).")
@@ -271,7 +282,9 @@ class MixturePosePrior(eqx.Module):
         """The exact mixture's −log Σ_k w_k N(x; μ_k, Σ_k) (...,) in nats (not the min approximation)."""
         r = self._whitened(x)
         log_terms = -0.5 * jnp.sum(r**2, -1) - self.constants.astype(x.dtype)
-        return -jax.scipy.special.logsumexp(log_terms, axis=-1) + 0.5 * x.shape[-1] * jnp.log(2 * jnp.pi).astype(x.dtype)
+        return -jax.scipy.special.logsumexp(log_terms, axis=-1) + 0.5 * x.shape[-1] * jnp.log(2 * jnp.pi).astype(
+            x.dtype
+        )
 
 
 def _whitening(cov: np.ndarray) -> tuple[np.ndarray, float]:
@@ -339,7 +352,5 @@ def load_pose_prior(path=DEFAULT_PRIOR_PATH, dtype=jnp.float32) -> PosePrior | M
 def default_pose_prior(dtype=jnp.float32) -> PosePrior:
     """The shipped prior (`pose_prior.npz`, see README.md)."""
     if not DEFAULT_PRIOR_PATH.is_file():
-        raise FileNotFoundError(
-            f"{DEFAULT_PRIOR_PATH} is missing; rebuild it with `python -m jaxmocap.priors.build`."
-        )
+        raise FileNotFoundError(f"{DEFAULT_PRIOR_PATH} is missing; rebuild it with `python -m jaxmocap.priors.build`.")
     return PosePrior.load(DEFAULT_PRIOR_PATH, dtype)

@@ -39,8 +39,14 @@ class DepthNoiseModel:
     def __post_init__(self):
         for f in dataclasses.fields(self):
             v = getattr(self, f.name)
-            if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) or not (np.isfinite(v) and v >= 0):
-                raise ValueError(f"DepthNoiseModel.{f.name} must be a finite number >= 0 (metres or a rate), got {v!r}.")
+            if (
+                isinstance(v, bool)
+                or not isinstance(v, (int, float, np.integer, np.floating))
+                or not (np.isfinite(v) and v >= 0)
+            ):
+                raise ValueError(
+                    f"DepthNoiseModel.{f.name} must be a finite number >= 0 (metres or a rate), got {v!r}."
+                )
         if self.missing_rate > 1:
             raise ValueError(f"DepthNoiseModel.missing_rate is a probability in [0, 1], got {self.missing_rate!r}.")
 

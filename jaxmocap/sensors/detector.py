@@ -51,7 +51,11 @@ class DetectorErrorModel:
         # A negative std or a rate above 1 made the simulator fail deep inside NumPy, or not at all.
         for f in dataclasses.fields(self):
             v = getattr(self, f.name)
-            if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) or not (np.isfinite(v) and v >= 0):
+            if (
+                isinstance(v, bool)
+                or not isinstance(v, (int, float, np.integer, np.floating))
+                or not (np.isfinite(v) and v >= 0)
+            ):
                 raise ValueError(f"DetectorErrorModel.{f.name} must be a finite number >= 0, got {v!r}.")
         for name in ("confidence_mean", "miss_rate", "outlier_rate", "swap_rate", "person_miss_rate"):
             if getattr(self, name) > 1:
@@ -105,9 +109,13 @@ def _groups(names):
     group = {"arms": [], "legs": [], "face": []}
     for a, b in pairs:
         n = names[a]
-        g = "face" if ("eye" in n or "ear" in n) else "arms" if any(
-            s in n for s in ("shoulder", "elbow", "wrist")
-        ) else "legs"
+        g = (
+            "face"
+            if ("eye" in n or "ear" in n)
+            else "arms"
+            if any(s in n for s in ("shoulder", "elbow", "wrist"))
+            else "legs"
+        )
         group[g].append((a, b))
     return group
 
@@ -209,4 +217,3 @@ def person_track(keypoints: np.ndarray, person: np.ndarray, who: int = 0, extra:
 
     out = np.swapaxes(take(keypoints), 0, 1)
     return out if extra is None else (out, np.swapaxes(take(extra), 0, 1))
-

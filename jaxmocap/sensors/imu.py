@@ -192,7 +192,9 @@ def imu_placement(body: Body, set_name: str = "sip6") -> IMUPlacement:
     case uses the landmark rule (module docstring).
     """
     if not hasattr(body, "num_vertices") or not hasattr(body, "v_template"):
-        raise ValueError(f"imu_placement: body must be a jaxmocap Body (e.g. default_body()), got {type(body).__name__}.")
+        raise ValueError(
+            f"imu_placement: body must be a jaxmocap Body (e.g. default_body()), got {type(body).__name__}."
+        )
     if set_name not in SENSOR_SETS:
         raise ValueError(f"Unknown sensor set {set_name!r}; choose from {sorted(SENSOR_SETS)}.")
     landmarks = SENSOR_SETS[set_name]
@@ -325,9 +327,7 @@ def synthesize_imu(
 
 @eqx.filter_jit
 def _synthesize_imu(body, placement, poses, betas, trans, fps, sensor_to_bone, offset_bone) -> IMUReadings:
-    return imu_from_body_output(
-        forward(body, poses, betas, trans), placement, fps, sensor_to_bone, offset_bone
-    )
+    return imu_from_body_output(forward(body, poses, betas, trans), placement, fps, sensor_to_bone, offset_bone)
 
 
 @eqx.filter_jit

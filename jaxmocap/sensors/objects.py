@@ -183,9 +183,7 @@ def pick_and_place(
 
     def posed(p, t, f):  # vertices, joints, joint rotations of frame(s) f
         out = forward(body, jnp.asarray(p[f]), jnp.asarray(betas), jnp.asarray(t[f]))
-        return tuple(
-            np.asarray(x, np.float64) for x in (out.vertices, out.joints, out.joint_rotations)
-        )
+        return tuple(np.asarray(x, np.float64) for x in (out.vertices, out.joints, out.joint_rotations))
 
     # Pick-up: rest pose beside the hand, grasp vertex by the normal the reach ends with.
     V0, J0, G0 = posed(poses, trans, start)
@@ -197,9 +195,7 @@ def pick_and_place(
     for _ in range(3):
         for _ in range(3):
             k = int(np.argmin(v @ n))
-            p1, tr1, info = reach(
-                body, poses, trans, betas, start, part, t0 + v[k], blend, return_info=True
-            )
+            p1, tr1, info = reach(body, poses, trans, betas, start, part, t0 + v[k], blend, return_info=True)
             V1, J1, G1 = posed(p1, tr1, start)
             _, n, _ = contact_point(body, V1, J1, G1, part)
             if int(np.argmin(v @ n)) == k:

@@ -190,8 +190,14 @@ class Scenario:
 
     def sequence(self, i: int) -> dict:
         """Sequence i unpadded: arrays with a frame axis cut to its length."""
-        if isinstance(i, bool) or not isinstance(i, (int, np.integer)) or not -self.num_sequences <= i < self.num_sequences:
-            raise IndexError(f"sequence {i!r}: this scenario has {self.num_sequences} sequences (0 .. {self.num_sequences - 1}).")
+        if (
+            isinstance(i, bool)
+            or not isinstance(i, (int, np.integer))
+            or not -self.num_sequences <= i < self.num_sequences
+        ):
+            raise IndexError(
+                f"sequence {i!r}: this scenario has {self.num_sequences} sequences (0 .. {self.num_sequences - 1})."
+            )
         n = int(self.arrays["length"][i])
         out = {}
         for k, v in self.arrays.items():
@@ -236,9 +242,7 @@ def resolve_motion(item, fps: float, body=None) -> Motion:
         return library.MOTIONS[item](num_frames=int(round(4 * fps)), fps=fps, body=body)
     path = Path(item)
     if not path.exists():
-        raise ValueError(
-            f"Motion {item!r} is neither a library motion ({sorted(library.MOTIONS)}) nor a file."
-        )
+        raise ValueError(f"Motion {item!r} is neither a library motion ({sorted(library.MOTIONS)}) nor a file.")
     return load_motion(path, fps=fps)
 
 
@@ -532,9 +536,7 @@ def _make_sequence(body, items, config, rngs, cache, placement, regressor, obj) 
     pelvis = out["joints"][:, :, 0].mean(0)  # (T, 3) centre of the people
     K = intrinsics(cams.width, cams.height, cams.fov_degrees)
     if cams.moving:
-        R, t = handheld_trajectory(
-            pelvis, fps, rngs["camera"], distance=cams.distance, height=cams.camera_height
-        )
+        R, t = handheld_trajectory(pelvis, fps, rngs["camera"], distance=cams.distance, height=cams.camera_height)
         R, t = R[None], t[None]
         if cams.num_views > 1:
             raise ValueError("A moving (hand-held) camera scenario has exactly one view.")

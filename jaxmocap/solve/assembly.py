@@ -20,7 +20,15 @@ from .factorise import Normal
 from .structure import Structure, group_sum
 from .tridiagonal import default_tridiagonal_method
 
-__all__ = ["TermBlocks", "FactoredBlocks", "jt_vector", "normal_equations", "pin_padded", "uses_rows", "half_squared_norm"]
+__all__ = [
+    "TermBlocks",
+    "FactoredBlocks",
+    "jt_vector",
+    "normal_equations",
+    "pin_padded",
+    "uses_rows",
+    "half_squared_norm",
+]
 
 
 class TermBlocks(eqx.Module):
@@ -143,6 +151,7 @@ def _normal_blocks(blocks: list[Array], bandwidths, dtype, nc: int, n: int, diag
         H.append(out)
     return H
 
+
 def jt_vector(terms: list[TermBlocks | FactoredBlocks], st: Structure, vectors: list[Array], dtype):
     """Jᵀv from the blocks: (gF (T, n) solver order, gW (W, m) or None, gG (g,) or None)."""
     T = st.T
@@ -189,7 +198,11 @@ def _coupling_rows(JF: list[Array], bw, st: Structure) -> Array:
 
 
 def normal_equations(
-    terms: list[TermBlocks | FactoredBlocks], st: Structure, dtype, frame_mask: Array | None = None, tridiagonal: str | None = None
+    terms: list[TermBlocks | FactoredBlocks],
+    st: Structure,
+    dtype,
+    frame_mask: Array | None = None,
+    tridiagonal: str | None = None,
 ):
     """H = JᵀJ and g = Jᵀr of the linearised residual leaves: (`Normal`, (gF, gW, gG), cost).
 

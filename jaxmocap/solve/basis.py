@@ -205,5 +205,7 @@ def basis_term(name: str, basis: WindowBasis, reads, weight: float | Array = 1.0
     coefficients' key is added.
     """
     if reads is None:
-        raise ValueError(f"basis term {name!r}: give the per-frame keys its features read, e.g. reads=(('pose', None),).")
+        raise ValueError(
+            f"basis term {name!r}: give the per-frame keys its features read, e.g. reads=(('pose', None),)."
+        )
     return Term(name, basis.residual, weight, loss=loss, reads=tuple(reads) + ((basis.key, None),), basis=basis)

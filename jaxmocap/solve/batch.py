@@ -333,7 +333,9 @@ def solve_batch(
 
     def run(d):
         prob, steps = consts[d]
-        chunks = [jax.tree_util.tree_map(lambda x, k=k: x[k * per : (k + 1) * per], blocks[d]) for k in range(plan.num_chunks)]
+        chunks = [
+            jax.tree_util.tree_map(lambda x, k=k: x[k * per : (k + 1) * per], blocks[d]) for k in range(plan.num_chunks)
+        ]
         return [_batch_jit(prob, layout, *chunk, steps, **static) for chunk in chunks]
 
     # One host thread per device: on GPU the host waits on every LM iteration's loop

@@ -109,9 +109,7 @@ def factor(
     FF = list(normal.FF)
     dtype = FF[0].dtype
     F0, sF = _damp_scale(FF[0], damping, marquardt)
-    FF = [F0 * _outer(sF, sF)] + [
-        f * _outer(sF[:, :nc], shift_frames(sF[:, :nc], -e)) for e, f in enumerate(FF[1:], 1)
-    ]
+    FF = [F0 * _outer(sF, sF)] + [f * _outer(sF[:, :nc], shift_frames(sF[:, :nc], -e)) for e, f in enumerate(FF[1:], 1)]
     FW = WW = FG = WG = GG = sW = sG = None
     if st.W:
         W0, sW = _damp_scale(normal.WW[:, 0], damping, marquardt)

@@ -78,7 +78,9 @@ def _analytic_blocks(term, x, clean, data, frame_mask, layout: Layout, st: Struc
     C = 2 * term.bandwidth + 1
     factored = [k for k, v in jac.items() if isinstance(v, BlockJacobian)]
     if factored and term.bandwidth:
-        raise ValueError(f"Term {term.name!r}: a BlockJacobian needs a per-frame term (bandwidth 0), got {term.bandwidth}.")
+        raise ValueError(
+            f"Term {term.name!r}: a BlockJacobian needs a per-frame term (bandwidth 0), got {term.bandwidth}."
+        )
     if len(jac) == 1 and factored and term.loss is None and term.mask is None and not plain:
         # r = √w · keep_t · e: one scale per frame, so JᵀJ = s² Dᵀ (WᵀW) D (`FactoredBlocks`).
         (key,) = factored

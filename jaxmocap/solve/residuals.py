@@ -160,7 +160,9 @@ class BlockJacobian(eqx.Module):
         """The plain form of a `Term.jacobian` value: (T, 1, *e_shape, *key_shape)."""
         T, J, k, _ = self.D.shape
         if len(key_shape) != 2 or key_shape[1] != k or max(self.index) >= key_shape[0]:
-            raise ValueError(f"BlockJacobian with {J} blocks of {k} x {k} cannot index a key of per-frame shape {key_shape}.")
+            raise ValueError(
+                f"BlockJacobian with {J} blocks of {k} x {k} cannot index a key of per-frame shape {key_shape}."
+            )
         onehot = jnp.asarray(np.eye(key_shape[0])[np.asarray(self.index)], self.D.dtype)  # (J, N)
         if self.W is None:
             blocks = jnp.einsum("tjab,jn->tjanb", self.D, onehot).reshape(T, J * k, key_shape[0], k)

@@ -262,7 +262,11 @@ def rows_cyclic_factor(P0: Array, C: Array) -> RowsCyclicFactor:
         PQ = jnp.einsum("knm,kam->kna", L, jnp.einsum("kba,kbm->kam", Md, W))  # [Pa Qa]
         S = jnp.einsum("kna,knb->kab", PQ, PQ)  # [[PaᵀPa, PaᵀQa], [., QaᵀQa]]
         levels.append(RowsCyclicLevel(L, PQ, Y[0 :: 2 * s][:Ko], pad_blocks(Z[2 * s - 1 :: 2 * s], Ko)))
-        A, Bz, M = A[0::2] + pad_blocks(S[:, :r, :r], Ke), Bz[0::2] + shift_blocks_down(S[:, r:, r:], Ke), pad_blocks(-S[:, :r, r:], Ke)
+        A, Bz, M = (
+            A[0::2] + pad_blocks(S[:, :r, :r], Ke),
+            Bz[0::2] + shift_blocks_down(S[:, r:, r:], Ke),
+            pad_blocks(-S[:, :r, r:], Ke),
+        )
         K, s = Ke, 2 * s
     D = _diagonal(Hb, 0, 1, 1) - jnp.einsum("kan,kab,kbm->knm", Y[:1], A, Y[:1])  # block 0: no left boundary
     return RowsCyclicFactor(tuple(levels), inverse_cholesky(D, N))

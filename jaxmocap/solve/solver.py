@@ -139,7 +139,9 @@ def _observed(args: Args, value) -> Array | None:
     return jnp.any(jnp.stack(seen))
 
 
-def linear_solver(args: Args, factor_dtype=None, hessian: bool = False, tridiagonal: str | None = None) -> StructuredCholesky:
+def linear_solver(
+    args: Args, factor_dtype=None, hessian: bool = False, tridiagonal: str | None = None
+) -> StructuredCholesky:
     """The structured lineax solver for `args`' problem (optimistix solvers, adjoints)."""
     bw, cols = args.leaf_structure()
     return StructuredCholesky(args.layout, bw, cols, hessian, factor_dtype, args.frame_mask, tridiagonal=tridiagonal)
@@ -245,7 +247,9 @@ class VonMarcardLM(optx.AbstractLeastSquaresSolver):
         lam = jnp.where(accept, state.lam * 0.1, state.lam * 10.0)
         if self.progress:
             jax.debug.callback(_report_step, step, self.max_steps, cost, accept, done)
-        decrease = jnp.where(accept, (state.cost - cost_new) / jnp.maximum(state.cost, jnp.finfo(fdtype).tiny), state.decrease)
+        decrease = jnp.where(
+            accept, (state.cost - cost_new) / jnp.maximum(state.cost, jnp.finfo(fdtype).tiny), state.decrease
+        )
         new = _LMState(normal, grad, cost, lam, step, done, jnp.where(done, result, state.result), accept, decrease)
         return y_next, new, None
 
@@ -297,8 +301,7 @@ def check_inputs(problem, params0, data, frame_mask, dtype):
     dtype = jnp.dtype(dtype)
     if dtype == jnp.float64 and not jax.config.jax_enable_x64:
         raise ValueError(
-            "float64 requested but JAX runs in 32-bit mode; call "
-            "jax.config.update('jax_enable_x64', True) first."
+            "float64 requested but JAX runs in 32-bit mode; call jax.config.update('jax_enable_x64', True) first."
         )
     if layout.T == 0:
         raise ValueError("params0: the sequence has no frames (T = 0); give at least one frame.")
@@ -388,7 +391,9 @@ def solve(
     )  # fmt: skip
 
 
-def measure_bandwidths(problem: Problem, params0: dict, data: Any = None, frame_mask=None, frame=None) -> dict[str, int]:
+def measure_bandwidths(
+    problem: Problem, params0: dict, data: Any = None, frame_mask=None, frame=None
+) -> dict[str, int]:
     """The frame coupling each term really has at `params0`: {term name: b}.
 
     Perturbs every per-frame unknown at one frame t₀ (default T // 2) in random
@@ -428,14 +433,29 @@ def check_bandwidths(problem: Problem, params0: dict, data: Any = None, frame_ma
     declared = problem.bandwidths
     wrong = {k: (declared[k], b) for k, b in measured.items() if b > declared[k]}
     if wrong:
-        text = ", ".join(f"Term {k!r} declares bandwidth={d} but reads {b} frame(s) away" for k, (d, b) in wrong.items())
+        text = ", ".join(
+            f"Term {k!r} declares bandwidth={d} but reads {b} frame(s) away" for k, (d, b) in wrong.items()
+        )
         raise ValueError(f"{text}: set bandwidth to at least the measured value.")
     return measured
 
 
 @full_precision
-def solve_unjitted(args: Args, params0, rtol, atol, max_steps, *, method, solver, factor_dtype, damping, adjoint, progress=False,
-                tridiagonal="scan"):
+def solve_unjitted(
+    args: Args,
+    params0,
+    rtol,
+    atol,
+    max_steps,
+    *,
+    method,
+    solver,
+    factor_dtype,
+    damping,
+    adjoint,
+    progress=False,
+    tridiagonal="scan",
+):
     """The unbatched, unjitted solve (vmapped by `solve_batch`)."""
     dtype = jtu.tree_leaves(params0)[0].dtype
     decrease = jnp.asarray(jnp.nan, dtype)
@@ -455,7 +475,9 @@ def solve_unjitted(args: Args, params0, rtol, atol, max_steps, *, method, solver
                     # fails to match a float32 iterate: iterate in float64 there.
                     y0 = jtu.tree_map(lambda v: v.astype(jnp.float64), y0)
                 cls = optx.LevenbergMarquardt if method == "optx_lm" else optx.GaussNewton
-                solver = cls(rtol=rtol, atol=atol, linear_solver=linear_solver(args, factor_dtype, tridiagonal=tridiagonal))
+                solver = cls(
+                    rtol=rtol, atol=atol, linear_solver=linear_solver(args, factor_dtype, tridiagonal=tridiagonal)
+                )
         if adjoint is None:
             adjoint = optx.ImplicitAdjoint(linear_solver=linear_solver(args, factor_dtype, True, tridiagonal))
         steps_cap = None if isinstance(solver, VonMarcardLM) else int(max_steps)
@@ -507,8 +529,5 @@ def _jaxopt(args: Args, params0, tol, max_steps):
         materialize_jac=True, implicit_diff=False,
     )  # fmt: skip
     v, state = lm.run(flat(params0), args)
-    result = jnp.where(
-        state.error <= tol, SUCCESSFUL, MAX_STEPS
-    )
+    result = jnp.where(state.error <= tol, SUCCESSFUL, MAX_STEPS)
     return unflat(v), result, state.iter_num
-

@@ -80,7 +80,11 @@ def _assemble(FF: list, FW: Array | None, WW: Array | None, st: Structure):
         FFp = [_pad_to(FF[0], Kb * G, True)] + [_pad_to(f, Kb * G) for f in FF[1:]]
         FFb = [f.reshape((Kb, G) + f.shape[1:]) for f in FFp]
     if r:
-        WWp = jnp.concatenate([_pad_to(WW[:, :1], Kb * r, True), _pad_to(WW[:, 1:], Kb * r)], 1) if K > 1 else _pad_to(WW, Kb * r, True)
+        WWp = (
+            jnp.concatenate([_pad_to(WW[:, :1], Kb * r, True), _pad_to(WW[:, 1:], Kb * r)], 1)
+            if K > 1
+            else _pad_to(WW, Kb * r, True)
+        )
         WWb = WWp.reshape((Kb, r) + WWp.shape[1:])
         if nc:
             FWp = _pad_to(FW, Kb * G)

@@ -65,7 +65,7 @@ CYCLIC_RECURSIVE_BLOCKS = 32
 
 
 def default_tridiagonal_method() -> str:
-    """"rows" on the CPU (fewest flops, no launch cost), "cyclic" on accelerators.
+    """ "rows" on the CPU (fewest flops, no launch cost), "cyclic" on accelerators.
 
     Read from JAX's default backend at trace time: the choice changes speed, not results.
     """

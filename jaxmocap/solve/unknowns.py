@@ -165,9 +165,7 @@ class Layout(eqx.Module):
     def of(cls, params: dict, unknowns: dict[str, Unknown]) -> Layout:
         """Layout of `params` given each key's `Unknown` (keys not in `unknowns`: per-frame vectors)."""
         if not isinstance(params, dict) or not params:
-            raise ValueError(
-                f"parameters must be a non-empty dict of arrays, got {type(params).__name__}."
-            )
+            raise ValueError(f"parameters must be a non-empty dict of arrays, got {type(params).__name__}.")
         extra = sorted(set(unknowns) - set(params))
         if extra:
             raise ValueError(f"the problem declares unknowns {extra} that params0 lacks; params0 has {sorted(params)}.")
@@ -204,9 +202,7 @@ class Layout(eqx.Module):
                     f"({'axis-angle' if need == 3 else 'axis-angle then translation'}), got shape {shape[k]}."
                 )
         items = tuple(shape[k] if spec[k].kind == "sequence" else shape[k][1:] for k in keys)
-        return cls(
-            keys, tuple(spec[k].kind for k in keys), tuple(spec[k].manifold for k in keys), items, T, W, win
-        )
+        return cls(keys, tuple(spec[k].kind for k in keys), tuple(spec[k].manifold for k in keys), items, T, W, win)
 
     def _keys(self, kind):
         return [i for i, c in enumerate(self.kinds) if c == kind]
@@ -320,7 +316,9 @@ def retract(x: dict, delta: dict, layout: Layout) -> dict:
             phi, rho = d[..., :3], d[..., 3:]
             R = axis_angle_to_matrix(phi)
             rot = R @ v[..., :3, :3]
-            t = jnp.einsum("...ab,...b->...a", R, v[..., :3, 3]) + jnp.einsum("...ab,...b->...a", left_jacobian(phi), rho)
+            t = jnp.einsum("...ab,...b->...a", R, v[..., :3, 3]) + jnp.einsum(
+                "...ab,...b->...a", left_jacobian(phi), rho
+            )
             out[k] = jnp.concatenate([jnp.concatenate([rot, t[..., None]], -1), v[..., 3:, :]], -2)
         else:
             out[k] = v + d

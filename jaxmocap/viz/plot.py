@@ -87,7 +87,11 @@ def _side_colors(num_joints: int, joint_names) -> list[str]:
     for n in names:
         n = n.lower()
         out.append(
-            LEFT_COLOR if n.startswith(("left", "l_")) else RIGHT_COLOR if n.startswith(("right", "r_")) else CENTRE_COLOR
+            LEFT_COLOR
+            if n.startswith(("left", "l_"))
+            else RIGHT_COLOR
+            if n.startswith(("right", "r_"))
+            else CENTRE_COLOR
         )
     return out
 
@@ -112,12 +116,15 @@ def _draw_skeleton(ax, points2d, depth, parents, colors, linewidth=2.5, markersi
     import matplotlib.colors as mcolors
 
     rgba = [mcolors.to_rgba(colors[j], alpha * f) for (j, _), f in zip(order, fade)]
-    ax.add_collection(
-        LineCollection(segments, colors=rgba, linewidths=linewidth, capstyle="round", zorder=zorder)
-    )
+    ax.add_collection(LineCollection(segments, colors=rgba, linewidths=linewidth, capstyle="round", zorder=zorder))
     ax.scatter(
-        points2d[:, 0], points2d[:, 1], s=markersize, c=[mcolors.to_rgba(c, alpha) for c in colors],
-        edgecolors="white", linewidths=0.6, zorder=zorder + 1,
+        points2d[:, 0],
+        points2d[:, 1],
+        s=markersize,
+        c=[mcolors.to_rgba(c, alpha) for c in colors],
+        edgecolors="white",
+        linewidths=0.6,
+        zorder=zorder + 1,
     )
 
 
@@ -294,8 +301,17 @@ def plot_body(
             ax.fill_between([lo[0] - 5, hi[0] + 5], floor - 5, floor, color="#edf2f7", zorder=0)
         if joints is not None:
             p = joints @ basis.T
-            _draw_skeleton(ax, p[:, :2], p[:, 2] + 10.0, parents, _side_colors(len(joints), None),
-                           linewidth=1.6, markersize=9, alpha=0.9, zorder=5)
+            _draw_skeleton(
+                ax,
+                p[:, :2],
+                p[:, 2] + 10.0,
+                parents,
+                _side_colors(len(joints), None),
+                linewidth=1.6,
+                markersize=9,
+                alpha=0.9,
+                zorder=5,
+            )
         if view == "three-quarter":
             ax.set_aspect("equal", adjustable="box")
             ax.set_axis_off()
@@ -411,8 +427,8 @@ def plot_sequence(
         ax.set_xlabel("forward (m)", fontsize=7)
     strip[0].set_ylabel("y (m)")
     top.suptitle(
-        "Side views, each centred on the root and turned to the body's heading "
-        "(left limbs blue, right limbs red)", fontsize=9,
+        "Side views, each centred on the root and turned to the body's heading (left limbs blue, right limbs red)",
+        fontsize=9,
     )
 
     ax_top, ax_curve = bottom.subplots(1, 2, width_ratios=[1.3, 1.0])
@@ -430,8 +446,18 @@ def plot_sequence(
     extent = max(np.ptp(z), np.ptp(x), 0.5)
     if heading is not None:
         arrow = 0.1 * extent + 0.12
-        ax_top.quiver(z[frames], x[frames], heading[frames, 2] * arrow, heading[frames, 0] * arrow,
-                      angles="xy", scale_units="xy", scale=1, color="#4a5568", width=0.004, zorder=4)
+        ax_top.quiver(
+            z[frames],
+            x[frames],
+            heading[frames, 2] * arrow,
+            heading[frames, 0] * arrow,
+            angles="xy",
+            scale_units="xy",
+            scale=1,
+            color="#4a5568",
+            width=0.004,
+            zorder=4,
+        )
     for k, t in enumerate(frames):
         ax_top.annotate(str(k + 1), (z[t], x[t]), textcoords="offset points", xytext=(4, 5), fontsize=7, zorder=6)
     # Feet, faintly: where the ankles went.

