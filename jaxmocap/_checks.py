@@ -66,6 +66,21 @@ def check_weight(name: str, value) -> None:
         raise ValueError(f"{name} must be finite and >= 0 (0 switches the term off), got {v.tolist()}.")
 
 
+def check_non_negative_fields(obj, unit: str = "") -> None:
+    """Every field of the dataclass `obj` a finite real number >= 0 (not a bool): a negative
+    std or rate would otherwise fail deep inside NumPy, or not at all."""
+    import dataclasses
+
+    for f in dataclasses.fields(obj):
+        v = getattr(obj, f.name)
+        if (
+            isinstance(v, bool)
+            or not isinstance(v, (int, float, np.integer, np.floating))
+            or not (np.isfinite(v) and v >= 0)
+        ):
+            raise ValueError(f"{type(obj).__name__}.{f.name} must be a finite number >= 0{unit}, got {v!r}.")
+
+
 def check_frames(name: str, T: int, at_least: int = 1) -> None:
     """A frame count T >= `at_least`."""
     if T < at_least:

@@ -16,6 +16,7 @@ import dataclasses
 
 import numpy as np
 
+from .._checks import check_non_negative_fields
 from ..geometry.raster import BACKGROUND, FLOOR
 
 # Lived here until the geometry split; the alias goes in the next release.
@@ -37,16 +38,7 @@ class DepthNoiseModel:
     missing_rate: float = 0.02
 
     def __post_init__(self):
-        for f in dataclasses.fields(self):
-            v = getattr(self, f.name)
-            if (
-                isinstance(v, bool)
-                or not isinstance(v, (int, float, np.integer, np.floating))
-                or not (np.isfinite(v) and v >= 0)
-            ):
-                raise ValueError(
-                    f"DepthNoiseModel.{f.name} must be a finite number >= 0 (metres or a rate), got {v!r}."
-                )
+        check_non_negative_fields(self, " (metres or a rate)")
         if self.missing_rate > 1:
             raise ValueError(f"DepthNoiseModel.missing_rate is a probability in [0, 1], got {self.missing_rate!r}.")
 

@@ -16,6 +16,7 @@ import dataclasses
 
 import numpy as np
 
+from .._checks import check_non_negative_fields
 from ..geometry.keypoints import flip_pairs
 
 __all__ = ["DetectorErrorModel", "Detections", "detect", "person_track"]
@@ -48,15 +49,7 @@ class DetectorErrorModel:
     max_distractors: int = 2
 
     def __post_init__(self):
-        # A negative std or a rate above 1 made the simulator fail deep inside NumPy, or not at all.
-        for f in dataclasses.fields(self):
-            v = getattr(self, f.name)
-            if (
-                isinstance(v, bool)
-                or not isinstance(v, (int, float, np.integer, np.floating))
-                or not (np.isfinite(v) and v >= 0)
-            ):
-                raise ValueError(f"DetectorErrorModel.{f.name} must be a finite number >= 0, got {v!r}.")
+        check_non_negative_fields(self)
         for name in ("confidence_mean", "miss_rate", "outlier_rate", "swap_rate", "person_miss_rate"):
             if getattr(self, name) > 1:
                 raise ValueError(f"DetectorErrorModel.{name} is a probability in [0, 1], got {getattr(self, name)!r}.")
