@@ -379,6 +379,15 @@ def _configure_multiview(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--masks", metavar="DIR", help="person masks: one folder of PNGs per camera (adds silhouettes)")
     p.add_argument(
+        "--floor",
+        type=float,
+        default=None,
+        metavar="HEIGHT",
+        help="the floor's height in metres along the calibration world's up axis (0 for Qualisys and Pose2Sim "
+        "calibrations): with one camera the fit stands the feet on it, which measures the depth that one view "
+        "does not (default: no floor; not used with several cameras)",
+    )
+    p.add_argument(
         "--weights",
         default="validated",
         choices=("validated", "thesis"),
@@ -421,7 +430,7 @@ def _run_multiview(args) -> int:
         out = Path(out)
         options = dict(body=args.body, frames=args.frames, temporal=not args.no_temporal,
                        resolve_swaps=not args.keep_swaps, masks_dir=args.masks, fps=args.fps,
-                       weights=args.weights, progress=sys.stderr.isatty(), log=_say)  # fmt: skip
+                       weights=args.weights, floor=args.floor, progress=sys.stderr.isatty(), log=_say)  # fmt: skip
         if args.videos is not None:
             from .app.multiview_video import fit_videos
 

@@ -87,10 +87,12 @@ def test_multiview_fits_a_body25b_qualisys_recording_end_to_end(recording, tmp_p
     root, truth, _ = recording
     out = tmp_path / "out"
     code, io = _run(["--keypoints", root / "pose", "--calib", root / "Calib.qca.txt", "--out", out,
-                     "--layout", "body25b", "--fps", FPS], capsys)  # fmt: skip
+                     "--layout", "body25b", "--fps", FPS, "--floor", 0], capsys)  # fmt: skip
     assert code == 0, io.err
     assert "reproj   median" in io.out
+    assert "note: --floor 0 is not used: 4 cameras see the person" in io.out  # depth is triangulated
     report = json.loads((out / "report.json").read_text())
+    assert report["floor"] == {"height_m": 0.0, "used": False}
     final = report["reprojection"]["final"]
     assert final["overall"]["median_px"] < 10.0, final["overall"]
     assert all(s["median_px"] < 15.0 for s in final["per_view"].values()), final["per_view"]
@@ -299,6 +301,22 @@ def test_one_camera_says_depth_is_unobserved_and_how_uncertain_it_is(demo_record
         "- warning: one camera (cam01): depth along its line of sight is not observed"
         in (tmp_path / "mono" / "report.md").read_text()
     )
+
+
+def test_one_camera_stands_on_a_given_floor(demo_recording, tmp_path, capsys):
+    root, _ = demo_recording
+    code, io = _run([root, "--views", "cam01_json", "--no-temporal", "--floor", "nan", "--out", tmp_path / "x"], capsys)
+    assert code != 0 and "floor must be a finite height" in io.err and not (tmp_path / "x").exists()
+    code, io = _run([root, "--views", "cam01_json", "--no-temporal", "--floor", 0, "--out", tmp_path / "m"], capsys)
+    assert code == 0, io.err
+    report = json.loads((tmp_path / "m" / "report.json").read_text())
+    assert report["monocular"] is True and report["floor"] == {"height_m": 0.0, "used": True}
+    depth = report["depth"]
+    # the ground's evidence entered the depth record (without a floor it is None) ...
+    assert depth["ground"] is not None and depth["ground"]["frames"] > 0 and abs(depth["scale"] - 1) < 0.1
+    # ... and the fitted feet meet the floor where the detected feet's rays cut it (the demo's
+    # body is the mean body, standing on z = 0)
+    assert abs(depth["floor"]["ratio"] - 1) < 0.05, depth["floor"]
 
 
 def test_multiview_demo_writes_a_lab_recording_and_fits_it(tmp_path, capsys):

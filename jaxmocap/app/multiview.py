@@ -485,6 +485,7 @@ def fit_recording(
     weights=None,
     progress: bool = True,
     resolve_swaps: bool = True,
+    floor: float | None = None,
     log=None,
 ) -> dict:
     """Fit SMPL to a multi-camera OpenPose recording and write results to `out_dir`.
@@ -514,6 +515,12 @@ def fit_recording(
             Config.toml's frame_rate, else `DEFAULT_FPS`.
         weights: `methods.multiview.MuVSWeights` or a preset name (`methods.multiview.PRESETS`);
             None: "validated", the weights chosen on the development subjects (λ_θ, λ_β).
+        floor: the floor's height (m) along the calibration world's up axis (`world_to_y_up`;
+            0 for Qualisys and Pose2Sim calibrations, whose origin is on the floor). Used
+            when one camera sees the person: both stages hold the feet on it and the body is
+            scaled about the camera by what it says of the body's size (the floor of
+            `methods.multiview.multiview_smplify`); with several cameras triangulation
+            measures depth and the floor is not used (a note says so). None: no floor.
         progress: show a tqdm bar over the stages on stderr.
         log: called with one line per finding before the fit (cameras and frames read,
             layout and fps and where they came from; lines starting "warning:" are
@@ -532,6 +539,7 @@ def fit_recording(
         camera_data,
         final_depth,
         initialise,
+        monocular_view,
         place_monocular,
         preset,
         resolve_left_right,
@@ -552,6 +560,8 @@ def fit_recording(
 
     # every input is checked before any fitting: output folder, settings, files
     out_dir = output_folder(out_dir, create=False)  # created only once the inputs are good
+    if floor is not None and not np.isfinite(floor):
+        raise ValueError(f"floor must be a finite height in metres (0: the world's 0 plane), got {floor!r}.")
     config = read_config(keypoints_dir) if Path(keypoints_dir).is_dir() else None
     named, named_by = layout, "--layout"
     if named is None and config is not None and config.pose_model is not None:
@@ -666,14 +676,24 @@ def fit_recording(
         p0 = _fill_empty_frames(initialise(data, weights.num_betas), empty)
         done("initialise")
 
+        up, _ = world_to_y_up(cameras)
+        plane = None  # the floor term's (up (3,), height): with one camera only, as multiview_smplify
+        if floor is not None:
+            if monocular_view(data) is None:
+                say(f"note: --floor {floor:g} is not used: {len(recording.views)} cameras see the person and "
+                    "triangulation measures depth; the floor serves one camera.")  # fmt: skip
+            else:
+                axis, sign = _AXES[up]
+                plane = (np.eye(3)[axis] * sign, float(floor))
+
         begin("stage 1")
-        p1, costs = stage_one(data, p0, weights, silhouettes=masks is not None)
-        p1, placed = place_monocular(data, p1)  # one view seeing the person: its depth record (no floor: k = 1)
+        p1, costs = stage_one(data, p0, weights, silhouettes=masks is not None, floor=plane)
+        p1, placed = place_monocular(data, p1, plane)  # one view seeing the person: its depth record
         done("stage 1")
         final = {"pose": p1["pose"], "trans": p1["trans"], "betas": np.median(p1["betas"], 0)}
         if temporal:
             begin("stage 2")
-            p2, c2 = stage_two(data, p1, weights, silhouettes=False)
+            p2, c2 = stage_two(data, p1, weights, silhouettes=False, floor=plane)
             costs.update(c2)
             final = {"pose": p2["pose"], "trans": p2["trans"], "betas": p2["betas"]}
             done("stage 2")
@@ -692,6 +712,7 @@ def fit_recording(
         if bar is not None:
             bar.close()
     report["resolve_swaps"] = resolve_swaps
+    report["floor"] = {"height_m": floor, "used": plane is not None}  # along report["world_up"]
     report["layout_check"] = {"verdict": check.verdict, "named": named, "named_by": named_by if named else None,
                               "scores": check.scores}  # fmt: skip
     report["monocular"] = placed is not None  # as `MuVSResult.monocular`: one camera saw the person
@@ -704,14 +725,14 @@ def fit_recording(
             "measure it.")  # fmt: skip
         verts, _ = _posed(body_model, final["pose"], final["betas"], final["trans"])
         model_kp = np.einsum("kn,tnc->tkc", keypoint_regressor(body_model, layout), verts)
-        floor = ground_depth(camera, keypoints[:, placed["view"]], model_kp, KEYPOINT_FORMATS[layout],
-                             report["world_up"])  # fmt: skip
-        d["floor"] = floor
-        if floor is not None and abs(floor["ratio"] - 1) > 2 * d["relative"]:
-            say(f"warning: the feet would meet the floor (the world's 0 plane) at {floor['ground_depth_m']:.2f} m from "
-                f"the camera, but the fit puts them at {floor['fitted_depth_m']:.2f} m: the person is "
-                f"{'smaller' if floor['ratio'] < 1 else 'larger'} than the mean body, "
-                "or the floor is elsewhere.")  # fmt: skip
+        cut = ground_depth(camera, keypoints[:, placed["view"]], model_kp, KEYPOINT_FORMATS[layout],
+                           report["world_up"])  # fmt: skip
+        d["floor"] = cut
+        if cut is not None and plane is None and abs(cut["ratio"] - 1) > 2 * d["relative"]:
+            say(f"warning: the feet would meet the floor (the world's 0 plane) at {cut['ground_depth_m']:.2f} m from "
+                f"the camera, but the fit puts them at {cut['fitted_depth_m']:.2f} m: the person is "
+                f"{'smaller' if cut['ratio'] < 1 else 'larger'} than the mean body, "
+                "or the floor is elsewhere. If the floor is the world's 0 plane, --floor 0 fits with it.")  # fmt: skip
     report["notes"] = notes
     report["timings_s"] = {k: round(v, 3) for k, v in timings.items()}
     report["timings_s"]["total"] = round(sum(timings.values()), 3)
