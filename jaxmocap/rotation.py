@@ -14,6 +14,7 @@ once per sequence outside JAX (sensor error models, file readers): `host_exp`, `
 
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jax import Array
@@ -78,6 +79,7 @@ def _safe_theta2(theta2: Array) -> tuple[Array, Array]:
     return small, jnp.where(small, jnp.ones_like(theta2), theta2)
 
 
+@jax.jit
 def axis_angle_to_matrix(omega: Array) -> Array:
     """Rodrigues' formula R = I + a ω^ + b ω^², a = sin θ/θ, b = (1 - cos θ)/θ².
 
@@ -144,6 +146,7 @@ def rotation_y(angle: Array) -> Array:
     return axis_angle_to_matrix(jnp.stack([jnp.zeros_like(angle), angle, jnp.zeros_like(angle)], -1))
 
 
+@jax.jit
 def matrix_to_quaternion(matrix: Array) -> Array:
     """Rotation matrix to unit quaternion (w, x, y, z) with w >= 0.  (..., 3, 3) -> (..., 4).
 
@@ -201,6 +204,7 @@ def axis_angle_to_quaternion(omega: Array) -> Array:
     return jnp.concatenate([c[..., None], s[..., None] * omega], -1)
 
 
+@jax.jit
 def quaternion_to_axis_angle(quaternion: Array) -> Array:
     """(..., 4) -> (..., 3), θ in [0, π]: ω = 2 atan2(|v|, w) / |v| · v with w >= 0."""
     q = quaternion / jnp.linalg.norm(quaternion, axis=-1, keepdims=True)

@@ -67,6 +67,19 @@ def mat3_apply(a: Array, v: Array) -> Array:
 def chain_transforms(
     parents: Sequence[int], local_rotations: Array, rest_joints: Array, needed=None
 ) -> tuple[dict[int, Array], dict[int, Array]]:
+    """See `_chain_transforms`."""
+    return _chain_transforms(
+        tuple(int(p) for p in parents),
+        local_rotations,
+        rest_joints,
+        None if needed is None else tuple(sorted({int(j) for j in needed})),
+    )
+
+
+@functools.partial(jax.jit, static_argnums=(0, 3))
+def _chain_transforms(
+    parents: Sequence[int], local_rotations: Array, rest_joints: Array, needed=None
+) -> tuple[dict[int, Array], dict[int, Array]]:
     """Global rotation and position of each joint in `needed` and its ancestors.
 
     Von Marcard eq. 2.29-2.32: G_j = G_parent(j) · [R_j | J_j - J_parent(j)], root at
