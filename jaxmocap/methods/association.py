@@ -258,7 +258,7 @@ def _meta_fits(X, uv, w, R0, shared: bool, free_rotation: bool):
 
 #: Rows per call of a batched camera fit: every call has this shape, so each variant compiles
 #: once whatever the number of hypotheses (padded power-of-two sizes compiled one program per
-#: size: ~3 CPU-s each); a fit of 256 rows runs in milliseconds.
+#: size: ~3 CPU-s each); a block of 256 camera fits runs in ~40 ms here.
 _BLOCK = 256
 
 
