@@ -226,7 +226,9 @@ def test_crowded_scene_one_wearer_one_bystander():
     if not all(c.exists() for c in clips):
         pytest.skip(f"CMU clips not found in {CMU}")
     body = default_body("low")
-    sc = make_scenario([str(c) for c in clips], vip_config(bystanders=1, max_frames=40), seed=5, body=body,
+    # 24 frames (40 before), as test_vip's scene: the Inertial Tracker's compiled solve, the
+    # bulk of this test, is then that one's. The bystander is detected in all 24 (measured).
+    sc = make_scenario([str(c) for c in clips], vip_config(bystanders=1, max_frames=24), seed=5, body=body,
                        num_sequences=1)  # fmt: skip
     res = associated_keypoints(sc, 0, body, people=(0,))
     labels = sc.sequence(0)["det_person"][0]

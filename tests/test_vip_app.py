@@ -91,23 +91,25 @@ def test_demo_writes_every_file(tmp_path, capsys, truth_fit):
 def test_fit_reads_a_threedpw_file(tmp_path, capsys, truth_fit):
     from jaxmocap.body.io import default_body
 
-    path = write_threedpw(tmp_path / "courtyard.pkl", threedpw_dict(default_body("low"), 20)[0])
+    # 27 frames: the fits below are 24 frames long, the length of the demo's and of test_vip's
+    # scene, so that the programs compiled for one (kinematics, IMU simulation, errors) serve all.
+    path = write_threedpw(tmp_path / "courtyard.pkl", threedpw_dict(default_body("low"), 27)[0])
     out = tmp_path / "fit"
     assert main(["vip", "fit", str(path), "--out", str(out), "--steps", "2"]) == 0
     report = json.loads((out / "report.json").read_text())
-    _check_outputs(out, report, 17, 2)  # person 0's camera pose is valid on frames 0..16
-    assert report["settings"]["frames"] == [0, 17] and [e["person"] for e in report["people"]] == [0, 1]
+    _check_outputs(out, report, 24, 2)  # person 0's camera pose is valid on frames 0..23
+    assert report["settings"]["frames"] == [0, 24] and [e["person"] for e in report["people"]] == [0, 1]
     assert "3DPW courtyard_synthetic_00" in capsys.readouterr().out
-    assert main(["vip", "fit", str(path), "--out", str(out), "--people", "1", "--frames", "2:12"]) == 0
+    assert main(["vip", "fit", str(path), "--out", str(out), "--people", "1", "--frames", "2:26"]) == 0
     report = json.loads((out / "report.json").read_text())
-    assert report["frames"] == 10 and [e["person"] for e in report["people"]] == [1]
+    assert report["frames"] == 24 and [e["person"] for e in report["people"]] == [1]
 
 
 @pytest.mark.parametrize("argv, message", [
     (["fit", "absent.pkl"], "absent.pkl"),
     (["fit", "SEQ", "--people", "0,5"], "indices must be distinct and in 0 .. 1"),
     (["fit", "SEQ", "--people", ","], "no wearers"),
-    (["fit", "SEQ", "--frames", "5:5"], "select 0 of the 20 frames"),
+    (["fit", "SEQ", "--frames", "5:5"], "select 0 of the 27 frames"),
     (["fit", "JUNK"], "not a 3DPW sequence pickle"),
     (["demo", "--wearers", "3", "--bystanders", "2"], "at most 4 people"),
 ])  # fmt: skip
@@ -118,7 +120,7 @@ def test_bad_input_is_one_line(tmp_path, capsys, monkeypatch, argv, message):
         raise AssertionError("the fit must not start")
 
     monkeypatch.setattr(app, "fit_inputs", refuse)
-    seq = write_threedpw(tmp_path / "seq.pkl", threedpw_dict(default_body("low"), 20)[0])
+    seq = write_threedpw(tmp_path / "seq.pkl", threedpw_dict(default_body("low"), 27)[0])  # as the fit's file
     (tmp_path / "junk.pkl").write_bytes(b"not a pickle")
     files = {"SEQ": str(seq), "JUNK": str(tmp_path / "junk.pkl"), "absent.pkl": str(tmp_path / "absent.pkl")}
     argv = ["vip", *[files.get(a, a) for a in argv], "--out", str(tmp_path / "out")]
