@@ -30,14 +30,14 @@ def test_matches_independent_numpy_smpl(smpl_dict, random_body):
 def test_fewer_betas_than_components(smpl_dict, random_body):
     betas = rng.normal(size=4)
     ref_v, _, _ = smpl_forward_numpy(smpl_dict, np.zeros((24, 3)), betas, np.zeros(3))
-    np.testing.assert_allclose(forward(random_body, np.zeros((24, 3)), betas).vertices, ref_v, atol=1e-9)
+    np.testing.assert_allclose(forward_jit(random_body, np.zeros((24, 3)), betas).vertices, ref_v, atol=1e-9)
 
 
 def test_no_shape_components_is_the_template_shape(random_body):
     """Motions without a shape (CMU clips: betas of shape (0,)) pose the template body."""
     pose = rng.normal(scale=0.3, size=(2, 24, 3))
-    empty = forward(random_body, pose, np.zeros((0,)), np.zeros(3))
-    none = forward(random_body, pose, None, np.zeros(3))
+    empty = forward_jit(random_body, pose, np.zeros((0,)), np.zeros(3))
+    none = forward_jit(random_body, pose, None, np.zeros(3))
     np.testing.assert_allclose(empty.vertices, none.vertices, atol=1e-12)
 
 
@@ -51,8 +51,8 @@ def test_batch_shapes_equal_per_sample(random_body, batch):
     assert out.vertices.shape == (*batch, V, 3)
     assert out.joints.shape == (*batch, 24, 3)
     assert out.joint_rotations.shape == (*batch, 24, 3, 3)
-    flat = jax.vmap(lambda p, b, t: forward(random_body, p, b, t))(
-        pose.reshape(-1, 24, 3), betas.reshape(-1, 10), trans.reshape(-1, 3)
+    flat = jax.jit(jax.vmap(forward, (None, 0, 0, 0)))(
+        random_body, pose.reshape(-1, 24, 3), betas.reshape(-1, 10), trans.reshape(-1, 3)
     )
     np.testing.assert_allclose(out.vertices.reshape(-1, V, 3), flat.vertices, atol=1e-12)
 
@@ -60,6 +60,22 @@ def test_batch_shapes_equal_per_sample(random_body, batch):
 def test_broadcasting_shared_shape(random_body):
     out = forward_jit(random_body, rng.normal(size=(5, 24, 3)), rng.normal(size=10), np.zeros(3))
     assert out.vertices.shape == (5, random_body.num_vertices, 3)
+
+
+_GRADIENT_JOINTS = np.array([0, 4, 18])  # root, knee, elbow: all of skinning and FK are exercised
+
+
+def _some_vertices_and_joints(sub, pose, body):
+    """Every 7th vertex and the joints, with the pose of `_GRADIENT_JOINTS` set to `sub`."""
+    p = pose.at[_GRADIENT_JOINTS].set(sub.reshape(3, 3))
+    out = forward(body, p, jnp.zeros(10), jnp.zeros(3))
+    return jnp.concatenate([out.vertices[::7].ravel(), out.joints.ravel()])
+
+
+# The pose is an argument, not a constant: the three cases share these compiled programs.
+_some_vertices_and_joints_jit = jax.jit(_some_vertices_and_joints)
+_jacfwd_of_some = jax.jit(jax.jacfwd(_some_vertices_and_joints))
+_jacrev_of_some = jax.jit(jax.jacrev(_some_vertices_and_joints))
 
 
 @pytest.mark.parametrize("where", ["zero", "random", "near_pi"])
@@ -70,17 +86,15 @@ def test_skinning_gradients(random_body, where):
         "random": rng.normal(scale=0.5, size=(24, 3)),
         "near_pi": np.tile([0.0, 0.0, np.pi - 1e-6], (24, 1)),
     }[where]
-    joints = np.array([0, 4, 18])  # root, knee, elbow: all of skinning and FK are exercised
-
-    def f(sub):
-        p = jnp.asarray(pose).at[joints].set(sub.reshape(3, 3))
-        out = forward(random_body, p, jnp.zeros(10), jnp.zeros(3))
-        return jnp.concatenate([out.vertices[::7].ravel(), out.joints.ravel()])
-
-    x = pose[joints].ravel()
-    fwd = jax.jit(jax.jacfwd(f))(jnp.asarray(x))
-    rev = jax.jit(jax.jacrev(f))(jnp.asarray(x))
-    fd = central_difference(lambda y: f(jnp.asarray(y)), x, eps=1e-7 if where == "near_pi" else 1e-6)
+    pose = jnp.asarray(pose)
+    x = np.asarray(pose[_GRADIENT_JOINTS]).ravel()
+    fwd = _jacfwd_of_some(jnp.asarray(x), pose, random_body)
+    rev = _jacrev_of_some(jnp.asarray(x), pose, random_body)
+    fd = central_difference(
+        lambda y: _some_vertices_and_joints_jit(jnp.asarray(y), pose, random_body),
+        x,
+        eps=1e-7 if where == "near_pi" else 1e-6,
+    )
     assert np.isfinite(fwd).all()
     np.testing.assert_allclose(fwd, rev, atol=1e-10)
     np.testing.assert_allclose(fwd, fd, atol=2e-6)
@@ -88,7 +102,7 @@ def test_skinning_gradients(random_body, where):
 
 def test_shape_gradient_and_translation(random_body):
     f = lambda b: forward(random_body, jnp.zeros((24, 3)), b, jnp.zeros(3)).vertices  # noqa: E731
-    jac = jax.jacfwd(f)(jnp.zeros(10))
+    jac = jax.jit(jax.jacfwd(f))(jnp.zeros(10))
     np.testing.assert_allclose(jac, np.moveaxis(random_body.shapedirs, 0, -1), atol=1e-12)  # linear in β at rest
     shift = forward_jit(random_body, np.zeros((24, 3)), np.zeros(10), np.array([1.0, 2.0, 3.0]))
     base = forward_jit(random_body, np.zeros((24, 3)), np.zeros(10), np.zeros(3))
@@ -101,10 +115,11 @@ def test_forward_kinematics_closed_form():
     """A two-bone chain: rotate the root 90° about z, the child bone end lands on -x... +y."""
     parents = (-1, 0, 1)
     rest = jnp.array([[0.0, 0, 0], [1.0, 0, 0], [2.0, 0, 0]])
-    local = jaxmocap.rotation.axis_angle_to_matrix(jnp.array([[0, 0, np.pi / 2], [0, 0, np.pi / 2], [0, 0, 0.0]]))
-    R, p = forward_kinematics(parents, local, rest)
+    exp = jax.jit(jaxmocap.rotation.axis_angle_to_matrix)
+    local = exp(jnp.array([[0, 0, np.pi / 2], [0, 0, np.pi / 2], [0, 0, 0.0]]))
+    R, p = jax.jit(forward_kinematics, static_argnums=0)(parents, local, rest)
     np.testing.assert_allclose(p, [[0, 0, 0], [0, 1, 0], [-1, 1, 0]], atol=1e-12)
-    np.testing.assert_allclose(R[2], jaxmocap.rotation.axis_angle_to_matrix(jnp.array([0, 0, np.pi])), atol=1e-12)
+    np.testing.assert_allclose(R[2], exp(jnp.array([0, 0, np.pi])), atol=1e-12)
 
 
 def test_float32_and_float64(random_body):
@@ -146,7 +161,7 @@ def test_body_is_a_pytree_with_static_topology(random_body):
     # Same topology -> same treedef, so jit caches are shared between bodies.
     other = jax.tree_util.tree_map(lambda x: x * 1.0, random_body)
     assert jax.tree_util.tree_structure(other) == jax.tree_util.tree_structure(random_body)
-    vmapped = jax.vmap(lambda b: forward(b, jnp.zeros((24, 3))).vertices)(
+    vmapped = jax.jit(jax.vmap(lambda b: forward(b, jnp.zeros((24, 3))).vertices))(
         jax.tree_util.tree_map(lambda x: jnp.stack([x, x]), random_body)
     )
     assert vmapped.shape == (2, random_body.num_vertices, 3)

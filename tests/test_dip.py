@@ -25,7 +25,8 @@ def body():
 
 @pytest.fixture(scope="module")
 def setup6(body):
-    sc = make_scenario(["walk"], ScenarioConfig(fps=30.0, max_frames=24, betas_std=0.0), seed=0, body=body)
+    # 45 frames of 6 IMUs at 30 Hz: SIP's compiled solve is test_inertial.py's (one compile per suite run).
+    sc = make_scenario(["walk"], ScenarioConfig(fps=30.0, max_frames=45, betas_std=0.0), seed=0, body=body)
     return sc, inertial_setup(sc, 0, body)
 
 
@@ -173,7 +174,7 @@ def test_shipped_network_poses_a_sequence_and_starts_sip(body, setup6):
     np.testing.assert_allclose(Rotation.from_rotvec(poses[:, 0]).as_matrix(), root, atol=1e-4)
     assert np.all(poses[:, [7, 8, 10, 11, 20, 21, 22, 23]] == 0)
     # A clip the network has seen (library walk): its poses are close to the truth.
-    truth = Rotation.from_rotvec(sc["poses"][0, 0, :24][:, list(dip.MAJOR_JOINTS)].reshape(-1, 3))
+    truth = Rotation.from_rotvec(sc["poses"][0, 0][:, list(dip.MAJOR_JOINTS)].reshape(-1, 3))
     err = np.degrees((truth.inv() * Rotation.from_rotvec(poses[:, list(dip.MAJOR_JOINTS)].reshape(-1, 3))).magnitude())
     assert np.median(err) < 15.0
     res = I.sparse_inertial_poser(setup, init="birnn", max_steps=2)
@@ -187,20 +188,22 @@ def test_shipped_network_poses_a_sequence_and_starts_sip(body, setup6):
 def test_nearest_rotation_and_mirrored_motion(body):
     R = Rotation.random(4, random_state=5).as_matrix()
     M = R + 0.05 * np.random.default_rng(0).normal(size=R.shape)
-    Q = np.asarray(nearest_rotation(jnp.asarray(M)))
+    nearest = jax.jit(nearest_rotation)  # one program, not dozens of eager ones
+    Q = np.asarray(nearest(jnp.asarray(M)))
     np.testing.assert_allclose(np.linalg.det(Q), 1.0, atol=1e-6)
     # The orthogonal Procrustes solution: U Vᵀ from the SVD (no reflection at this noise).
     u, _, vt = np.linalg.svd(M)
     np.testing.assert_allclose(Q, u @ vt, atol=1e-6)
-    assert np.linalg.det(np.asarray(nearest_rotation(-jnp.eye(3)))) > 0
+    assert np.linalg.det(np.asarray(nearest(-jnp.eye(3)))) > 0
     from jaxmocap import forward
     from jaxmocap.body.model import SMPL_JOINT_NAMES
 
     m = library.walk(num_frames=20, fps=30.0, body=body)
     mm = m.mirrored()
     np.testing.assert_allclose(mm.mirrored().poses, m.poses)
-    j = np.asarray(forward(body, jnp.asarray(m.poses), None, jnp.asarray(m.trans)).joints)
-    jm = np.asarray(forward(body, jnp.asarray(mm.poses), None, jnp.asarray(mm.trans)).joints)
+    joints = jax.jit(lambda b, p, t: forward(b, p, None, t).joints)
+    j = np.asarray(joints(body, jnp.asarray(m.poses), jnp.asarray(m.trans)))
+    jm = np.asarray(joints(body, jnp.asarray(mm.poses), jnp.asarray(mm.trans)))
     index = {n: i for i, n in enumerate(SMPL_JOINT_NAMES)}
     swap = [index[n.replace("left", "@").replace("right", "left").replace("@", "right")] for n in SMPL_JOINT_NAMES]
     np.testing.assert_allclose(jm[:, swap] * [-1, 1, 1], j, atol=2e-4)  # the default body is symmetric to 0.1 mm

@@ -6,6 +6,7 @@ methods' default use; weights are arrays, so the ablation runs reuse compiled so
 
 from pathlib import Path
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -40,18 +41,43 @@ def _scenario(body, imu_set, errors, frames):
 
 
 @pytest.fixture(scope="module")
-def clean13(body):
-    sc = _scenario(body, "totalcapture13", IMUErrorModel.off(), 30)
+def clean13_scenario(body):
+    return _scenario(body, "totalcapture13", IMUErrorModel.off(), 30)
+
+
+@pytest.fixture(scope="module")
+def clean13(body, clean13_scenario):
+    sc = clean13_scenario
     setup = inertial_setup(sc, 0, body, dtype=jnp.float64)
     return sc.sequence(0), setup
 
 
+@pytest.fixture(scope="module")
+def noisy6(body):
+    """The jump seen by 6 IMUs with realistic errors, 48 frames, and its first 45 frames'
+    SOP and SIP fits: the must-show, the padded batch and the Jacobian checks share this
+    one scenario and these compiled SOP and SIP solves."""
+    sc = _scenario(body, "sip6", IMUErrorModel.xsens(), 48)
+    setup48 = inertial_setup(sc, 0, body)
+    setup45 = eqx_set_frames(setup48, 45)
+    sop, _ = I.sparse_orientation_poser(setup45)
+    sip = I.sparse_inertial_poser(setup45, init=sop, max_steps=15)
+    return sc, setup48, setup45, sop, sip
+
+
 def _truth_params(seq, setup):
     pose = jnp.asarray(seq["poses"][0], setup.pose0.dtype)
-    return {"pose": jax.vmap(jax.vmap(_exp))(pose), "trans": jnp.asarray(seq["trans"][0], pose.dtype)}
+    return {"pose": _exp_all(pose), "trans": jnp.asarray(seq["trans"][0], pose.dtype)}
 
 
-def _exp(w):
+@eqx.filter_jit
+def _residual_at(residual, params, data):
+    # One compiled program per residual: run op by op, each was dozens of small ones.
+    return residual(params, data)
+
+
+@jax.jit
+def _exp_all(w):
     from jaxmocap.rotation import axis_angle_to_matrix
 
     return axis_angle_to_matrix(w)
@@ -60,27 +86,35 @@ def _exp(w):
 def _lm_step(problem, params, data, lam=0.1):
     """Cost and damped LM step of the engine's linearisation (float64), layout order."""
     from jaxmocap.solve import Args
+
+    st = Args(problem, data, None, problem.layout(params)).structure()
+    return (st, *_jit_lm_step(problem, params, data, lam))
+
+
+@eqx.filter_jit
+def _jit_lm_step(problem, params, data, lam):
+    # One compiled program per problem: run op by op, the linearisation was ~770 small ones.
+    from jaxmocap.solve import Args
     from jaxmocap.solve.linearisation import linearise
     from jaxmocap.solve.factorise import factor, solve_factored
 
-    layout = problem.layout(params)
-    args = Args(problem, data, None, layout)
+    args = Args(problem, data, None, problem.layout(params))
     st = args.structure()
     normal, (gF, _, _), cost = linearise(params, args, st, jnp.float64, jnp.float64)
     step = solve_factored(factor(normal, st, lam), gF)[0]
-    return st, cost, st.from_solver_order(gF), st.from_solver_order(step)
+    return cost, st.from_solver_order(gF), st.from_solver_order(step)
 
 
 @pytest.mark.parametrize("robust", [False, True])
-def test_analytic_jacobians_and_local_elimination_match_autodiff(body, robust):
+def test_analytic_jacobians_and_local_elimination_match_autodiff(body, noisy6, robust):
     """Eq. 3.17-3.29 against forward-mode AD: the LM step with analytic blocks, the
     declared `reads` and the hands/feet eliminated per frame equals the step with
     AD blocks over all 75 unknowns (no elimination), also with robust losses and a
     dropped sample."""
     from jaxmocap.solve import Cauchy, Huber, Problem, Term
 
-    sc = _scenario(body, "sip6", IMUErrorModel.xsens(), 10)
-    setup = inertial_setup(sc, 0, body, dtype=jnp.float64)
+    sc = noisy6[0]
+    setup = eqx_set_frames(inertial_setup(sc, 0, body, dtype=jnp.float64), 10)
     data = eqx_set(setup.data, setup.data.acceleration.at[4, 2].set(jnp.nan))
     terms = [
         E.orientation_term(setup.bones, 6, 1.0, loss=Huber(0.05) if robust else None),
@@ -96,7 +130,7 @@ def test_analytic_jacobians_and_local_elimination_match_autodiff(body, robust):
     )
     rng = np.random.default_rng(3)
     params = {
-        "pose": jnp.asarray(sc.sequence(0)["poses"][0]) + jnp.asarray(rng.normal(0, 0.3, (10, 24, 3))),
+        "pose": jnp.asarray(sc.sequence(0)["poses"][0][:10]) + jnp.asarray(rng.normal(0, 0.3, (10, 24, 3))),
         "trans": jnp.asarray(rng.normal(0, 0.05, (10, 3))),
     }
     st, cost, g, step = _lm_step(analytic, params, data)
@@ -121,7 +155,7 @@ def eqx_set(data, acceleration):
 
 def test_orientation_residual_vanishes_at_truth(clean13):
     seq, setup = clean13
-    e = E.OrientationResidual(setup.bones)(_truth_params(seq, setup), setup.data)
+    e = _residual_at(E.OrientationResidual(setup.bones), _truth_params(seq, setup), setup.data)
     assert e.shape == (30, 13, 3)
     assert float(jnp.abs(e).max()) < 1e-5
 
@@ -130,7 +164,7 @@ def test_acceleration_residual_small_at_truth(clean13):
     """The rigid sensor point (eq. 3.11) against skinned-vertex data: only the skinning
     and blend-shape motion of the vertex relative to its bone remains."""
     seq, setup = clean13
-    e = E.AccelerationResidual(setup.bones, setup.fps)(_truth_params(seq, setup), setup.data)
+    e = _residual_at(E.AccelerationResidual(setup.bones, setup.fps), _truth_params(seq, setup), setup.data)
     inner = np.linalg.norm(np.asarray(e[1:-1]), axis=-1)
     scale = np.linalg.norm(np.asarray(setup.data.acceleration[1:-1]), axis=-1)
     assert np.median(inner) < 0.1 * np.median(scale) + 0.05
@@ -187,7 +221,7 @@ def test_calibration_absorbs_mounting_rotation(body, clean13):
     np.testing.assert_allclose(s2.data.acceleration, setup.data.acceleration, atol=1e-4)
 
 
-def test_it_recovers_noise_free_poses(body):
+def test_it_recovers_noise_free_poses(body, clean13_scenario):
     """Must-show: noise-free IMU-13, IT recovers the true poses (MPJAE < 1°).
 
     13 orientations leave two splits unobserved: spine1/2/3 between the pelvis and sternum
@@ -198,7 +232,7 @@ def test_it_recovers_noise_free_poses(body):
     small (w_mahal = 1e-5): with the thesis's 0.003 and our learnt covariance it biases every
     sensed bone by ~3° (reported in experiments/).
     """
-    sc = _scenario(body, "totalcapture13", IMUErrorModel.off(), 30)
+    sc = clean13_scenario
     setup = inertial_setup(sc, 0, body)
     poses, results = I.inertial_tracker(setup, I.SIPWeights(mahal=1e-5), sequential=False)
     assert poses.shape == (30, 24, 3)
@@ -209,21 +243,20 @@ def test_it_recovers_noise_free_poses(body):
     assert err["mpjae"][:, sensed].mean() < 0.2
 
 
-def test_sip_beats_sop_on_noisy_dynamic_imu6(body, capfd):
+def test_sip_beats_sop_on_noisy_dynamic_imu6(body, noisy6, capfd):
     """Must-show: dynamic motion, 6 IMUs with realistic errors: SIP < SOP on MPJPE and MPJAE.
     SOP's progress report (on by default from 2000 frames) leaves its poses unchanged."""
-    sc = _scenario(body, "sip6", IMUErrorModel.xsens(), 45)
-    seq = sc.sequence(0)
-    setup = inertial_setup(sc, 0, body)
-    sop, _ = I.sparse_orientation_poser(setup)
+    sc, _, setup, sop, sip = noisy6
+    capfd.readouterr()
+    quiet, _ = I.sparse_orientation_poser(setup)
     assert capfd.readouterr().err == ""
+    np.testing.assert_array_equal(np.asarray(quiet), np.asarray(sop))
     loud, _ = I.sparse_orientation_poser(setup, progress=True)
     err = capfd.readouterr().err
     assert "SOP frame 45/45" in err and "ETA" in err and err.endswith("\n")
     np.testing.assert_array_equal(np.asarray(loud), np.asarray(sop))
-    sip = I.sparse_inertial_poser(setup, init=sop, max_steps=15)
     assert np.isfinite(float(sip.solution.cost))
-    truth = seq["poses"][0]
+    truth = sc.sequence(0)["poses"][0][:45]
     e_sop = metrics.pose_errors(body, sop, truth)
     e_sip = metrics.pose_errors(body, sip.poses, truth)
     assert e_sip["mpjpe"].mean() < e_sop["mpjpe"].mean()
@@ -250,21 +283,27 @@ def test_kinematics_and_log_match_the_references():
     from jaxmocap.body.kinematics import chain_transforms
     from jaxmocap.rotation import axis_angle_to_matrix, log_small, matrix_to_axis_angle
 
-    rng = np.random.default_rng(5)
-    w = jnp.asarray(rng.normal(scale=0.8, size=(4, 24, 3)))
-    w = w.at[0, 3].set(0.0).at[1, 4].set(jnp.array([1e-5, 0.0, 0.0]))  # identity and tiny angles
-    local = axis_angle_to_matrix(w)
-    rest = jnp.asarray(rng.normal(size=(24, 3)))
     bones = (18, 19, 4, 5, 15, 0)
-    R, p = chain_transforms(SMPL_PARENTS, local, rest, needed=bones)
+
+    @jax.jit  # one program: op by op these maps were over a hundred small ones
+    def maps(w, rest):
+        local = axis_angle_to_matrix(w)
+        R, p = chain_transforms(SMPL_PARENTS, local, rest, needed=bones)
+        R_ref, p_ref = forward_kinematics(SMPL_PARENTS, local, jnp.broadcast_to(rest, (4, 24, 3)))
+        # Derivative at the identity is finite and equals the identity map (d log = dω there).
+        J = jax.jacfwd(lambda v: log_small(axis_angle_to_matrix(v)))(jnp.zeros(3))
+        return R, p, R_ref, p_ref, log_small(local), matrix_to_axis_angle(local), J
+
+    rng = np.random.default_rng(5)
+    w = np.asarray(rng.normal(scale=0.8, size=(4, 24, 3)))
+    w[0, 3], w[1, 4] = 0.0, [1e-5, 0.0, 0.0]  # identity and tiny angles
+    rest = jnp.asarray(rng.normal(size=(24, 3)))
+    R, p, R_ref, p_ref, log_cheap, log_ref, J = maps(jnp.asarray(w), rest)
     assert 23 not in R  # joints no sensor depends on are not computed
-    R_ref, p_ref = forward_kinematics(SMPL_PARENTS, local, jnp.broadcast_to(rest, (4, 24, 3)))
     for j in bones:
         np.testing.assert_allclose(R[j], R_ref[:, j], atol=1e-12)
         np.testing.assert_allclose(p[j], p_ref[:, j], atol=1e-12)
-    np.testing.assert_allclose(log_small(local), matrix_to_axis_angle(local), atol=1e-9)
-    # Derivative at the identity is finite and equals the identity map (d log = dω there).
-    J = jax.jacfwd(lambda v: log_small(axis_angle_to_matrix(v)))(jnp.zeros(3))
+    np.testing.assert_allclose(log_cheap, log_ref, atol=1e-9)
     np.testing.assert_allclose(J, np.eye(3), atol=1e-9)
 
 
@@ -280,28 +319,26 @@ def test_dip_pickle_input(body, tmp_path):
                        fps=30.0, sensors=six, dtype=jnp.float64)  # fmt: skip
     assert setup.bones == (18, 19, 4, 5, 15, 0)
     seq = sc.sequence(0)
-    e = E.OrientationResidual(setup.bones)(_truth_params(seq, setup), setup.data)
+    e = _residual_at(E.OrientationResidual(setup.bones), _truth_params(seq, setup), setup.data)
     assert float(jnp.abs(e).max()) < 1e-4
 
 
-def test_padded_batch_equals_separate_fits(body):
-    """SIP on a padded batch (9 and 12 frames, analytic Jacobians, per-frame elimination,
+def test_padded_batch_equals_separate_fits(noisy6):
+    """SIP on a padded batch (45 and 48 frames, analytic Jacobians, per-frame elimination,
     masks) gives the padded sequence its separate fit on its real frames."""
-    sc = _scenario(body, "sip6", IMUErrorModel.xsens(), 12)
-    long = inertial_setup(sc, 0, body)
-    short = eqx_set_frames(long, 9)
-    sops = [I.sparse_orientation_poser(s)[0] for s in (short, long)]
+    _, long, short, sop, alone = noisy6
     stacked, mask = I.pad_setups([short, long])
-    assert stacked.num_frames == 12 and mask.sum(1).tolist() == [9, 12]
-    init = jnp.stack([jnp.concatenate([sops[0], jnp.repeat(sops[0][-1:], 3, 0)]), sops[1]])
-    batch = I.sparse_inertial_poser_batch(stacked, init, frame_mask=mask, max_steps=8)
+    assert stacked.num_frames == 48 and mask.sum(1).tolist() == [45, 48]
+    # Any start serves the longer member: only the padded one is compared.
+    padded_sop = jnp.concatenate([sop, jnp.repeat(sop[-1:], 3, 0)])
+    init = jnp.stack([padded_sop, padded_sop])
+    batch = I.sparse_inertial_poser_batch(stacked, init, frame_mask=mask, max_steps=15)
     # The padded member against its own fit (an unpadded member equals its fit by
-    # test_solve.py's batch-of-one test; one SIP compile less here).
-    alone = I.sparse_inertial_poser(short, init=sops[0], max_steps=8)
-    np.testing.assert_allclose(batch.value["pose"][0, :9], alone.poses, atol=2e-3)
+    # test_solve.py's batch-of-one test; the must-show's SIP fit is that fit here).
+    np.testing.assert_allclose(batch.value["pose"][0, :45], alone.poses, atol=2e-3)
     assert abs(float(batch.cost[0]) - float(alone.solution.cost)) <= 1e-3 * float(alone.solution.cost)
     # Padded frames keep their start (up to the exp/log round trip of re-anchoring).
-    np.testing.assert_allclose(batch.value["pose"][0, 9:], init[0, 9:], atol=1e-5)
+    np.testing.assert_allclose(batch.value["pose"][0, 45:], init[0, 45:], atol=1e-5)
 
 
 def eqx_set_frames(setup, T):

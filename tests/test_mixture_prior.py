@@ -42,27 +42,32 @@ def _frames_near_each_component(means, T_per=2, seed=1):
     return np.concatenate([m + rng.normal(scale=0.05, size=(T_per, 69)) for m in means])
 
 
+@jax.jit
+def _prior_maps(prior, x):
+    """What the tests read of a prior at poses x (T, 69), in one compiled program per prior
+    kind (op by op, these were a hundred small ones): residual, its Jacobian, the negative
+    log-likelihood and the SIP term's cost with the prior's rotations."""
+    pose = axis_angle_to_matrix(jnp.concatenate([jnp.zeros((len(x), 1, 3)), x.reshape(len(x), 23, 3)], 1))
+    r_sip = MahalanobisResidual()({"pose": pose}, SimpleNamespace(prior=prior))
+    return dict(r=prior.mahalanobis_residual(x), J=prior.mahalanobis_jacobian(x), nll=prior.neg_log_likelihood(x),
+                sip_cost=jnp.sum(r_sip**2))  # fmt: skip
+
+
 def test_one_component_is_the_single_gaussian():
     means, covs, _ = _components()
     x = jnp.asarray(np.random.default_rng(2).normal(scale=0.3, size=(4, 69)))
     single = PosePrior.from_moments(means[0], covs[0], dtype=jnp.float64)
     mix = MixturePosePrior.from_moments(means[0], covs[0], dtype=jnp.float64)
     assert mix.num_components == 1 and single.num_components == 1
-    r = mix.mahalanobis_residual(x)
-    np.testing.assert_allclose(r[:, :69], single.mahalanobis_residual(x), rtol=1e-12, atol=1e-12)
+    m, s = _prior_maps(mix, x), _prior_maps(single, x)
+    r = m["r"]
+    np.testing.assert_allclose(r[:, :69], s["r"], rtol=1e-12, atol=1e-12)
     np.testing.assert_array_equal(r[:, 69], 0.0)  # no component constant to pay
-    np.testing.assert_allclose(mix.mahalanobis_jacobian(x)[:, :69], jnp.broadcast_to(single.whitening, (4, 69, 69)))
-    np.testing.assert_allclose(mix.neg_log_likelihood(x), single.neg_log_likelihood(x), rtol=1e-12)
+    np.testing.assert_allclose(m["J"][:, :69], jnp.broadcast_to(single.whitening, (4, 69, 69)))
+    np.testing.assert_allclose(m["nll"], s["nll"], rtol=1e-12)
     np.testing.assert_allclose(mix.mean, single.mean)
     # The SIP term's cost with either form is d_mahal².
-    params = {
-        "pose": jax.vmap(jax.vmap(axis_angle_to_matrix))(
-            jnp.concatenate([jnp.zeros((4, 1, 3)), x.reshape(4, 23, 3)], 1)
-        )
-    }
-    fn = MahalanobisResidual()
-    cost = lambda p: float(jnp.sum(fn(params, SimpleNamespace(prior=p)) ** 2))  # noqa: E731
-    assert abs(cost(mix) - cost(single)) <= 1e-10 * cost(single)
+    assert abs(float(m["sip_cost"]) - float(s["sip_cost"])) <= 1e-10 * float(s["sip_cost"])
 
 
 def test_mixture_cost_is_the_min_over_components():
@@ -90,17 +95,21 @@ def test_sip_residual_jacobian_uses_the_selected_component():
     x = _frames_near_each_component(0.5 * means, T_per=1)  # small angles, one frame per component
     T = len(x)
     pose = np.concatenate([np.zeros((T, 1, 3)), x.reshape(T, 23, 3)], 1)
-    R0 = jax.vmap(jax.vmap(axis_angle_to_matrix))(jnp.asarray(pose))
+    R0 = jax.jit(axis_angle_to_matrix)(jnp.asarray(pose))
     data = SimpleNamespace(prior=prior)
     fn = MahalanobisResidual()
-    assert len(set(np.asarray(prior.component(log_small(R0[:, 1:]).reshape(T, 69))).tolist())) == K
+    selected = jax.jit(lambda R: prior.component(log_small(R[:, 1:]).reshape(T, 69)))(R0)
+    assert len(set(np.asarray(selected).tolist())) == K
 
     def residual(delta):  # delta (T, 24, 3) -> (T, 70)
         return fn({"pose": jax.vmap(jax.vmap(axis_angle_to_matrix))(delta) @ R0}, data)
 
-    J = np.asarray(fn.jacobian({"pose": R0}, data)["pose"].dense((70,), (24, 3)))  # (T, 1, 70, 24, 3)
+    # Jitted, as the solver runs it (op by op, these Jacobians were ~200 small programs).
+    J = np.asarray(
+        jax.jit(lambda R: fn.jacobian({"pose": R}, data)["pose"].dense((70,), (24, 3)))(R0)
+    )  # (T, 1, 70, 24, 3)
     assert J.shape == (T, 1, 70, 24, 3)
-    full = np.asarray(jax.jacfwd(residual)(jnp.zeros((T, 24, 3))))  # (T, 70, T, 24, 3)
+    full = np.asarray(jax.jit(jax.jacfwd(residual))(jnp.zeros((T, 24, 3))))  # (T, 70, T, 24, 3)
     for t in range(T):
         np.testing.assert_allclose(J[t, 0], full[t, :, t], atol=1e-10)
         assert np.abs(np.delete(full[t], t, axis=1)).max() == 0  # per frame: bandwidth 0
