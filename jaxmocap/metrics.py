@@ -130,13 +130,20 @@ def position_errors(pred_joints, true_joints, joints="totalcapture_mpjpe", align
     idx = joint_indices(joints)
     pred, true = jnp.asarray(pred_joints), jnp.asarray(true_joints)
     _same_shape("pred_joints", pred, "true_joints", true, "(..., T, J, 3)", 2, idx)
+    if align not in ("procrustes", "procrustes_scaled", "root", "none"):
+        raise ValueError(f"align must be 'procrustes', 'procrustes_scaled', 'root' or 'none', got {align!r}.")
+    return _position_errors(pred, true, tuple(int(i) for i in idx), align)
+
+
+@functools.partial(jax.jit, static_argnames=("idx", "align"))
+def _position_errors(pred, true, idx, align):
+    """`position_errors` after its checks: one program, not one per eager operation."""
     if align == "root":
         pred, true = pred - pred[..., :1, :], true - true[..., :1, :]
+    idx = np.asarray(idx, int)
     pred, true = pred[..., idx, :], true[..., idx, :]
     if align in ("procrustes", "procrustes_scaled"):
         pred = procrustes_align(pred, true, scale=align == "procrustes_scaled")
-    elif align not in ("root", "none"):
-        raise ValueError(f"align must be 'procrustes', 'procrustes_scaled', 'root' or 'none', got {align!r}.")
     return jnp.linalg.norm(pred - true, axis=-1)
 
 
@@ -149,8 +156,14 @@ def angle_errors(pred_rotations, true_rotations, joints="totalcapture_mpjae") ->
     idx = joint_indices(joints)
     pred, true = jnp.asarray(pred_rotations), jnp.asarray(true_rotations)
     _same_shape("pred_rotations", pred, "true_rotations", true, "(..., T, J, 3, 3)", 3, idx)
-    pred, true = pred[..., idx, :, :], true[..., idx, :, :]
-    return jnp.degrees(geodesic_angle(pred, true))
+    return _angle_errors(pred, true, tuple(int(i) for i in idx))
+
+
+@functools.partial(jax.jit, static_argnames=("idx",))
+def _angle_errors(pred, true, idx):
+    """`angle_errors` after its checks: one program, not one per eager operation."""
+    idx = np.asarray(idx, int)
+    return jnp.degrees(geodesic_angle(pred[..., idx, :, :], true[..., idx, :, :]))
 
 
 def mpjpe(pred_joints, true_joints, joints="totalcapture_mpjpe", align="procrustes", mask=None) -> Array:

@@ -78,12 +78,14 @@ def test_manifold_parametrisations_converge_alike():
 # --- the structured linear solve: band, border, windows ----------------------------------
 
 
-@pytest.mark.parametrize(
-    "variant, tridiagonal",
+_STEP_CASES = (
     [(v, m) for v in ("band", "border", "windows", "all") for m in ("scan", "cyclic")]
     + [(v, m) for v in ("narrow", "narrow_border") for m in ("rows", "cyclic")]
-    + [("windows", "rows")],
+    + [("windows", "rows")]
 )
+
+
+@pytest.mark.parametrize("variant, tridiagonal", _STEP_CASES)
 def test_structured_step_equals_dense_step(variant, tridiagonal):
     """The LM step (eq. 2.52) from the structured factorisation equals a dense float64 solve
     of the same normal equations, for frame bands (b = 0, 1, 2 together), a sequence-wide
@@ -91,25 +93,8 @@ def test_structured_step_equals_dense_step(variant, tridiagonal):
     Every factorisation of the frame band: sequential scan and cyclic reduction of the
     band, and both in the coupling rows' space (used where the rows are fewer than the coupled unknowns:
     the narrow variants; the band's elsewhere)."""
-    from jaxmocap.solve.linearisation import linearise
-    from jaxmocap.solve.factorise import factor, solve_factored
-
-    problems, data = _variants(9)
-    problem, params = problems[variant]
-    layout = problem.layout(params)
-    args = Args(problem, data, None, layout)
-    st = args.structure()
-
-    @jax.jit  # one compilation instead of op-by-op dispatch of every small product
-    def step_of(params, data):
-        normal, grad, cost = linearise(
-            params, Args(problem, data, None, layout), st, jnp.float64, jnp.float64, tridiagonal
-        )
-        xF, xW, xG = solve_factored(factor(normal, st, 0.3, tridiagonal=tridiagonal), *grad)
-        return normal.C is not None, layout.ravel(layout.unravel(st.from_solver_order(xF), xW, xG)), cost
-
-    has_rows, step, cost = step_of(params, data)
-    assert bool(has_rows) == (tridiagonal in ("rows", "cyclic") and variant.startswith("narrow"))
+    has_rows, step, cost = _structured_steps(variant)[tridiagonal]
+    assert has_rows == (tridiagonal in ("rows", "cyclic") and variant.startswith("narrow"))
     flat = np.concatenate([np.asarray(p).reshape(-1) for p in step if p is not None])
     dense, half_rr = _dense_step(variant)
     assert abs(float(cost) - half_rr) <= 1e-12 * half_rr
@@ -117,19 +102,63 @@ def test_structured_step_equals_dense_step(variant, tridiagonal):
 
 
 @functools.lru_cache(maxsize=None)
-def _dense_step(variant):
-    """Dense float64 reference for `test_structured_step_equals_dense_step` (once per variant):
-    the step (JᵀJ + 0.3 I)⁻¹ Jᵀr from J of the residuals at x ⊕ δ over the flat tangent, and ½‖r‖²."""
-    from jaxmocap.solve.unknowns import retract
+def _structured_steps(variant):
+    """{tridiagonal: (has coupling rows, step, ½‖r‖²)} of `variant` for every method it is
+    tested with, from one jitted program (once per variant, not per method). `linearise`
+    reads `tridiagonal` only to choose the normal equations' form (coupling rows or the
+    band): each method's form is taken from its own linearisation's shape, and the methods
+    of one form factorise one linearisation instead of compiling it again each."""
+    from jaxmocap.solve.linearisation import linearise
+    from jaxmocap.solve.factorise import factor, solve_factored
 
     problems, data = _variants(9)
     problem, params = problems[variant]
+    layout = problem.layout(params)
+    st = Args(problem, data, None, layout).structure()
+    methods = [m for v, m in _STEP_CASES if v == variant]
+
+    def lin(params, data, tridiagonal):
+        return linearise(params, Args(problem, data, None, layout), st, jnp.float64, jnp.float64, tridiagonal)
+
+    has_rows = {
+        m: jax.eval_shape(functools.partial(lin, tridiagonal=m), params, data)[0].C is not None for m in methods
+    }
+
+    @jax.jit  # one compilation instead of op-by-op dispatch of every small product
+    def steps_of(params, data):
+        out, normals = {}, {}
+        for m in methods:
+            if has_rows[m] not in normals:
+                normals[has_rows[m]] = lin(params, data, m)
+            normal, grad, cost = normals[has_rows[m]]
+            xF, xW, xG = solve_factored(factor(normal, st, 0.3, tridiagonal=m), *grad)
+            out[m] = layout.ravel(layout.unravel(st.from_solver_order(xF), xW, xG)), cost
+        return out
+
+    return {m: (has_rows[m], *s) for m, s in steps_of(params, data).items()}
+
+
+#: Every variant's terms and unknowns are among those of "all" or of "narrow_border", at
+#: the same values (`_variants`): its dense Jacobian is a block of theirs.
+_DENSE_SOURCE = {"band": "all", "border": "all", "windows": "all", "all": "all",
+                 "narrow": "narrow_border", "narrow_border": "narrow_border"}  # fmt: skip
+
+
+@functools.lru_cache(maxsize=None)
+def _dense_jacobian(source):
+    """Each term's dense Jacobian at x ⊕ 0 over the flat tangent of `source`'s unknowns
+    ({term: (rows, N)}), its residuals ({term: (rows,)}), and the tangent's flat positions
+    of each unknown ({key: index array})."""
+    from jaxmocap.solve.unknowns import retract
+
+    problems, data = _variants(9)
+    problem, params = problems[source]
     layout = problem.layout(params)
     x = to_manifold(params, layout)
     F, W, G = layout.ravel(layout.zeros(jnp.float64))
     sizes = [p.size for p in (F, W, G) if p is not None]
 
-    def r_of(d):
+    def split(d):
         parts, start = [], 0
         for p in (F, W, G):
             if p is None:
@@ -137,11 +166,31 @@ def _dense_step(variant):
                 continue
             parts.append(d[start : start + p.size].reshape(p.shape))
             start += p.size
-        res = problem.residuals_on_manifold(retract(x, layout.unravel(*parts), layout), data, None, layout.T)
-        return jnp.concatenate([v.reshape(-1) for v in jax.tree_util.tree_leaves(res)])
+        return layout.unravel(*parts)
+
+    def r_of(d):
+        res = problem.residuals_on_manifold(retract(x, split(d), layout), data, None, layout.T)
+        return {k: v.reshape(-1) for k, v in res.items()}
 
     d0 = jnp.zeros(sum(sizes))
-    J, r = (np.asarray(a) for a in jax.jit(lambda d: (jax.jacfwd(r_of)(d), r_of(d)))(d0))
+    J, r = jax.jit(lambda d: (jax.jacfwd(r_of)(d), r_of(d)))(d0)
+    position = {k: np.asarray(v) for k, v in split(np.arange(sum(sizes))).items()}
+    return {k: np.asarray(v) for k, v in J.items()}, {k: np.asarray(v) for k, v in r.items()}, position
+
+
+@functools.lru_cache(maxsize=None)
+def _dense_step(variant):
+    """Dense float64 reference for `test_structured_step_equals_dense_step` (once per variant):
+    the step (JᵀJ + 0.3 I)⁻¹ Jᵀr from J of the residuals at x ⊕ δ over the flat tangent, and ½‖r‖²."""
+    problems, _ = _variants(9)
+    problem, params = problems[variant]
+    layout = problem.layout(params)
+    J_all, r_all, position = _dense_jacobian(_DENSE_SOURCE[variant])
+    # The variant's columns in its own flat order (F, W, G), and its terms' rows.
+    cols = np.concatenate([p.reshape(-1) for p in layout.ravel({k: position[k] for k in layout.keys}) if p is not None])
+    names = [t.name for t in problem.terms]
+    J = np.concatenate([J_all[k][:, cols] for k in names])
+    r = np.concatenate([r_all[k] for k in names])
     return np.linalg.solve(J.T @ J + 0.3 * np.eye(J.shape[1]), J.T @ r), 0.5 * r @ r
 
 
@@ -299,7 +348,7 @@ def test_solves_use_full_float32_products():
     GPUs' default TF32 products left SIP at 2.5x the cost (structure.full_precision)."""
     import re
 
-    problems, data = _variants(5)
+    problems, data = _variants(9)  # the structured-step tests' problem (its inputs already computed)
     problem, params = problems["border"]
 
     def value(p):
@@ -329,7 +378,7 @@ def test_optimistix_solvers_use_the_structure():
 
 def test_sequence_unknowns_recovered():
     """Per-sensor headings (angle manifold) and a per-sequence offset are recovered exactly."""
-    truth, init, data = motion(10, seed=4)
+    truth, init, data = motion(8, seed=4)  # the length of the other chain tests (their eager programs)
     gamma, offset = jnp.asarray([0.3, -0.5, 1.2]), jnp.asarray([0.1, -0.2, 0.05])
     # Measurements see the sensors rotated by γ about y and translations shifted.
     c, s_ = jnp.cos(gamma), jnp.sin(gamma)
@@ -441,7 +490,7 @@ def test_optx_lm_never_accepts_a_cost_increase():
 def test_lm_never_accepts_a_cost_increase():
     truth, init, data = motion(6, seed=2)
     init = {"rot": init["rot"] * 4.0, "trans": init["trans"]}
-    costs = [float(CHAIN.cost(init, data))]
+    costs = [float(jax.jit(CHAIN.cost)(init, data))]  # one program, not one per eager operation
     for steps in range(1, 9):  # max_steps is a traced loop bound for "lm": one compilation
         sol = solve(CHAIN, init, data, method="lm", max_steps=steps, rtol=0.0, atol=0.0)
         costs.append(float(sol.cost))
@@ -456,17 +505,19 @@ def test_lm_never_accepts_a_cost_increase():
 
 @pytest.mark.parametrize("method", ["lm", "optx_lm"])
 def test_padded_frames_do_not_change_the_result(method):
-    truth, init, data = motion(6)
-    ref = solve(CHAIN, init, data, method=method, max_steps=50, rtol=1e-10, atol=1e-12)
+    # The reference is `test_known_minimiser_recovered`'s solve (same shapes and settings:
+    # its compiled program); the padded one adds 3 junk frames.
+    truth, init, data = motion(8)
+    ref = solve(CHAIN, init, data, method=method, max_steps=60, rtol=1e-10, atol=1e-12)
     rng = np.random.default_rng(5)
     junk = lambda x: jnp.concatenate([x, jnp.asarray(rng.normal(size=(3,) + x.shape[1:]))])  # noqa: E731
     init_p = jax.tree_util.tree_map(junk, init)
     data_p = jax.tree_util.tree_map(junk, data)
-    mask = jnp.arange(9) < 6
-    sol = solve(CHAIN, init_p, data_p, frame_mask=mask, method=method, max_steps=50, rtol=1e-10, atol=1e-12)
+    mask = jnp.arange(11) < 8
+    sol = solve(CHAIN, init_p, data_p, frame_mask=mask, method=method, max_steps=60, rtol=1e-10, atol=1e-12)
     for k in ref.value:
-        np.testing.assert_allclose(sol.value[k][:6], ref.value[k], atol=1e-8)
-        np.testing.assert_allclose(sol.value[k][6:], init_p[k][6:], atol=1e-12)  # padded: untouched
+        np.testing.assert_allclose(sol.value[k][:8], ref.value[k], atol=1e-8)
+        np.testing.assert_allclose(sol.value[k][8:], init_p[k][8:], atol=1e-12)  # padded: untouched
     assert abs(float(sol.cost) - float(ref.cost)) < 1e-10
 
 
@@ -530,8 +581,9 @@ def test_per_sequence_tolerances():
 
 
 def test_float32_default_and_float64_on_request():
-    truth, init, data = motion(6, dtype=jnp.float32)
-    data32 = jax.tree_util.tree_map(lambda x: x.astype(jnp.float32), data)
+    # float32 inputs cast from the float64 motion (the other tests' eager programs, not a float32 set)
+    truth, init, data = jax.tree_util.tree_map(lambda x: x.astype(jnp.float32), motion(6))
+    data32 = data
     sol = solve(CHAIN, init, data32, method="lm", max_steps=40)
     assert sol.value["rot"].dtype == jnp.float32 and bool(jnp.isfinite(sol.cost))
     assert rot_error(sol.value["rot"], truth["rot"]) < 1e-3
@@ -604,7 +656,7 @@ def test_masks_drop_nan_observations():
 
 
 def test_clear_errors():
-    truth, init, data = motion(5)
+    truth, init, data = motion(6)
     with pytest.raises(ValueError, match="leading frame axis"):
         solve(CHAIN, {"rot": init["rot"], "trans": init["trans"][:4]}, data)
     with pytest.raises(ValueError, match="method"):
@@ -679,7 +731,7 @@ _GENERIC = Problem([*_PER_FRAME, Term("smooth", _BASIS_TERM.fn, 30.0, loss=Geman
 def _basis_start(T=12):
     """The chain's perturbed start, coefficients fitted to its sensor paths and disturbed."""
     truth, init, data = motion(T)
-    f = np.asarray(_chain_features(to_manifold(init, CHAIN.layout(init)), data))
+    f = np.asarray(jax.jit(lambda p: _chain_features(to_manifold(p, CHAIN.layout(p)), data))(init))  # one program
     coef = np.random.default_rng(3).normal(scale=0.02, size=(-(-T // 5), 3, 9))
     for w, start in enumerate(range(0, T, 5)):
         B = _poly_basis(len(f[start : start + 5]))
@@ -695,7 +747,7 @@ def test_basis_term_steps_equal_the_generic_window_elimination():
     np.testing.assert_allclose(rows[10:, :2], _poly_basis(2)) and np.testing.assert_array_equal(rows[10:, 2], 0.0)
     fast = solve(_BASIS, p0, data, max_steps=3, rtol=0.0, atol=0.0)
     slow = solve(_GENERIC, p0, data, max_steps=3, rtol=0.0, atol=0.0)
-    assert float(fast.cost) < 0.5 * float(_BASIS.cost(p0, data))
+    assert float(fast.cost) < 0.5 * float(jax.jit(_BASIS.cost)(p0, data))
     for k in p0:
         np.testing.assert_allclose(fast.value[k], slow.value[k], atol=1e-9, err_msg=k)
     # The coefficient the 2-frame window lacks is read by no row: pinned, not singular.
