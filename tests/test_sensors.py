@@ -9,6 +9,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 
 import jaxmocap
@@ -148,13 +149,15 @@ def test_heading_drift_rotates_orientations_by_exactly_gamma(body, sip6):
     )  # fmt: skip
     meas = errors.apply_imu_errors(read, draw, errors.IMUErrorModel(), 60.0, np.random.default_rng(0))
     delta = meas.orientation @ np.swapaxes(np.asarray(read.orientation), -1, -2)
-    np.testing.assert_allclose(delta, np.asarray(imu.rotation_y(jnp.asarray(gamma))), atol=1e-12)
-    np.testing.assert_allclose(imu_calibration.heading_angle(jnp.asarray(delta)), gamma, atol=1e-9)
+    # One compiled program for the three library calls (eagerly, each of their operations compiled).
+    R_gamma, heading, reset = jax.jit(
+        lambda g, d, o: (imu.rotation_y(g), imu_calibration.heading_angle(d), imu_calibration.remove_heading(o, g))
+    )(jnp.asarray(gamma), jnp.asarray(delta), jnp.asarray(meas.orientation))
+    np.testing.assert_allclose(delta, np.asarray(R_gamma), atol=1e-12)
+    np.testing.assert_allclose(heading, gamma, atol=1e-9)
     np.testing.assert_allclose(meas.acceleration, read.acceleration, atol=1e-12)  # a frame error only
     # Heading reset (eq. 2.71) undoes it.
-    np.testing.assert_allclose(
-        imu_calibration.remove_heading(jnp.asarray(meas.orientation), gamma), read.orientation, atol=1e-12
-    )
+    np.testing.assert_allclose(reset, read.orientation, atol=1e-12)
 
 
 def test_error_switches_are_independent_and_deterministic(body, sip6):
@@ -179,18 +182,27 @@ def test_calibration_recovers_planted_misalignment(body):
     model = errors.IMUErrorModel(misalignment=0.3)
     ideal, meas, err = errors.simulate_imu(body, p, poses, None, None, 60.0, model, rng)
     R_bone0 = _fk_numpy(poses[:1])[0][list(p.bones)]  # the known initial pose x₀
-    recovered = imu_calibration.sensor_to_bone_offsets(jnp.asarray(R_bone0), jnp.asarray(meas.orientation[0]))
+
+    @jax.jit  # one compiled program for the calibration calls, not one per operation
+    def calibrate(R_bone0, meas0, meas, head):
+        recovered = imu_calibration.sensor_to_bone_offsets(R_bone0, meas0)
+        bones = imu_calibration.virtual_bone_orientations(meas, recovered)
+        return recovered, bones, imu_calibration.inertial_to_model_from_head(head)
+
+    recovered, bones, R_ti = calibrate(
+        jnp.asarray(R_bone0), jnp.asarray(meas.orientation[0]), jnp.asarray(meas.orientation),
+        jnp.asarray(ideal.orientation[0, 0]),
+    )  # fmt: skip
     np.testing.assert_allclose(recovered, err.misalignment, atol=1e-9)
-    bones = imu_calibration.virtual_bone_orientations(jnp.asarray(meas.orientation), recovered)
     np.testing.assert_allclose(bones, _fk_numpy(poses)[:, list(p.bones)], atol=1e-9)
     # DIP eq. 6.4: a head sensor aligned with the model frame gives R^TI = R_head⁻¹.
-    R_ti = imu_calibration.inertial_to_model_from_head(jnp.asarray(ideal.orientation[0, 0]))
-    np.testing.assert_allclose(R_ti @ ideal.orientation[0, 0], np.eye(3), atol=1e-12)
+    np.testing.assert_allclose(np.asarray(R_ti) @ ideal.orientation[0, 0], np.eye(3), atol=1e-12)
     # Heading reset: sensors in one known orientation read R_y(γ_s) R_ref.
     gamma = np.array([0.1, -0.7, 2.0])
     R_ref = Rotation.from_rotvec([0.2, 0.1, -0.3]).as_matrix()
-    readings = np.asarray(imu.rotation_y(jnp.asarray(gamma))) @ R_ref
-    np.testing.assert_allclose(imu_calibration.heading_reset(jnp.asarray(readings), R_ref), gamma, atol=1e-12)
+    readings = np.asarray(jax.jit(imu.rotation_y)(jnp.asarray(gamma))) @ R_ref
+    heading = jax.jit(imu_calibration.heading_reset)(jnp.asarray(readings), jnp.asarray(R_ref))
+    np.testing.assert_allclose(heading, gamma, atol=1e-12)
 
 
 # --- cameras, keypoints, rasteriser, depth, objects -----------------------------------
@@ -289,12 +301,13 @@ def test_new_library_motions(body):
 
 @pytest.fixture(scope="module")
 def scene(body):
+    # reach=False: no pick-up edit (tested in test_reach), whose IK solve compiled ~25 CPU-s
     config = sc.ScenarioConfig(
         fps=30.0, max_frames=16, people=2, imu_set="xsens17",
         imu_errors=errors.IMUErrorModel.xsens(),
         cameras=sc.CameraConfig(num_views=2, width=64, height=48, distance=3.0),
         keypoints="coco18", detector=detector.DetectorErrorModel.openpose(),
-        silhouettes=True, depth_points=64, object="box",
+        silhouettes=True, depth_points=64, object="box", reach=False,
     )  # fmt: skip
     short = jaxmocap.motion.library.static_hold(num_frames=12, body=body)
     motions = ["walk", "run", short]  # person 1 of sequence 1 is short: lengths 16 and 12
