@@ -357,7 +357,8 @@ def _carried(body, T=40, start=12, end=28):
     """A walk whose right grip picks a box up at `start`, carries it rigidly with the wrist and
     puts it down at `end` (it rests before and after): human and object dicts."""
     motion = walk(T, 30.0, body=body)
-    out = forward(body, jnp.asarray(motion.poses, body.dtype), None, jnp.asarray(motion.trans, body.dtype))
+    betas = np.zeros(body.num_betas, body.dtype)  # as detect_contact poses it: one compiled forward for both
+    out = forward(body, jnp.asarray(motion.poses, body.dtype), betas, jnp.asarray(motion.trans, body.dtype))
     verts, joints, G = (np.asarray(a, np.float64) for a in (out.vertices, out.joints, out.joint_rotations))
     j = J["right_wrist"]
     box = RigidObject.box()
@@ -370,7 +371,7 @@ def _carried(body, T=40, start=12, end=28):
         D = G[k, j] @ G[start, j].T
         R[k], t[k] = D, D @ (t0 - joints[start, j]) + joints[k, j]
     R[end:], t[end:] = R[end - 1], t[end - 1]
-    human = {"pose": motion.poses, "trans": motion.trans, "betas": np.zeros(body.num_betas)}
+    human = {"pose": motion.poses, "trans": motion.trans, "betas": betas}
     return human, {"R": R, "t": t}, box, t0
 
 

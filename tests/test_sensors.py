@@ -35,6 +35,22 @@ def sip6(body):
     return imu.imu_placement(body, "sip6")
 
 
+@pytest.fixture(scope="module")
+def xsens17(body):
+    return imu.imu_placement(body, "xsens17")
+
+
+def _synthesize(body, placement, poses, trans=None, sensor_to_bone=None):
+    """`imu.synthesize_imu` with the zero translation and identity offsets spelled out: the
+    tests' calls share one compiled program (None and an array compile apart)."""
+    T, S = len(poses), placement.num_sensors
+    trans = np.zeros((T, 3)) if trans is None else trans
+    sensor_to_bone = np.broadcast_to(np.eye(3), (S, 3, 3)) if sensor_to_bone is None else sensor_to_bone
+    return imu.synthesize_imu(
+        body, placement, jnp.asarray(poses), trans=jnp.asarray(trans), sensor_to_bone=jnp.asarray(sensor_to_bone)
+    )
+
+
 def _fk_numpy(poses):
     """Independent forward kinematics of global rotations with SciPy: (T, 24, 3) -> (T, 24, 3, 3)."""
     local = Rotation.from_rotvec(poses.reshape(-1, 3)).as_matrix().reshape(*poses.shape, 3)
@@ -99,12 +115,11 @@ def test_constant_rate_rotation_measures_centripetal_acceleration(body, sip6):
     np.testing.assert_allclose(read.angular_velocity[:, s], np.tile([0.0, omega, 0.0], (T, 1)), atol=1e-9)
 
 
-def test_resting_body_measures_only_gravity(body):
+def test_resting_body_measures_only_gravity(body, xsens17):
     rng = np.random.default_rng(0)
     pose = rng.normal(scale=0.4, size=(24, 3))
     poses = np.repeat(pose[None], T8, 0)
-    p = imu.imu_placement(body, "xsens17")
-    read = imu.synthesize_imu(body, p, jnp.asarray(poses), trans=jnp.asarray(np.tile([0.3, 0.9, -1.0], (T8, 1))))
+    read = _synthesize(body, xsens17, poses, trans=np.tile([0.3, 0.9, -1.0], (T8, 1)))
     up = np.einsum("tsab,tsb->tsa", np.asarray(read.orientation), np.asarray(read.acceleration))
     np.testing.assert_allclose(up, np.broadcast_to([0.0, G, 0.0], up.shape), atol=1e-9)
     np.testing.assert_allclose(np.linalg.norm(read.acceleration, axis=-1), G, atol=1e-9)
@@ -119,12 +134,12 @@ def test_finite_difference_ends_are_exact_for_cubics():
     assert np.all(np.asarray(imu.finite_difference_acceleration(p[:3], 10.0)) == 0)
 
 
-def test_noise_off_orientations_equal_fk_times_offsets(body):
+def test_noise_off_orientations_equal_fk_times_offsets(body, xsens17):
     rng = np.random.default_rng(1)
     poses = rng.normal(scale=0.5, size=(T8, 24, 3))
-    p = imu.imu_placement(body, "totalcapture13")
+    p = xsens17
     offsets = errors.random_rotations(rng, 1.0, (p.num_sensors,))
-    read = imu.synthesize_imu(body, p, jnp.asarray(poses), sensor_to_bone=jnp.asarray(offsets))
+    read = _synthesize(body, p, poses, sensor_to_bone=offsets)
     expected = _fk_numpy(poses)[:, list(p.bones)] @ offsets
     np.testing.assert_allclose(read.orientation, expected, atol=1e-6)
 
@@ -135,11 +150,11 @@ def test_noise_off_orientations_equal_fk_times_offsets(body):
 def _static_readings(body, placement, T=T8):
     rng = np.random.default_rng(2)
     poses = np.repeat(rng.normal(scale=0.3, size=(1, 24, 3)), T, 0)
-    return poses, imu.synthesize_imu(body, placement, jnp.asarray(poses))
+    return poses, _synthesize(body, placement, poses)
 
 
-def test_heading_drift_rotates_orientations_by_exactly_gamma(body, sip6):
-    poses, read = _static_readings(body, sip6)
+def test_heading_drift_rotates_orientations_by_exactly_gamma(body, xsens17):
+    poses, read = _static_readings(body, xsens17)
     T, S = read.orientation.shape[:2]
     gamma = np.linspace(-2.5, 2.5, T * S).reshape(T, S)
     draw = errors.IMUErrors(
@@ -160,8 +175,8 @@ def test_heading_drift_rotates_orientations_by_exactly_gamma(body, sip6):
     np.testing.assert_allclose(reset, read.orientation, atol=1e-12)
 
 
-def test_error_switches_are_independent_and_deterministic(body, sip6):
-    poses, _ = _static_readings(body, sip6)
+def test_error_switches_are_independent_and_deterministic(body, sip6, xsens17):
+    poses, _ = _static_readings(body, xsens17)
     model = errors.IMUErrorModel(acc_noise=0.1, dropout_rate=0.05, dropout_length=2)
     run = lambda: errors.simulate_imu(body, sip6, poses, None, None, 60.0, model, np.random.default_rng(5))  # noqa: E731
     (ideal, m1, e1), (_, m2, _) = run(), run()
