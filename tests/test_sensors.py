@@ -9,6 +9,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 
 import jaxmocap
@@ -32,6 +33,22 @@ def body():
 @pytest.fixture(scope="module")
 def sip6(body):
     return imu.imu_placement(body, "sip6")
+
+
+@pytest.fixture(scope="module")
+def xsens17(body):
+    return imu.imu_placement(body, "xsens17")
+
+
+def _synthesize(body, placement, poses, trans=None, sensor_to_bone=None):
+    """`imu.synthesize_imu` with the zero translation and identity offsets spelled out: the
+    tests' calls share one compiled program (None and an array compile apart)."""
+    T, S = len(poses), placement.num_sensors
+    trans = np.zeros((T, 3)) if trans is None else trans
+    sensor_to_bone = np.broadcast_to(np.eye(3), (S, 3, 3)) if sensor_to_bone is None else sensor_to_bone
+    return imu.synthesize_imu(
+        body, placement, jnp.asarray(poses), trans=jnp.asarray(trans), sensor_to_bone=jnp.asarray(sensor_to_bone)
+    )
 
 
 def _fk_numpy(poses):
@@ -98,12 +115,11 @@ def test_constant_rate_rotation_measures_centripetal_acceleration(body, sip6):
     np.testing.assert_allclose(read.angular_velocity[:, s], np.tile([0.0, omega, 0.0], (T, 1)), atol=1e-9)
 
 
-def test_resting_body_measures_only_gravity(body):
+def test_resting_body_measures_only_gravity(body, xsens17):
     rng = np.random.default_rng(0)
     pose = rng.normal(scale=0.4, size=(24, 3))
     poses = np.repeat(pose[None], T8, 0)
-    p = imu.imu_placement(body, "xsens17")
-    read = imu.synthesize_imu(body, p, jnp.asarray(poses), trans=jnp.asarray(np.tile([0.3, 0.9, -1.0], (T8, 1))))
+    read = _synthesize(body, xsens17, poses, trans=np.tile([0.3, 0.9, -1.0], (T8, 1)))
     up = np.einsum("tsab,tsb->tsa", np.asarray(read.orientation), np.asarray(read.acceleration))
     np.testing.assert_allclose(up, np.broadcast_to([0.0, G, 0.0], up.shape), atol=1e-9)
     np.testing.assert_allclose(np.linalg.norm(read.acceleration, axis=-1), G, atol=1e-9)
@@ -118,12 +134,12 @@ def test_finite_difference_ends_are_exact_for_cubics():
     assert np.all(np.asarray(imu.finite_difference_acceleration(p[:3], 10.0)) == 0)
 
 
-def test_noise_off_orientations_equal_fk_times_offsets(body):
+def test_noise_off_orientations_equal_fk_times_offsets(body, xsens17):
     rng = np.random.default_rng(1)
     poses = rng.normal(scale=0.5, size=(T8, 24, 3))
-    p = imu.imu_placement(body, "totalcapture13")
+    p = xsens17
     offsets = errors.random_rotations(rng, 1.0, (p.num_sensors,))
-    read = imu.synthesize_imu(body, p, jnp.asarray(poses), sensor_to_bone=jnp.asarray(offsets))
+    read = _synthesize(body, p, poses, sensor_to_bone=offsets)
     expected = _fk_numpy(poses)[:, list(p.bones)] @ offsets
     np.testing.assert_allclose(read.orientation, expected, atol=1e-6)
 
@@ -134,11 +150,11 @@ def test_noise_off_orientations_equal_fk_times_offsets(body):
 def _static_readings(body, placement, T=T8):
     rng = np.random.default_rng(2)
     poses = np.repeat(rng.normal(scale=0.3, size=(1, 24, 3)), T, 0)
-    return poses, imu.synthesize_imu(body, placement, jnp.asarray(poses))
+    return poses, _synthesize(body, placement, poses)
 
 
-def test_heading_drift_rotates_orientations_by_exactly_gamma(body, sip6):
-    poses, read = _static_readings(body, sip6)
+def test_heading_drift_rotates_orientations_by_exactly_gamma(body, xsens17):
+    poses, read = _static_readings(body, xsens17)
     T, S = read.orientation.shape[:2]
     gamma = np.linspace(-2.5, 2.5, T * S).reshape(T, S)
     draw = errors.IMUErrors(
@@ -148,17 +164,19 @@ def test_heading_drift_rotates_orientations_by_exactly_gamma(body, sip6):
     )  # fmt: skip
     meas = errors.apply_imu_errors(read, draw, errors.IMUErrorModel(), 60.0, np.random.default_rng(0))
     delta = meas.orientation @ np.swapaxes(np.asarray(read.orientation), -1, -2)
-    np.testing.assert_allclose(delta, np.asarray(imu.rotation_y(jnp.asarray(gamma))), atol=1e-12)
-    np.testing.assert_allclose(imu_calibration.heading_angle(jnp.asarray(delta)), gamma, atol=1e-9)
+    # One compiled program for the three library calls (eagerly, each of their operations compiled).
+    R_gamma, heading, reset = jax.jit(
+        lambda g, d, o: (imu.rotation_y(g), imu_calibration.heading_angle(d), imu_calibration.remove_heading(o, g))
+    )(jnp.asarray(gamma), jnp.asarray(delta), jnp.asarray(meas.orientation))
+    np.testing.assert_allclose(delta, np.asarray(R_gamma), atol=1e-12)
+    np.testing.assert_allclose(heading, gamma, atol=1e-9)
     np.testing.assert_allclose(meas.acceleration, read.acceleration, atol=1e-12)  # a frame error only
     # Heading reset (eq. 2.71) undoes it.
-    np.testing.assert_allclose(
-        imu_calibration.remove_heading(jnp.asarray(meas.orientation), gamma), read.orientation, atol=1e-12
-    )
+    np.testing.assert_allclose(reset, read.orientation, atol=1e-12)
 
 
-def test_error_switches_are_independent_and_deterministic(body, sip6):
-    poses, _ = _static_readings(body, sip6)
+def test_error_switches_are_independent_and_deterministic(body, sip6, xsens17):
+    poses, _ = _static_readings(body, xsens17)
     model = errors.IMUErrorModel(acc_noise=0.1, dropout_rate=0.05, dropout_length=2)
     run = lambda: errors.simulate_imu(body, sip6, poses, None, None, 60.0, model, np.random.default_rng(5))  # noqa: E731
     (ideal, m1, e1), (_, m2, _) = run(), run()
@@ -179,18 +197,27 @@ def test_calibration_recovers_planted_misalignment(body):
     model = errors.IMUErrorModel(misalignment=0.3)
     ideal, meas, err = errors.simulate_imu(body, p, poses, None, None, 60.0, model, rng)
     R_bone0 = _fk_numpy(poses[:1])[0][list(p.bones)]  # the known initial pose x₀
-    recovered = imu_calibration.sensor_to_bone_offsets(jnp.asarray(R_bone0), jnp.asarray(meas.orientation[0]))
+
+    @jax.jit  # one compiled program for the calibration calls, not one per operation
+    def calibrate(R_bone0, meas0, meas, head):
+        recovered = imu_calibration.sensor_to_bone_offsets(R_bone0, meas0)
+        bones = imu_calibration.virtual_bone_orientations(meas, recovered)
+        return recovered, bones, imu_calibration.inertial_to_model_from_head(head)
+
+    recovered, bones, R_ti = calibrate(
+        jnp.asarray(R_bone0), jnp.asarray(meas.orientation[0]), jnp.asarray(meas.orientation),
+        jnp.asarray(ideal.orientation[0, 0]),
+    )  # fmt: skip
     np.testing.assert_allclose(recovered, err.misalignment, atol=1e-9)
-    bones = imu_calibration.virtual_bone_orientations(jnp.asarray(meas.orientation), recovered)
     np.testing.assert_allclose(bones, _fk_numpy(poses)[:, list(p.bones)], atol=1e-9)
     # DIP eq. 6.4: a head sensor aligned with the model frame gives R^TI = R_head⁻¹.
-    R_ti = imu_calibration.inertial_to_model_from_head(jnp.asarray(ideal.orientation[0, 0]))
-    np.testing.assert_allclose(R_ti @ ideal.orientation[0, 0], np.eye(3), atol=1e-12)
+    np.testing.assert_allclose(np.asarray(R_ti) @ ideal.orientation[0, 0], np.eye(3), atol=1e-12)
     # Heading reset: sensors in one known orientation read R_y(γ_s) R_ref.
     gamma = np.array([0.1, -0.7, 2.0])
     R_ref = Rotation.from_rotvec([0.2, 0.1, -0.3]).as_matrix()
-    readings = np.asarray(imu.rotation_y(jnp.asarray(gamma))) @ R_ref
-    np.testing.assert_allclose(imu_calibration.heading_reset(jnp.asarray(readings), R_ref), gamma, atol=1e-12)
+    readings = np.asarray(jax.jit(imu.rotation_y)(jnp.asarray(gamma))) @ R_ref
+    heading = jax.jit(imu_calibration.heading_reset)(jnp.asarray(readings), jnp.asarray(R_ref))
+    np.testing.assert_allclose(heading, gamma, atol=1e-12)
 
 
 # --- cameras, keypoints, rasteriser, depth, objects -----------------------------------
@@ -289,12 +316,13 @@ def test_new_library_motions(body):
 
 @pytest.fixture(scope="module")
 def scene(body):
+    # reach=False: no pick-up edit (tested in test_reach), whose IK solve compiled ~25 CPU-s
     config = sc.ScenarioConfig(
         fps=30.0, max_frames=16, people=2, imu_set="xsens17",
         imu_errors=errors.IMUErrorModel.xsens(),
         cameras=sc.CameraConfig(num_views=2, width=64, height=48, distance=3.0),
         keypoints="coco18", detector=detector.DetectorErrorModel.openpose(),
-        silhouettes=True, depth_points=64, object="box",
+        silhouettes=True, depth_points=64, object="box", reach=False,
     )  # fmt: skip
     short = jaxmocap.motion.library.static_hold(num_frames=12, body=body)
     motions = ["walk", "run", short]  # person 1 of sequence 1 is short: lengths 16 and 12

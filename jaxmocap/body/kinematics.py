@@ -431,7 +431,9 @@ def forward(body: Body, pose, betas=None, trans=None) -> BodyOutput:
             f"pose.reshape(*pose.shape[:-1], {J}, 3)."
         )
     dtype = pose.dtype if jnp.issubdtype(pose.dtype, jnp.floating) else body.dtype
-    return forward_rotations(body, axis_angle_to_matrix(pose.astype(dtype)), betas, trans)
+    pose = pose.astype(dtype)
+    rotations = _axis_angle_to_matrix_jit(pose) if _all_concrete(pose) else axis_angle_to_matrix(pose)
+    return forward_rotations(body, rotations, betas, trans)
 
 
 def forward_rotations(body: Body, local_rotations, betas=None, trans=None) -> BodyOutput:
@@ -455,7 +457,26 @@ def forward_rotations(body: Body, local_rotations, betas=None, trans=None) -> Bo
         joint_rotations (..., J, 3, 3); batch axes broadcast across the inputs.
     """
     _check_values("local_rotations", local_rotations, betas, trans)
+    if _all_concrete(body, local_rotations, betas, trans):
+        return _forward_rotations_jit(body, local_rotations, betas, trans)
     return forward_rotations_unchecked(body, local_rotations, betas, trans)
+
+
+def _all_concrete(*trees) -> bool:
+    """No tracer among the leaves: a call outside any jit/grad/vmap of the caller's."""
+    return not any(isinstance(x, jax.core.Tracer) for x in jax.tree_util.tree_leaves(trees))
+
+
+# Called outside a trace (scripts, tests, host-side helpers), the forward pass ran as ~100
+# eager operations, each compiled at every new shape; as one program per shape it compiles
+# once. Inside a caller's trace the plain functions are inlined as before; the shape checks
+# (`_check_inputs`) raise the same errors at trace time.
+@jax.jit
+def _forward_rotations_jit(body, local_rotations, betas, trans):
+    return forward_rotations_unchecked(body, local_rotations, betas, trans)
+
+
+_axis_angle_to_matrix_jit = jax.jit(axis_angle_to_matrix)
 
 
 def _check_values(pose_name: str, pose, betas, trans) -> None:

@@ -32,6 +32,8 @@ from jax import Array
 
 from .camera import project
 
+_project_jit = jax.jit(project)  # window_for's projection: one program, not ~10 eager ones per shape
+
 __all__ = ["rasterize", "rasterize_views", "window_for", "visible_vertices", "BACKGROUND", "FLOOR"]
 
 BACKGROUND = -1
@@ -43,7 +45,7 @@ def window_for(K, R, t, vertices, faces, max_window: int = 32) -> int:
 
     K (3, 3); R (..., 3, 3); t (..., 3); vertices (..., N, 3) broadcast with R, t.
     """
-    uv, z = project(jnp.asarray(K), jnp.asarray(R), jnp.asarray(t), jnp.asarray(vertices))
+    uv, z = _project_jit(jnp.asarray(K), jnp.asarray(R), jnp.asarray(t), jnp.asarray(vertices))
     uv = np.asarray(uv)[..., faces, :]  # (..., F, 3, 2)
     front = np.all(np.asarray(z)[..., faces] > 0, -1)
     extent = np.where(front, np.ceil((uv.max(-2) - uv.min(-2)).max(-1)) + 1, 0).max()
@@ -174,11 +176,18 @@ def rasterize_views(
     _FACES.setdefault(key, faces)
     if window is None:
         window = window_for(K, R, t, vertices, faces)
-    return _rasterize_batch(
+    # The batch padded to a power of two by repeating its last pair (each pair is rasterised
+    # on its own, so the results are unchanged): one program serves many batch sizes.
+    B = len(R)
+    pad = (1 << max(B - 1, 0).bit_length()) - B
+    ext = lambda x: np.concatenate([x, np.repeat(x[-1:], pad, 0)]) if pad else x  # noqa: E731
+    R, t, vertices = (ext(np.asarray(x)) for x in (R, t, vertices))  # host-side: no eager programs
+    depth, label = _rasterize_batch(
         jnp.asarray(K), jnp.asarray(R), jnp.asarray(t), jnp.asarray(vertices),
         jnp.asarray(face_labels, jnp.int32), key, int(width), int(height), int(window), bool(floor),
         float(floor_height), int(batch_size),
     )  # fmt: skip
+    return (depth[:B], label[:B]) if pad else (depth, label)
 
 
 def visible_vertices(K: Array, R: Array, t: Array, vertices: Array, depth: Array, tolerance: float = 0.02) -> Array:

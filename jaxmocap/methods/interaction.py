@@ -31,6 +31,7 @@ import functools
 import itertools
 import warnings
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -272,7 +273,11 @@ def _problem(
 
 
 def _weighted(names, weights: InterCapWeights, dtype, off=(), depth_sigma: float = 0.02) -> Problem:
-    problem = _problem(tuple(names), weights.sigma, depth_sigma, weights.accel_delta)
+    names = tuple(names)
+    problem = _problem(names, weights.sigma, 0.02, weights.accel_delta)
+    if "object_depth" in names:  # E_O's σ traced like the weights: the coarse and fine trackers share one program
+        k = names.index("object_depth")
+        problem = eqx.tree_at(lambda p: p.terms[k].loss.sigma, problem, jnp.asarray(depth_sigma, dtype))
     return with_weights(problem, {n: jnp.asarray(0.0 if n in off else getattr(weights, n), dtype) for n in names})
 
 
@@ -392,13 +397,13 @@ def track_object(
         )  # fmt: skip
         return CombinedData((cam, part))
 
-    run = jax.jit(lambda p, d: solve(problem, p, d, max_steps=max_steps))
+    run = functools.partial(_solve_object, problem, max_steps=max_steps)
     # Frame 0: the centroid of its object points under 24 axis-aligned rotations, each
     # solved first with a wide depth σ (0.1 m: from a centroid start the 2 cm σ of the
     # tracking would ignore the far points and can stop with the visible side inside the
     # object), then refined; the lowest cost wins.
     coarse = _weighted(names, weights, dtype, depth_sigma=0.1)
-    run_coarse = jax.jit(lambda p, d: solve(coarse, p, d, max_steps=max_steps))
+    run_coarse = functools.partial(_solve_object, coarse, max_steps=max_steps)
     seen0 = np.asarray(obs.object_valid[0])
     if not seen0.any():
         raise ValueError("the object has no depth points in the first frame: track_object needs it seen at the start.")
@@ -442,6 +447,12 @@ def track_object(
     return {"R": Rs, "t": ts, "masks": masks, "chosen": chosen, "observed": observed}
 
 
+@eqx.filter_jit
+def _solve_object(problem, params, data, max_steps):
+    """One frame's object solve, compiled once for every frame and both σ (problems differ in arrays only)."""
+    return solve(problem, params, data, max_steps=max_steps)
+
+
 def _best_by_points(obs, candidates, v, seen) -> np.ndarray:
     """The candidate of view v covering most projected object points of frame 0."""
     from ..geometry.camera import project
@@ -465,6 +476,10 @@ def _cameras(obs: InteractionObservations, body: Body, dtype, prior: PosePrior |
     return camera_data(body, obs.K, obs.R, obs.t, obs.keypoints, obs.layout, prior=prior, dtype=dtype)
 
 
+# One program per shape: run eagerly, the vmapped visibility test compiled each of its operations.
+_visible_per_frame = jax.jit(jax.vmap(visible_vertices, in_axes=(None, None, None, 0, 0)))
+
+
 def _correspondences(obs, body, poses, betas, trans, points, valid) -> np.ndarray:
     """For every body point, the closest vertex visible in its view (E_D, eq. 5.4): (T, V, M)."""
     T, V, M = valid.shape
@@ -481,7 +496,7 @@ def _correspondences(obs, body, poses, betas, trans, points, valid) -> np.ndarra
         window = window_for(obs.K[v], Rb[sl], tb[sl], vb[sl], faces)
         depth, _ = rasterize_views(obs.K[v].astype(np.float32), Rb[sl].astype(np.float32), tb[sl].astype(np.float32),
                                    vb[sl].astype(np.float32), faces, np.zeros(len(faces)), W, H, window=window)  # fmt: skip
-        vis = np.asarray(jax.vmap(visible_vertices, in_axes=(None, None, None, 0, 0))(
+        vis = np.asarray(_visible_per_frame(
             jnp.asarray(obs.K[v], jnp.float32), jnp.asarray(obs.R[v], jnp.float32), jnp.asarray(obs.t[v], jnp.float32),
             jnp.asarray(verts, jnp.float32), depth))  # fmt: skip
         for t in range(T):
@@ -565,16 +580,26 @@ def detect_contact(
     centre = smooth(to + np.einsum("tab,b->ta", Ro, sdf_object.vertices.mean(0)))
     obj_speed = np.linalg.norm(np.gradient(centre, axis=0), axis=-1) * fps
     best = (-1, np.zeros(T, bool), parts[0])
-    for part in parts:
-        ids = contact_region(body, part)
-        local = np.einsum("tba,tnb->tna", Ro, verts[:, ids] - to[:, None])  # object frame
-        d = smooth(np.asarray(sdf(jnp.asarray(local, jnp.float32)), np.float64).min(1))
+    # Every part's vertices in the object frame, their distances in one compiled call.
+    regions = [contact_region(body, part) for part in parts]
+    local_all = np.einsum("tba,tnb->tna", Ro, verts[:, np.concatenate(regions)] - to[:, None])
+    dist_all = np.asarray(_sdf_at(sdf, jnp.asarray(local_all, jnp.float32)), np.float64)
+    bounds = np.cumsum([0] + [len(r) for r in regions])
+    for part, lo, hi in zip(parts, bounds[:-1], bounds[1:]):
+        local = local_all[:, lo:hi]  # object frame
+        d = smooth(dist_all[:, lo:hi].min(1))
         rel = np.linalg.norm(np.gradient(smooth(local.mean(1)), axis=0), axis=-1) * fps
         holding = (d < reach) & ((obj_speed > moving) | ((rel < speed) & (d < touch)))
         state = _hysteresis(holding, ~holding, min_frames)
         if state.sum() > best[0]:
             best = (int(state.sum()), state, part)
     return best[1], best[2]
+
+
+@jax.jit
+def _sdf_at(sdf, points):
+    """`sdf(points)` as one program per shape (eagerly, each trilinear lookup op compiled)."""
+    return sdf(points)
 
 
 def _moving_average(x: np.ndarray, width: int) -> np.ndarray:

@@ -258,10 +258,16 @@ def _posed(body, poses, betas, trans) -> BodyOutput:
     ext = lambda x: np.concatenate([x, np.repeat(x[-1:], pad, 0)]) if pad else x  # noqa: E731
     out = _forward_jit(body, jnp.asarray(ext(poses), body.dtype), jnp.asarray(betas, body.dtype),
                        jnp.asarray(ext(trans), body.dtype))  # fmt: skip
-    return jax.tree_util.tree_map(lambda x: x[:T], out)
+    # Cut on the host: slicing (and the lift below) eagerly compiled a program per length.
+    return jax.tree_util.tree_map(lambda x: np.asarray(x)[:T], out)
 
 
-_project_jit = jax.jit(project)
+@jax.jit
+def _keypoints_2d_jit(regressor, K, R, t, vertices):
+    """Keypoints of P bodies (P, T, V, 3) seen by C cameras R (C, T, 3, 3): (C, P, T, K, ...).
+    One program per shape; run eagerly, the regression and projection compiled ~13."""
+    kp3 = regress_keypoints(regressor, vertices)
+    return project(K, R[:, None], t[:, None], kp3[None])
 
 
 @jax.jit
@@ -488,8 +494,8 @@ def _make_sequence(body, items, config, rngs, cache, placement, regressor, obj) 
         lift = -float(np.min(np.asarray(posed.vertices)[..., 1]))
         trans[:, 1] += lift
         posed = BodyOutput(
-            vertices=posed.vertices + jnp.asarray([0.0, lift, 0.0], posed.vertices.dtype),
-            joints=posed.joints + jnp.asarray([0.0, lift, 0.0], posed.joints.dtype),
+            vertices=posed.vertices + np.asarray([0.0, lift, 0.0], posed.vertices.dtype),
+            joints=posed.joints + np.asarray([0.0, lift, 0.0], posed.joints.dtype),
             joint_rotations=posed.joint_rotations,
         )
         people.append((poses, trans, betas, posed))
@@ -558,9 +564,8 @@ def _make_sequence(body, items, config, rngs, cache, placement, regressor, obj) 
         _add_object(out, body, people, verts, config, obj, rest)
 
     if regressor is not None:
-        kp3 = np.stack([np.asarray(regress_keypoints(regressor, jnp.asarray(v))) for v in verts])  # (P,T,K,3)
-        uv, z = _project_jit(jnp.asarray(K), jnp.asarray(R)[:, None], jnp.asarray(t)[:, None],
-                             jnp.asarray(kp3)[None])  # (C, P, T, K, ...)  # fmt: skip
+        uv, z = _keypoints_2d_jit(jnp.asarray(regressor), jnp.asarray(K), jnp.asarray(R), jnp.asarray(t),
+                                  jnp.asarray(np.stack(verts)))  # (C, P, T, K, ...)  # fmt: skip
         uv, z = np.swapaxes(np.asarray(uv), 0, 1), np.swapaxes(np.asarray(z), 0, 1)
         out["kp_true"], out["kp_depth"] = uv, z
         names = KEYPOINT_FORMATS[config.keypoints]
@@ -603,10 +608,12 @@ def _make_sequence(body, items, config, rngs, cache, placement, regressor, obj) 
             out["depth_labels"] = lab.reshape(C, T, M)
             out["depth_valid"] = val.reshape(C, T, M)
             body_v = np.broadcast_to(np.stack(verts, 1)[None], (C, T, P, V, 3)).reshape(C * T, P, V, 3)
-            vis = _visibility_jit(jnp.asarray(K, np.float32), jnp.asarray(Rb, np.float32),
-                                  jnp.asarray(tb, np.float32), jnp.asarray(body_v, np.float32),
-                                  jnp.asarray(depth))  # fmt: skip
-            out["visible"] = np.asarray(vis).reshape(C, T, P, V)
+            # Padded to a power of two like rasterize_views' batch (pairs are independent).
+            pad = (1 << (C * T - 1).bit_length()) - C * T
+            ext = lambda x: np.concatenate([x, np.repeat(x[-1:], pad, 0)]).astype(np.float32)  # noqa: E731
+            vis = _visibility_jit(jnp.asarray(K, np.float32), jnp.asarray(ext(Rb)), jnp.asarray(ext(tb)),
+                                  jnp.asarray(ext(body_v)), jnp.asarray(ext(depth)))  # fmt: skip
+            out["visible"] = np.asarray(vis)[: C * T].reshape(C, T, P, V)
     out.pop("obj_world", None)
     return out
 
