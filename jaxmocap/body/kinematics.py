@@ -431,9 +431,7 @@ def forward(body: Body, pose, betas=None, trans=None) -> BodyOutput:
             f"pose.reshape(*pose.shape[:-1], {J}, 3)."
         )
     dtype = pose.dtype if jnp.issubdtype(pose.dtype, jnp.floating) else body.dtype
-    pose = pose.astype(dtype)
-    rotations = _axis_angle_to_matrix_jit(pose) if _all_concrete(pose) else axis_angle_to_matrix(pose)
-    return forward_rotations(body, rotations, betas, trans)
+    return forward_rotations(body, axis_angle_to_matrix(pose.astype(dtype)), betas, trans)  # a jit of its own
 
 
 def forward_rotations(body: Body, local_rotations, betas=None, trans=None) -> BodyOutput:
@@ -474,9 +472,6 @@ def _all_concrete(*trees) -> bool:
 @jax.jit
 def _forward_rotations_jit(body, local_rotations, betas, trans):
     return forward_rotations_unchecked(body, local_rotations, betas, trans)
-
-
-_axis_angle_to_matrix_jit = jax.jit(axis_angle_to_matrix)
 
 
 def _check_values(pose_name: str, pose, betas, trans) -> None:
