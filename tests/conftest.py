@@ -12,6 +12,12 @@ os.environ["XLA_FLAGS"] = " ".join(filter(None, [os.environ.get("XLA_FLAGS"), "-
 # cpu_s on test_rotation + test_metrics + test_body + test_solve's structured step (85 tests,
 # cold cache): 509 -> 394 CPU-s. Same arithmetic, unfused.
 os.environ.setdefault("JAX_DISABLE_MOST_OPTIMIZATIONS", "1")
+# One OpenBLAS thread (before numpy loads it): XLA already spreads jaxlib's batched LAPACK
+# kernels (Cholesky, triangular solves, which call scipy's OpenBLAS) over its own threads,
+# and OpenBLAS's threads inside each small call only spin. Measured on this 2-core machine:
+# one batched triangular solve (39 x 75x75) 0.35 -> 0.013 CPU-s, MuVS stage 2 on a 39-frame
+# walk 64 -> 14 CPU-s, test_multiview's short-window test 56.7 -> 15.5.
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 # Compiled programs on disk (jaxmocap/_cache.py), shared by the two test processes, by the
 # modules after `jax.clear_caches()` below, and by the next run; one folder per checkout.
 os.environ.setdefault("JAXMOCAP_CACHE", str(Path(__file__).resolve().parents[1] / ".pytest_cache" / "xla"))

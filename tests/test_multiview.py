@@ -7,8 +7,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-import scipy.linalg  # noqa: F401  (loads the OpenBLAS that jaxlib's LAPACK kernels call, for the limit below)
-import threadpoolctl
 from scipy.ndimage import distance_transform_edt, map_coordinates
 
 from jaxmocap.body import default_body, forward
@@ -20,15 +18,6 @@ from jaxmocap.methods import multiview as mv
 from jaxmocap.motion.library import walk
 from jaxmocap.rotation import axis_angle_to_matrix
 from jaxmocap.sensors.detector import person_track
-
-
-@pytest.fixture(scope="module", autouse=True)
-def _one_blas_thread():
-    """XLA already spreads jaxlib's batched LAPACK kernels (Cholesky, triangular solves)
-    over its own thread pool; OpenBLAS threads inside each small call only spin. One
-    thread: stage 2's step on the 39-frame walk took 0.35 instead of 1.6 CPU-s."""
-    with threadpoolctl.threadpool_limits(1, user_api="blas"):
-        yield
 
 
 def test_dct_basis_is_orthonormal_and_coefficients_reconstruct_its_span():

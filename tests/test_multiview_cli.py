@@ -13,8 +13,6 @@ import json
 import matplotlib.image
 import numpy as np
 import pytest
-import scipy.linalg  # noqa: F401  (loads the OpenBLAS that jaxlib's LAPACK kernels call, for the limit below)
-import threadpoolctl
 import trimesh
 
 from jaxmocap.body.io import default_body
@@ -29,15 +27,6 @@ from jaxmocap.body import posed_vertices
 
 W, H, T, FPS = 1280, 720, 9, 30.0
 EMPTY = (3, 4)  # (view, frame): camera 4 sees no one in frame 4
-
-
-@pytest.fixture(scope="module", autouse=True)
-def _one_blas_thread():
-    """XLA already spreads jaxlib's batched LAPACK kernels (Cholesky, triangular solves)
-    over its own thread pool; OpenBLAS threads inside each small call only spin (stage 2's
-    steps took 4x the CPU)."""
-    with threadpoolctl.threadpool_limits(1, user_api="blas"):
-        yield
 
 
 def _cameras():
