@@ -38,7 +38,7 @@ from _common import machine, peak_memory_bytes, time_call, write_json
 from jaxmocap.body import default_body
 from jaxmocap.body.kinematics import forward
 from jaxmocap.energies import camera as ec
-from jaxmocap.energies.camera import _views
+from jaxmocap.energies.camera import project_to_views
 from jaxmocap.geometry.keypoints import regress_keypoints
 from jaxmocap.geometry.raster import rasterize_views
 from jaxmocap.methods import multiview as mv
@@ -137,7 +137,7 @@ def main(argv=None):
     @jax.jit
     def residual_floor(pose, trans):
         verts = forward(one.body, pose, None, trans).vertices
-        return _views(one, regress_keypoints(one.regressor, verts))[0]
+        return project_to_views(one, regress_keypoints(one.regressor, verts))[0]
 
     floor = time_call(residual_floor, jnp.asarray(p0["pose"] if args.batch == 1 else p0["pose"][0], jnp.float32),
                       jnp.asarray(p0["trans"] if args.batch == 1 else p0["trans"][0], jnp.float32))  # fmt: skip

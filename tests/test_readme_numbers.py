@@ -61,19 +61,24 @@ QUOTES = [
         [1, 2, 1],
     ),
     (
-        r"CPU, 60 frames: SIP ([\d.]+) s cold, ([\d.]+) s warm \(([\d.]+) s every run before\), a sweep cell ([\d.]+) s "
-        r"cold, ([\d.]+) s warm; `jaxmocap demo` ([\d.]+) s cold, ([\d.]+) s warm",
+        r"CPU, 60 frames: SIP ([\d.]+) s cold, ([\d.]+) s warm \(([\d.]+) s at \w+, the commit before, in the same "
+        r"run\), SOP ([\d.]+) s cold, ([\d.]+) s warm \(([\d.]+) s\), Multi-view SMPLify ([\d.]+) s cold, ([\d.]+) s "
+        r"warm \(([\d.]+) s\); `jaxmocap demo` ([\d.]+) s cold, ([\d.]+) s warm",
         "benchmarks/results/cold_start.json",
         [
             "entries.sip.cold_compile_s",
             "entries.sip.warm_compile_s",
             "before.entries.sip.cold_compile_s",
-            "entries.sweep_cell.cold_compile_s",
-            "entries.sweep_cell.warm_compile_s",
+            "entries.sop.cold_compile_s",
+            "entries.sop.warm_compile_s",
+            "before.entries.sop.cold_compile_s",
+            "entries.multiview.cold_compile_s",
+            "entries.multiview.warm_compile_s",
+            "before.entries.multiview.cold_compile_s",
             "entries.make_demo.cold_wall_s",
             "entries.make_demo.warm_wall_s",
         ],
-        [1, 2, 1, 1, 2, 1, 1],
+        [1, 2, 1, 1, 2, 1, 1, 2, 1, 1, 1],
     ),
     (
         r"MLP macro F1 ([\d.]+), MLP \+ CRF accuracy ([\d.]+) / macro F1 ([\d.]+)\s+\(([\d.]+) on the evaluation"

@@ -370,25 +370,23 @@ def orientation_poser(
         sol = solve_batch(problem, params, batch, **kw)
         return sol.value["pose"][:, 0], sol.result
     progress = T >= PROGRESS_FRAMES if progress is None else bool(progress)
-    # An array, not a static flag: reporting or not runs the same compiled scan.
-    return solve_frames_sequentially(problem, data, x0, progress=jnp.asarray(progress), **kw)
+    return solve_frames_sequentially(problem, data, x0, progress=progress, **kw)
 
 
 @eqx.filter_jit
 def solve_frames_sequentially(problem, data, x0, progress=False, **kw):
     """SOP's frame-by-frame solve (`orientation_poser(sequential=True)`) of a one-frame
     `problem`: frame t of `data` starts from frame t-1's result, frame 0 from the pose `x0`;
-    `kw` are `solve`'s limits; `progress` a bool or a boolean array (reports frames done
-    on stderr). Returns (poses (T, 24, 3), per-frame result codes (T,))."""
+    `kw` are `solve`'s limits. Returns (poses (T, 24, 3), per-frame result codes (T,))."""
     T = data.num_frames
     every = max(1, T // 100)
 
     def step(pose, t):
         sol = solve(problem, {"pose": pose[None]}, _frame_data(data, t), **kw)
         new = sol.value["pose"][0]
-        if progress is not False:
+        if progress:
             jax.lax.cond(
-                progress & (((t + 1) % every == 0) | (t == T - 1)),
+                ((t + 1) % every == 0) | (t == T - 1),
                 lambda: jax.debug.callback(partial(report, "SOP frame"), t + 1, T, final=t == T - 1),  # noqa: B023
                 lambda: None,
             )
