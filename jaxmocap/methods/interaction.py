@@ -250,13 +250,12 @@ _JOINT_TERMS = _HUMAN_TERMS + _OBJECT_TERMS + ("smooth", "object_smooth", "penet
 
 
 @functools.lru_cache(maxsize=None)
-def _problem(
-    names: tuple[str, ...], sigma: float, depth_sigma: float = 0.02, accel_delta: float | None = None
-) -> Problem:
+def _problem(names: tuple[str, ...], sigma: float, accel_delta: float | None = None) -> Problem:
+    """The terms `names` at unit weights; E_O's depth σ is `_weighted`'s (an array there)."""
     makers = {
         "keypoints": lambda: keypoint_term(sigma), "pose_prior": pose_prior_term, "shape": shape_term,
         "body_depth": body_depth_term, "bend": bend_term, "self_penetration": self_penetration_term,
-        "object_mask": object_mask_term, "object_depth": lambda: object_depth_term(sigma=depth_sigma),
+        "object_mask": object_mask_term, "object_depth": object_depth_term,
         "smooth": lambda: smoothness_term(delta=accel_delta),
         "object_smooth": lambda: object_smoothness_term(delta=accel_delta),  # eq. 5.6: see accel_delta
         "penetration": penetration_term, "ground": ground_term, "object_ground": object_ground_term,
@@ -274,7 +273,7 @@ def _problem(
 
 def _weighted(names, weights: InterCapWeights, dtype, off=(), depth_sigma: float = 0.02) -> Problem:
     names = tuple(names)
-    problem = _problem(names, weights.sigma, 0.02, weights.accel_delta)
+    problem = _problem(names, weights.sigma, weights.accel_delta)
     if "object_depth" in names:  # E_O's σ traced like the weights: the coarse and fine trackers share one program
         k = names.index("object_depth")
         problem = eqx.tree_at(lambda p: p.terms[k].loss.sigma, problem, jnp.asarray(depth_sigma, dtype))
