@@ -19,7 +19,7 @@ from jaxmocap.body.io import default_body
 from jaxmocap.cli import main
 from jaxmocap.formats import CalibratedCamera, save_calibration, write_openpose
 from jaxmocap.geometry.camera import project_points, ring_cameras
-from jaxmocap.geometry.keypoints import keypoint_regressor
+from jaxmocap.geometry.keypoints import keypoint_regressor, regress_keypoints
 from jaxmocap.methods.multiview import PRESETS, STATURE_CV
 from jaxmocap.motion.amass import Z_UP_TO_Y_UP, load_amass
 from jaxmocap.motion.library import walk
@@ -60,7 +60,7 @@ def recording(tmp_path_factory):
     motion = walk(T, fps=FPS, body=body)
     verts, joints = posed_vertices(body, motion)
     reg = keypoint_regressor(body, "body25b")
-    subject = np.einsum("kn,tnc->tkc", reg, verts.astype(np.float64)) @ Z_UP_TO_Y_UP  # z-up world
+    subject = regress_keypoints(reg, verts.astype(np.float64), joints.astype(np.float64)) @ Z_UP_TO_Y_UP  # z-up world
     other = subject[0] + np.array([1.3, -1.2, 0.0])  # a second person standing to the side
     cams = _cameras()
     rng = np.random.default_rng(1)
