@@ -312,8 +312,10 @@ def test_one_camera_stands_on_a_given_floor(demo_recording, tmp_path, capsys):
     report = json.loads((tmp_path / "m" / "report.json").read_text())
     assert report["monocular"] is True and report["floor"] == {"height_m": 0.0, "used": True}
     depth = report["depth"]
-    # the ground's evidence entered the depth record (without a floor it is None) ...
-    assert depth["ground"] is not None and depth["ground"]["frames"] > 0 and abs(depth["scale"] - 1) < 0.1
+    # the ground's evidence entered the depth record (without a floor it is None); on these 6
+    # frames the stages leave the body 10-11 % close and the ground's scale moves it back
+    # (measured 1.097 before keypoints at joints were the posed joints, 1.110 after) ...
+    assert depth["ground"] is not None and depth["ground"]["frames"] > 0 and 1.0 < depth["scale"] < 1.15
     # ... and the fitted feet meet the floor where the detected feet's rays cut it (the demo's
     # body is the mean body, standing on z = 0)
     assert abs(depth["floor"]["ratio"] - 1) < 0.05, depth["floor"]
