@@ -46,7 +46,8 @@ from sip_speed import _setup  # noqa: E402
 
 def _one(spec: str, sequences: int, frames: int, iters: int) -> dict:
     from jaxmocap.methods import inertial
-    from jaxmocap.solve import plan_batch, solve_batch
+    from jaxmocap.solve import solve_batch
+    from jaxmocap.solve.batch import plan_batch
 
     method, chunk = spec.split(":")
     chunk = chunk if chunk == "auto" else int(chunk)

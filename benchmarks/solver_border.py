@@ -378,7 +378,7 @@ def dense_check(
     """One damped step, structured vs a dense float64 solve of the same normal equations."""
     import scipy.sparse as sp
 
-    from jaxmocap.solve import Args
+    from jaxmocap.solve.linearisation import Args
     from jaxmocap.solve.linearisation import linearise
     from jaxmocap.solve.factorise import factor, solve_factored
     from jaxmocap.solve.unknowns import retract, to_manifold

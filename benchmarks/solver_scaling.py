@@ -166,7 +166,8 @@ def step_agreement(T: int = 40) -> dict:
     import lineax as lx
 
     from jaxmocap._compat import damped_operator
-    from jaxmocap.solve import Args, linear_solver
+    from jaxmocap.solve.linearisation import Args
+    from jaxmocap.solve.solver import linear_solver
     from jaxmocap.solve.linearisation import residuals
 
     body = jaxmocap.default_body("low")

@@ -94,7 +94,7 @@ def _solve(stacked, init, iters, **kw):
 
 def _plan(stacked, init, **kw):
     from jaxmocap.methods import inertial as I
-    from jaxmocap.solve import plan_batch
+    from jaxmocap.solve.batch import plan_batch
 
     B, T = init.shape[:2]
     problem = I.inertial_problem(stacked, acceleration=True)

@@ -35,8 +35,9 @@ from jaxmocap.body.io import BodyFileError
 from jaxmocap.methods import inertial as I
 from jaxmocap.motion import Motion, MotionFileError, load_motion
 from jaxmocap.solve import (
-    Problem, Term, check_bandwidths, pad_sequences, sequence, solve, solve_batch, with_weights,
+    Problem, Term, pad_sequences, sequence, solve, solve_batch, with_weights,
 )  # fmt: skip
+from jaxmocap.solve.solver import check_bandwidths
 
 REPO = Path(__file__).resolve().parents[1]
 CMU = REPO.parent / "shared" / "data" / "cmu"
@@ -628,7 +629,7 @@ def test_first_complete_frame():
 
 
 def test_bandwidth_check_accepts_honest_terms():
-    from jaxmocap.solve import measure_bandwidths
+    from jaxmocap.solve.solver import measure_bandwidths
     from jaxmocap.timeseries import second_difference
 
     honest = Problem(

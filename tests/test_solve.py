@@ -17,20 +17,20 @@ import scipy.optimize
 
 from jaxmocap._compat import DIVERGENCE, MAX_STEPS, SUCCESSFUL
 from jaxmocap.solve import (
-    Args,
     Cauchy,
     GemanMcClure,
     Huber,
     Problem,
     Term,
-    WindowBasis,
-    basis_term,
     pad_sequences,
     result_message,
     solve,
     solve_batch,
 )
-from jaxmocap.solve import frame, linear_solver, sequence, window
+from jaxmocap.solve import frame, sequence, window
+from jaxmocap.solve.basis import WindowBasis, basis_term
+from jaxmocap.solve.linearisation import Args
+from jaxmocap.solve.solver import linear_solver
 from jaxmocap.solve.linearisation import residuals
 from jaxmocap.solve.unknowns import to_manifold
 from solve_chain import (

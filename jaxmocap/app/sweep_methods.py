@@ -259,7 +259,7 @@ class InertialMethod:
         # SOP with the thesis weights starts every SIP variant: one shared start per
         # sequence, so variants differ by their weights alone (paired comparisons).
         if self.name == "sip":
-            from ..solve import length_buckets
+            from ..solve.batch import length_buckets
 
             ok = [it for it in out if isinstance(it, InertialItem)]
             for T, members in length_buckets([it.length for it in ok]):
