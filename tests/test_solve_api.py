@@ -40,8 +40,9 @@ def _same(a, b):
     ids=["tolerances", "damping-band", "factor-dtype", "optx-gn"],
 )
 def test_old_keywords_warn_and_give_the_same_solve(old, new):
-    with pytest.warns(DeprecationWarning, match=f"pass solver={type(new).__name__}\\("):
+    with pytest.warns(DeprecationWarning, match=f"pass solver={type(new).__name__}\\(") as record:
         before = solve(EXP, X0, DATA, max_steps=20, **old)
+    assert record[0].filename == __file__  # the warning points at the caller's line
     _same(before, solve(EXP, X0, DATA, max_steps=20, solver=new))
 
 

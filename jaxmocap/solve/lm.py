@@ -104,7 +104,8 @@ class VonMarcardLM(optx.AbstractLeastSquaresSolver):
     def __check_init__(self):
         if self.damping not in DAMPINGS:
             raise ValueError(f"damping must be one of {DAMPINGS}, got {self.damping!r}.")
-        check_tridiagonal(self.tridiagonal)
+        if self.tridiagonal is not None:
+            check_tridiagonal(self.tridiagonal)
 
     def _setup(self, y, args):
         if not isinstance(args, Args):

@@ -57,7 +57,8 @@ class OptxLevenbergMarquardt(eqx.Module):
     optimistix: ClassVar[type] = optx.LevenbergMarquardt
 
     def __check_init__(self):
-        check_tridiagonal(self.tridiagonal)
+        if self.tridiagonal is not None:
+            check_tridiagonal(self.tridiagonal)
 
 
 class OptxGaussNewton(OptxLevenbergMarquardt):
@@ -107,9 +108,12 @@ def _from_keywords(solver, keywords: dict, where: str):
         raise TypeError(f"{where}() got unexpected keyword argument(s) {unknown}.")
     given = [k for k in DEPRECATED_KEYWORDS if k in keywords]
     if solver is not None:
+        hint = "e.g. solver=VonMarcardLM(rtol=..., atol=...)"
+        if not isinstance(solver, _OURS):  # the loose factor options reached only its adjoint
+            hint = "for an optimistix solver, give adjoint=optx.ImplicitAdjoint(linear_solver=...) for the adjoint"
         raise ValueError(
             f"{where}() got solver= and also {', '.join(k + '=' for k in given)}, which are options of the "
-            f"solver: set them on it instead (e.g. solver=VonMarcardLM(rtol=..., atol=...)), not both."
+            f"solver: set them on it instead ({hint}), not both."
         )
     options = dict(keywords)
     method = options.pop("method", "lm")
@@ -126,7 +130,7 @@ def _from_keywords(solver, keywords: dict, where: str):
         f"solver={cls.__name__}({', '.join(k + '=...' for k in options)}) instead "
         f"(from jaxmocap.solve{'' if cls is VonMarcardLM else '.options'} import {cls.__name__}).",
         DeprecationWarning,
-        stacklevel=3,
+        stacklevel=5,  # the caller of solve / solve_batch (through prepare and resolve)
     )
     return new
 
