@@ -44,7 +44,8 @@ from ..body.model import Body
 from ..geometry.camera import project
 from ..geometry.keypoints import regress_keypoints
 from ..priors.pose_prior import PosePrior
-from ..solve import GemanMcClure, Huber, Term, WindowBasis, basis_term, window
+from ..solve import GemanMcClure, Huber, Term, window
+from ..solve.basis import WindowBasis, basis_term
 from .imu import mahalanobis_term
 from .posed import POSED_BODY, posed_body, shared
 
