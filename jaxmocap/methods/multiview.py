@@ -130,9 +130,9 @@ class MuVSWeights:
         the true ones; λ_β = 10: 0.89, 1-2 %; λ_β = 2: 1.06, within 1 % (triangulating
         the same detections made them 0-8 % long: noise lengthens them). On the
         development clips (4 views, 3 px noise, outliers and leg swaps, stage 1 on
-        joints) λ_β = 50 still fitted best: MPJPE 56.0 mm against 57.3 at 10 and 59.1 at
-        2 (λ_θ = 1), shape error 22.6 against 22.6 and 30.2 mm; λ_θ = 1 against 20:
-        56.0 against 73.9 mm (muvs_tuning.json).
+        joints) λ_β = 50 still fitted best: MPJPE 53.4 mm against 54.7 at 10 and 55.6 at
+        2 (λ_θ = 1), shape error 21.8 against 23.2 and 30.5 mm; λ_θ = 1 against 20:
+        53.4 against 72.7 mm (muvs_tuning.json).
     silhouette_model, silhouette_mask: the two sums of E_S (eq. 4.5); silhouette_points:
         model points of E_S, a fixed subsample of the mesh (`compact`; None: every
         silhouette_stride-th vertex); silhouette_slack: px within which a mask point
