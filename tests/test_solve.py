@@ -496,10 +496,12 @@ def test_optx_lm_never_accepts_a_cost_increase():
 
 
 def test_lm_never_accepts_a_cost_increase():
-    truth, init, data = motion(6, seed=2)
+    truth, init, data = motion(8, seed=2)  # 8 frames: the program of test_known_minimiser_recovered's "lm" solve
     init = {"rot": init["rot"] * 4.0, "trans": init["trans"]}
     costs = [float(jax.jit(CHAIN.cost)(init, data))]  # one program, not one per eager operation
-    for steps in range(1, 9):  # max_steps is a traced loop bound for "lm": one compilation
+    # max_steps is a traced loop bound for "lm": one compilation. 12 steps: on 8 frames from
+    # this start the LM rejects 4 of its first 10 steps and is below 1e-2 of the start from step 11.
+    for steps in range(1, 13):
         sol = solve(CHAIN, init, data, method="lm", max_steps=steps, rtol=0.0, atol=0.0)
         costs.append(float(sol.cost))
     # A rejected step leaves the cost unchanged, but costs[0] comes from `Problem.cost`
@@ -558,7 +560,7 @@ def test_batch_reports_converging_and_diverging_problems(method):
 
 
 def test_batch_of_one_equals_unbatched():
-    truth, init, data = motion(6)
+    truth, init, data = motion(8)  # 8 frames: the single solve is test_known_minimiser_recovered's program
     one = solve(CHAIN, init, data, method="lm", max_steps=40)
     init1, data1 = jax.tree_util.tree_map(lambda x: x[None], (init, data))
     batch = solve_batch(CHAIN, init1, data1, method="lm", max_steps=40)
