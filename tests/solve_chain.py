@@ -5,6 +5,7 @@ variants with per-sequence and per-window unknowns (tests/test_solve.py and
 tests/test_solve_gradients.py).
 """
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -63,6 +64,12 @@ CHAIN = Problem(
 )
 
 
+@jax.jit  # one program per length, not one per eager operation
+def _measurements(truth):
+    R, p = sensors(to_manifold(truth, CHAIN.layout(truth)))
+    return {"R": R, "acc": second_difference(p) / DT**2, "trans": truth["trans"]}
+
+
 def motion(T, seed=0, dtype=jnp.float64):
     """Smooth ground truth, its synthetic measurements and a perturbed start."""
     rng = np.random.default_rng(seed)
@@ -70,8 +77,7 @@ def motion(T, seed=0, dtype=jnp.float64):
     rot = 0.6 * np.sin(2 * np.pi * rng.uniform(0.3, 1.0, (1, 9)) * t + rng.uniform(0, 6, (1, 9)))
     trans = np.concatenate([np.sin(t), np.cos(2 * t), 0.3 * t], 1)
     truth = {"rot": jnp.asarray(rot.reshape(T, 3, 3), dtype), "trans": jnp.asarray(trans, dtype)}
-    R, p = sensors(to_manifold(truth, CHAIN.layout(truth)))
-    data = {"R": R, "acc": second_difference(p) / DT**2, "trans": truth["trans"]}
+    data = _measurements(truth)
     init = {
         "rot": truth["rot"] + jnp.asarray(rng.normal(scale=0.3, size=(T, 3, 3)), dtype),
         "trans": truth["trans"] + jnp.asarray(rng.normal(scale=0.05, size=(T, 3)), dtype),
@@ -79,9 +85,14 @@ def motion(T, seed=0, dtype=jnp.float64):
     return truth, init, data
 
 
-def rot_error(a, b):
+@jax.jit  # one program per shape, not one per eager operation
+def _rot_error(a, b):
     Ra, Rb = axis_angle_to_matrix(a), axis_angle_to_matrix(b)
-    return float(jnp.max(jnp.linalg.norm(matrix_to_axis_angle(Ra @ jnp.swapaxes(Rb, -1, -2)), axis=-1)))
+    return jnp.max(jnp.linalg.norm(matrix_to_axis_angle(Ra @ jnp.swapaxes(Rb, -1, -2)), axis=-1))
+
+
+def rot_error(a, b):
+    return float(_rot_error(a, b))
 
 
 WIN = window(4, 2)  # overlapping windows: every frame in K = 2 of them

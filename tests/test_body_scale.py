@@ -83,10 +83,11 @@ def test_a_given_size_is_plain_sip(make_setup, start, estimate):
 
 def test_the_truth_beyond_the_candidates_is_flagged(make_setup, start):
     """A bound that wins is reported (at_edge) and not refined: the true scale may lie beyond it."""
+    # Four candidates, as CANDIDATES: the batched solve compiled for `estimate`.
     est = I.estimate_body_scale(
-        make_setup, start, scales=(0.8, 0.85, 0.9), weights=I.SIPWeights(mahal=0.0), max_steps=25
+        make_setup, start, scales=(0.75, 0.8, 0.85, 0.9), weights=I.SIPWeights(mahal=0.0), max_steps=25
     )
-    assert est.at_edge and est.scales[est.best] == 0.9 and len(est.scales) == 3
+    assert est.at_edge and est.scales[est.best] == 0.9 and len(est.scales) == 4
 
 
 def test_bad_input_is_refused_before_solving(make_setup):

@@ -42,13 +42,14 @@ def _solution_scalar(problem, params, data, w_acc, obs, const):
 
 @functools.lru_cache(maxsize=None)
 def _grad_fixture():
-    """The problem, its parameters θ = (w_acc, one observation, a per-sequence constant), the
-    jitted scalar and its jitted value and gradient: compiled once for the tests below."""
+    """The problem, its parameters θ = (w_acc, one observation, a per-sequence constant) and
+    the jitted value and gradient of the scalar: compiled once for the tests below (the
+    finite differences take its value: one program, not a second one for the value alone)."""
     problem, params, data = _grad_problem()
-    # strongly typed float64, as the finite differences and the vmapped weights pass them: one compile each
+    # strongly typed float64, as the finite differences and the vmapped weights pass them: one compile
     theta = (jnp.asarray(0.05, jnp.float64), data["trans"][2, 1], jnp.asarray(0.01, jnp.float64))
-    f = jax.jit(lambda w, o, c: _solution_scalar(problem, params, data, w, o, c))
-    return problem, params, data, theta, f, jax.jit(jax.value_and_grad(f, argnums=(0, 1, 2)))
+    f = lambda w, o, c: _solution_scalar(problem, params, data, w, o, c)  # noqa: E731
+    return problem, params, data, theta, jax.jit(jax.value_and_grad(f, argnums=(0, 1, 2)))
 
 
 def _five_point(f, theta, i, eps=1e-3):
@@ -70,11 +71,11 @@ def test_gradients_through_solve_match_finite_differences():
     """d(solution scalar) / d(term weight, observation, per-sequence constant) by implicit
     differentiation equals central differences, float64. (Under vmap: the padded batch
     test below.)"""
-    _, _, _, theta, f, value_and_grad = _grad_fixture()
+    _, _, _, theta, value_and_grad = _grad_fixture()
     _, grads = value_and_grad(*theta)
     assert abs(float(grads[0])) > 1e-3
     for i, g in enumerate(grads):
-        fd = _five_point(f, theta, i)
+        fd = _five_point(lambda *t: value_and_grad(*t)[0], theta, i)
         assert abs(float(g) - fd) <= 1e-4 * abs(fd) + 1e-6, (i, float(g), fd)
 
 
@@ -98,17 +99,20 @@ def test_gradient_through_solve_with_a_gauge_freedom():
         ).value["x"]
         return jnp.sum(second_difference(x)[1:-1] ** 2)
 
-    g = float(jax.grad(f)(0.0))
+    # One program for the gradient and the differences' values: eagerly, every call of f
+    # built new term closures, and the solve compiled again for each.
+    value_and_grad = jax.jit(jax.value_and_grad(f))
+    g = float(value_and_grad(0.0)[1])
     # The solves stop on the cost (rtol 1e-12), which pins this output to ~1e-9 only: a
     # step of 1e-4 left differences at that level (1 % off under another LLVM -O level).
-    fd = float((f(1e-3) - f(-1e-3)) / 2e-3)
+    fd = float((value_and_grad(1e-3)[0] - value_and_grad(-1e-3)[0]) / 2e-3)
     assert np.isfinite(g) and abs(g - fd) <= 1e-4 * abs(fd), (g, fd)
 
 
 def test_gradient_through_a_padded_batch():
     """Padded frames change neither the solution nor its gradient w.r.t. per-member weights,
     and a batch of two weights gives each member its own solve's gradient (vmap)."""
-    problem, params, data, theta, _, value_and_grad = _grad_fixture()
+    problem, params, data, theta, value_and_grad = _grad_fixture()
     rng = np.random.default_rng(8)
 
     def pad(x):  # two junk frames on every per-frame leaf
@@ -125,7 +129,8 @@ def test_gradient_through_a_padded_batch():
         values = jax.vmap(_scalar)(sol.value)
         return jnp.sum(values), values
 
-    (_, vb), gb = jax.value_and_grad(batched, has_aux=True)(jnp.stack([theta[0], 0.2]))
+    # jitted: one program instead of the eager pieces around the batch's forward and backward
+    (_, vb), gb = jax.jit(jax.value_and_grad(batched, has_aux=True))(jnp.stack([theta[0], 0.2]))
     for b, w in enumerate((theta[0], jnp.asarray(0.2, jnp.float64))):
         vs, gs = value_and_grad(w, *theta[1:])  # the single solve, compiled once for both tests
         np.testing.assert_allclose(vb[b], vs, rtol=1e-9)
