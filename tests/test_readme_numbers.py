@@ -140,6 +140,23 @@ QUOTES = [
         ],
         [1, 1, 1, 1],
     ),
+    # "at both resolutions": the low- and the high-resolution stage 1 must both read as quoted.
+    *(
+        (
+            r"`experiments/results/muvs_resolution.json`: stage 1 ([\d.]+) mm at both resolutions, stage 2 ([\d.]+)\s+"
+            r"against ([\d.]+) mm; in raw pixels ([\d.]+) / ([\d.]+) mm\)",
+            "experiments/results/muvs_resolution.json",
+            [
+                f"mpjpe_mm.{resolution}.stage1",
+                "mpjpe_mm.high_resolution.stage2",
+                "mpjpe_mm.low_resolution.stage2",
+                "mpjpe_mm.high_resolution_raw_pixels.stage1",
+                "mpjpe_mm.high_resolution_raw_pixels.stage2",
+            ],
+            [1, 1, 1, 1, 1],
+        )
+        for resolution in ("low_resolution", "high_resolution")
+    ),
     (
         r"`make demo`: ([\d.]+) s the first time,\s+([\d.]+) s after",
         "benchmarks/results/cold_start.json",
