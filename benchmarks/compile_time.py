@@ -54,13 +54,13 @@ def _cases(frames: int, steps: int) -> dict:
     from jaxmocap.methods import visual_inertial as vip
     from jaxmocap.sensors import DetectorErrorModel, IMUErrorModel, make_scenario
     from jaxmocap.sensors.scenario import vip_config
-    from jaxmocap.solve import Problem, Term, solve
+    from jaxmocap.solve import Problem, Term, VonMarcardLM, solve
     from jaxmocap.solve.batch import with_weights
 
     setup = _setup(frames)
     sop = inertial.sparse_orientation_poser(setup)[0]
     params = {"pose": sop, "trans": jnp.broadcast_to(setup.trans0, (frames, 3))}
-    it = dict(max_steps=steps, rtol=0.0, atol=0.0, progress=False)
+    it = dict(max_steps=steps, solver=VonMarcardLM(rtol=0.0, atol=0.0), progress=False)
     problem = inertial.inertial_problem(setup)
     plain = Problem(
         [Term(t.name, t.fn, t.weight, t.bandwidth, t.loss, t.mask) for t in problem.terms], rotations=("pose",)

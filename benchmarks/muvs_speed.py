@@ -136,8 +136,8 @@ def main(argv=None):
 
     @jax.jit
     def residual_floor(pose, trans):
-        verts = forward(one.body, pose, None, trans).vertices
-        return project_to_views(one, regress_keypoints(one.regressor, verts))[0]
+        out = forward(one.body, pose, None, trans)
+        return project_to_views(one, regress_keypoints(one.regressor, out.vertices, out.joints))[0]
 
     floor = time_call(residual_floor, jnp.asarray(p0["pose"] if args.batch == 1 else p0["pose"][0], jnp.float32),
                       jnp.asarray(p0["trans"] if args.batch == 1 else p0["trans"][0], jnp.float32))  # fmt: skip

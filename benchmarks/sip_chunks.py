@@ -4,8 +4,8 @@
 
 Each METHOD:CHUNK runs in a fresh process (one compile each, and the card's memory
 as a new process finds it: an out-of-memory run in a process that had run a smaller
-chunk first fit when run alone) through `solve_batch(..., tridiagonal=METHOD,
-chunk_size=CHUNK)` with rtol = atol = 0; "default" is the backend's choice and "auto"
+chunk first fit when run alone) through `solve_batch(...,
+solver=VonMarcardLM(tridiagonal=METHOD), chunk_size=CHUNK)` with rtol = atol = 0; "default" is the backend's choice and "auto"
 `plan_batch`'s chunk. Writes results/sip_chunks_<suffix>.json: per run `median_s`
 (one timed call after the compiling one), `compile_and_first_call_s`, `peak_bytes`
 (the device's peak in that process), or `error` (out of memory). The question it answers
@@ -46,7 +46,8 @@ from sip_speed import _setup  # noqa: E402
 
 def _one(spec: str, sequences: int, frames: int, iters: int) -> dict:
     from jaxmocap.methods import inertial
-    from jaxmocap.solve import plan_batch, solve_batch
+    from jaxmocap.solve import VonMarcardLM, solve_batch
+    from jaxmocap.solve.batch import plan_batch
 
     method, chunk = spec.split(":")
     chunk = chunk if chunk == "auto" else int(chunk)
@@ -58,8 +59,8 @@ def _one(spec: str, sequences: int, frames: int, iters: int) -> dict:
               "trans": jnp.broadcast_to(stacked.trans0[:, None], (sequences, frames, 3))}  # fmt: skip
     row = {"method": method, "chunk": chunk, "auto_plan": str(plan_batch(problem, params, stacked.data))}
     try:
-        t = time_call(lambda: solve_batch(problem, params, stacked.data, max_steps=iters, rtol=0.0, atol=0.0,
-                                          tridiagonal=None if method == "default" else method,
+        t = time_call(lambda: solve_batch(problem, params, stacked.data, max_steps=iters,
+                                          solver=VonMarcardLM(rtol=0.0, atol=0.0, tridiagonal=None if method == "default" else method),
                                           chunk_size=chunk).value["pose"], min_seconds=1e-9, max_repeats=1)  # fmt: skip
         row.update(t, peak_bytes=(jax.devices()[0].memory_stats() or {}).get("peak_bytes_in_use"))
     except Exception as e:  # out of memory: recorded, the next run goes on

@@ -70,7 +70,7 @@ from _common import machine, peak_memory_bytes, write_json  # noqa: E402
 import jaxmocap  # noqa: E402
 from jaxmocap.body import forward_kinematics, shaped_joints  # noqa: E402
 from jaxmocap.rotation import axis_angle_to_matrix, matrix_to_axis_angle  # noqa: E402
-from jaxmocap.solve import Problem, Term, Windows, frame, sequence, solve, window  # noqa: E402
+from jaxmocap.solve import Problem, Term, VonMarcardLM, Windows, frame, sequence, solve, window  # noqa: E402
 from jaxmocap.timeseries import second_difference  # noqa: E402
 
 SENSOR_JOINTS = (0, 15, 18, 19, 4, 5)  # pelvis, head, left/right elbow (lower arm), knees (lower leg)
@@ -300,7 +300,9 @@ def time_rows(kind: str, Ts, steps: int, repeats: int, lock: str | None = None):
     problem, make_data = build(body, kind, jnp.float32)
     for T in sorted(Ts):
         _, init, data = make_data(T)
-        fn = jax.jit(lambda init, data: solve(problem, init, data, rtol=0.0, atol=0.0, max_steps=steps))
+        fn = jax.jit(
+            lambda init, data: solve(problem, init, data, solver=VonMarcardLM(rtol=0.0, atol=0.0), max_steps=steps)
+        )
         t0 = time.perf_counter()
         compiled = fn.lower(init, data).compile()
         compile_s = time.perf_counter() - t0
@@ -378,7 +380,7 @@ def dense_check(
     """One damped step, structured vs a dense float64 solve of the same normal equations."""
     import scipy.sparse as sp
 
-    from jaxmocap.solve import Args
+    from jaxmocap.solve.linearisation import Args
     from jaxmocap.solve.linearisation import linearise
     from jaxmocap.solve.factorise import factor, solve_factored
     from jaxmocap.solve.unknowns import retract, to_manifold
@@ -619,7 +621,7 @@ def main():
         "Gaussian pose prior (w=0.003); 75 unknowns per frame of which 51 coupled (E_ori/E_acc read the 16 "
         "joints on the sensor chains; the other 8 are eliminated per frame); float32 parameters and data, "
         "normal equations formed and factorised in float64 (x64 on)",
-        "timing": f"{args.steps} LM steps (jax.jit of solve(..., rtol=0, atol=0, max_steps={args.steps}), von "
+        "timing": f"{args.steps} LM steps (jax.jit of solve(..., solver=VonMarcardLM(rtol=0, atol=0), max_steps={args.steps}), von "
         "Marcard LM), compiled ahead of time ('compile_s'), run once ('first_run_s'), then best of up to "
         f"{args.repeats} timed runs divided by the steps taken; an accepted step relinearises, a rejected one "
         "only refactorises",

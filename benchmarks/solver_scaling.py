@@ -16,9 +16,9 @@ Sensor positions come from forward kinematics of the bones (eq. 3.11: a point ri
 attached to a bone), not from skinning, as in the thesis. Measurements are synthesised
 from a smooth random motion; the solve starts from a noisy copy of the truth.
 
-For each T in 20, 100, 300, 1000, 3000, 10000 it times `solve(method="lm")` (von Marcard's LM
-on the structured Cholesky) and `solve(method="optx_lm")` (optx.LevenbergMarquardt with
-`StructuredCholesky`), each for a fixed number of iterations (tolerances 0), and, at
+For each T in 20, 100, 300, 1000, 3000, 10000 it times `solve(solver=VonMarcardLM())` (von Marcard's LM
+on the structured Cholesky) and `solve(solver=OptxLevenbergMarquardt())` (optx.LevenbergMarquardt
+with `StructuredCholesky`), each for a fixed number of iterations (tolerances 0), and, at
 T = 20 only, optimistix's dense default (QR of the stacked [J; √λ I]: O(T³) flops and
 O(T²) memory, already minutes per step at T = 100 on this CPU). It also records iterations to convergence, the largest step disagreement
 between the banded and the dense solver, and the float32 step error.
@@ -46,6 +46,7 @@ import jaxmocap  # noqa: E402
 from jaxmocap.body import forward_kinematics, shaped_joints  # noqa: E402
 from jaxmocap.rotation import axis_angle_to_matrix, matrix_to_axis_angle  # noqa: E402
 from jaxmocap.solve import Problem, Term, solve  # noqa: E402
+from jaxmocap.solve.options import SOLVERS  # noqa: E402
 from jaxmocap.timeseries import second_difference  # noqa: E402
 
 SENSOR_JOINTS = (0, 15, 18, 19, 4, 5)  # pelvis, head, left/right elbow (lower arm), knees (lower leg)
@@ -115,9 +116,11 @@ def _prior_cov(rng):
     return A @ A.T + np.eye(72) * 0.1
 
 
-def _timed_solve(problem, init, data, method, steps, **kw):
-    """Compile + first call, then the best of up to two timed calls: (s per iteration, first, sol)."""
-    run = lambda: solve(problem, init, data, method=method, rtol=0.0, atol=0.0, max_steps=steps, **kw)  # noqa: E731
+def _timed_solve(problem, init, data, method, steps, solver=None):
+    """Compile + first call, then the best of up to two timed calls: (s per iteration, first, sol).
+    `method` names the solver (`SOLVERS`, no tolerances: `steps` steps), unless `solver` is given."""
+    solver = SOLVERS[method](rtol=0.0, atol=0.0) if solver is None else solver
+    run = lambda: solve(problem, init, data, solver=solver, max_steps=steps)  # noqa: E731
     t0 = time.perf_counter()
     sol = jax.block_until_ready(run())
     first = time.perf_counter() - t0
@@ -141,7 +144,7 @@ def one_row(T: int, steps: int, converge_max_T: int) -> dict:
         row[f"{method}_compile_and_first_s"] = first
     if T <= converge_max_T:
         t0 = time.perf_counter()
-        conv = jax.block_until_ready(solve(problem, init, data, method="lm", max_steps=100))
+        conv = jax.block_until_ready(solve(problem, init, data, max_steps=100))
         row["lm_converge_wall_s"] = time.perf_counter() - t0
         row["lm_iterations"] = int(conv.num_steps)
         row["lm_result"] = int(conv.result)
@@ -166,7 +169,8 @@ def step_agreement(T: int = 40) -> dict:
     import lineax as lx
 
     from jaxmocap._compat import damped_operator
-    from jaxmocap.solve import Args, linear_solver
+    from jaxmocap.solve.linearisation import Args
+    from jaxmocap.solve.solver import linear_solver
     from jaxmocap.solve.linearisation import residuals
 
     body = jaxmocap.default_body("low")

@@ -84,17 +84,18 @@ def _tile(tree, B: int):
 
 def _solve(stacked, init, iters, **kw):
     from jaxmocap.methods import inertial as I
-    from jaxmocap.solve import solve_batch
+    from jaxmocap.solve import VonMarcardLM, solve_batch
 
     B, T = init.shape[:2]
     problem = I.inertial_problem(stacked, acceleration=True)
     trans = jnp.broadcast_to(stacked.trans0[:, None], (B, T, 3))
-    return solve_batch(problem, {"pose": init, "trans": trans}, stacked.data, max_steps=iters, rtol=0.0, atol=0.0, **kw)
+    return solve_batch(problem, {"pose": init, "trans": trans}, stacked.data, max_steps=iters,
+                       solver=VonMarcardLM(rtol=0.0, atol=0.0), **kw)  # fmt: skip
 
 
 def _plan(stacked, init, **kw):
     from jaxmocap.methods import inertial as I
-    from jaxmocap.solve import plan_batch
+    from jaxmocap.solve.batch import plan_batch
 
     B, T = init.shape[:2]
     problem = I.inertial_problem(stacked, acceleration=True)

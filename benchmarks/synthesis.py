@@ -39,8 +39,8 @@ def main():
 
     @jax.jit
     def kp_fn(p, tr):
-        v = jaxmocap.forward(body, p, trans=tr).vertices
-        kp = keypoints.regress_keypoints(reg, v)
+        out = jaxmocap.forward(body, p, trans=tr)
+        kp = keypoints.regress_keypoints(reg, out.vertices, out.joints)
         return camera.project(K, R[:, None], t[:, None], kp[None])
 
     verts = np.asarray(jax.jit(lambda p, tr: jaxmocap.forward(body, p, trans=tr).vertices)(poses, trans))

@@ -69,7 +69,7 @@ from jaxmocap.app.scenarios import inertial_setup  # noqa: E402
 from jaxmocap.body import default_body, forward  # noqa: E402
 from jaxmocap.methods import inertial as I  # noqa: E402
 from jaxmocap.sensors import IMUErrorModel, ScenarioConfig, make_scenario  # noqa: E402
-from jaxmocap.solve import solve  # noqa: E402
+from jaxmocap.solve import VonMarcardLM, solve  # noqa: E402
 from jaxmocap.solve.batch import with_weights  # noqa: E402
 from jaxmocap.motion.corpus import interleave  # noqa: E402
 from jaxmocap.motion.splits import DEVELOPMENT, EVALUATION, Split  # noqa: E402
@@ -156,7 +156,7 @@ def load_clips(frames: int, seed: int, names=None):
 def make_functions(problem, body, num_sensors, max_steps, rtol, atol):
     def run(theta, clip: Clip):
         p = with_weights(problem, term_weights(theta, num_sensors))
-        sol = solve(p, clip.params0, clip.data, max_steps=max_steps, rtol=rtol, atol=atol)
+        sol = solve(p, clip.params0, clip.data, max_steps=max_steps, solver=VonMarcardLM(rtol=rtol, atol=atol))
         mpjpe = metrics.mpjpe(forward(body, sol.value["pose"]).joints, clip.truth_joints)
         return mpjpe, sol
 

@@ -27,7 +27,7 @@ from jaxmocap.app.layout import layout_scores
 from jaxmocap.body import posed_vertices
 from jaxmocap.body.io import default_body
 from jaxmocap.geometry.camera import ring_cameras
-from jaxmocap.geometry.keypoints import KEYPOINT_FORMATS, keypoint_regressor
+from jaxmocap.geometry.keypoints import KEYPOINT_FORMATS, keypoint_regressor, regress_keypoints
 from jaxmocap.motion.library import walk
 
 
@@ -38,7 +38,7 @@ def _swap(names):
 def main(out: Path) -> dict:
     body = default_body("low")
     T = 30
-    verts, _ = posed_vertices(body, walk(T, fps=30.0, body=body))
+    verts, joints = (np.asarray(a, np.float64) for a in posed_vertices(body, walk(T, fps=30.0, body=body)))
     R, t = ring_cameras(4, 4.5, 1.6, [0.0, 0.9, 0.2], start_angle=0.4)
     K = np.array([[1000.0, 0.0, 640.0], [0.0, 1000.0, 360.0], [0.0, 0.0, 1.0]])
     P = np.stack([K @ np.concatenate([R[v], t[v][:, None]], 1) for v in range(4)])
@@ -46,7 +46,7 @@ def main(out: Path) -> dict:
     rows = []
     for true in ("body25", "body25b"):
         other = "body25b" if true == "body25" else "body25"
-        X = np.einsum("kn,tnc->tkc", keypoint_regressor(body, true), np.asarray(verts, np.float64))
+        X = regress_keypoints(keypoint_regressor(body, true), verts, joints)
         x = np.einsum("vab,tkb->vtka", P[:, :, :3], X) + P[:, None, None, :, 3]
         clean = x[..., :2] / x[..., 2:]
         for case, noise in (("noise 0 px", 0.0), ("noise 3 px", 3.0), ("noise 10 px", 10.0), ("realistic", 5.0)):

@@ -89,7 +89,7 @@ def analyse(report, fit_dir: Path, calib: Path, window: int) -> dict:
     from jaxmocap.body import posed_vertices
     from jaxmocap.body.io import default_body
     from jaxmocap.formats import align_views, load_calibration, read_openpose
-    from jaxmocap.geometry.keypoints import KEYPOINT_FORMATS, keypoint_regressor
+    from jaxmocap.geometry.keypoints import KEYPOINT_FORMATS, keypoint_regressor, regress_keypoints
     from jaxmocap.geometry.triangulation import projection_matrices, select_person, triangulate
     from jaxmocap.motion.amass import load_amass
 
@@ -112,7 +112,7 @@ def analyse(report, fit_dir: Path, calib: Path, window: int) -> dict:
     _, to_y = world_to_y_up(cameras)
     verts = np.asarray(verts_y, np.float64) @ to_y  # back to the calibration's world
     joints = np.asarray(joints_y, np.float64) @ to_y
-    fit = np.einsum("kn,tnc->tkc", keypoint_regressor(body, "mediapipe33"), verts)
+    fit = regress_keypoints(keypoint_regressor(body, "mediapipe33"), verts, joints)
 
     def project(X):
         x = np.einsum("vab,tkb->tvka", P[:, :, :3], X) + P[None, :, None, :, 3]

@@ -162,7 +162,7 @@ def write_json(path: Path, obj) -> None:
 def fit_padded(method, it, w_mahal: float, length: int, args):
     """`InertialMethod.fit` (SIP) of one item padded to `length` frames, so every window shares one
     compiled solve per prior form (padded frames drop out of every term). Returns (poses, result, steps)."""
-    from jaxmocap.solve import solve_batch
+    from jaxmocap.solve import VonMarcardLM, solve_batch
 
     stacked, mask = I.pad_setups([it.setup], length)
     dtype = stacked.pose0.dtype
@@ -177,7 +177,8 @@ def fit_padded(method, it, w_mahal: float, length: int, args):
     init = np.concatenate([it.init, np.repeat(it.init[-1:], length - it.length, 0)])[None]
     sol = solve_batch(I.inertial_problem(stacked, acceleration=True),
                       {"pose": jnp.asarray(init, dtype), "trans": jnp.broadcast_to(stacked.trans0[:, None], (1, length, 3))},
-                      stacked.data, mask, weights=term_w, max_steps=args.steps, rtol=TOL, atol=TOL)  # fmt: skip
+                      stacked.data, mask, weights=term_w, max_steps=args.steps,
+                      solver=VonMarcardLM(rtol=TOL, atol=TOL))  # fmt: skip
     return np.asarray(sol.value["pose"])[0, : it.length], int(sol.result[0]), int(sol.num_steps[0])
 
 

@@ -71,7 +71,7 @@ from _provenance import subjects_of, write_json, write_text  # noqa: E402
 #: w_mahal chosen on the development subjects; priors leave-subject-out; tables on 05, 06, 07.
 SPLIT = Split("sip_tables", tuning=DEVELOPMENT, training=LEAVE_SUBJECT_OUT)
 from jaxmocap.sensors import IMUErrorModel, ScenarioConfig, load_scenario, make_scenario, save_scenario  # noqa: E402
-from jaxmocap.solve import length_buckets  # noqa: E402
+from jaxmocap.solve.batch import length_buckets  # noqa: E402
 from jaxmocap.viz.plot import plot_error_curves, plot_lines, plot_per_joint  # noqa: E402
 
 #: w_mahal candidates (eq. 3.16); 0 is SIP without the Mahalanobis prior, 0.003 the thesis's.

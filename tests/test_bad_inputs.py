@@ -35,8 +35,9 @@ from jaxmocap.body.io import BodyFileError
 from jaxmocap.methods import inertial as I
 from jaxmocap.motion import Motion, MotionFileError, load_motion
 from jaxmocap.solve import (
-    Problem, Term, check_bandwidths, pad_sequences, sequence, solve, solve_batch, with_weights,
+    Problem, Term, VonMarcardLM, pad_sequences, sequence, solve, solve_batch, with_weights,
 )  # fmt: skip
+from jaxmocap.solve.solver import check_bandwidths
 
 REPO = Path(__file__).resolve().parents[1]
 CMU = REPO.parent / "shared" / "data" / "cmu"
@@ -324,8 +325,14 @@ CASES = [
     ("solve-max-steps-float", lambda c: solve(SIMPLE, {"x": jnp.zeros((3, 2))}, max_steps=2.5), ValueError, r"max_steps"),
     ("solve-zero-frames", lambda c: solve(SIMPLE, {"x": jnp.zeros((0, 2))}), ValueError, r"params0.*T = 0"),
     ("solve-empty-params", lambda c: solve(SIMPLE, {}), ValueError, r"parameters must be a non-empty dict"),
-    ("solve-method", lambda c: solve(SIMPLE, {"x": jnp.zeros((3, 2))}, method="bfgs"), ValueError, r"method"),
-    ("solve-damping", lambda c: solve(SIMPLE, {"x": jnp.zeros((3, 2))}, damping="fletcher"), ValueError, r"damping"),
+    ("solve-solver-name", lambda c: solve(SIMPLE, {"x": jnp.zeros((3, 2))}, solver="bfgs"), ValueError, r"solver must be a solver object, got the name 'bfgs'"),
+    ("solve-solver-type", lambda c: solve(SIMPLE, {"x": jnp.zeros((3, 2))}, solver=object()), ValueError, r"solver must be a VonMarcardLM"),
+    ("solve-damping", lambda c: solve(SIMPLE, {"x": jnp.zeros((3, 2))}, solver=VonMarcardLM(damping="fletcher")), ValueError, r"damping"),
+    ("solve-tridiagonal", lambda c: VonMarcardLM(tridiagonal="twisty"), ValueError, r"tridiagonal must be one of"),
+    ("solve-solver-and-loose", lambda c: solve(SIMPLE, {"x": jnp.zeros((3, 2))}, solver=VonMarcardLM(), rtol=1e-3), ValueError, r"got solver= and also rtol="),
+    ("solve-loose-method", lambda c: solve(SIMPLE, {"x": jnp.zeros((3, 2))}, method="bfgs"), ValueError, r"method must be one of"),
+    ("solve-unknown-keyword", lambda c: solve(SIMPLE, {"x": jnp.zeros((3, 2))}, rtool=1e-3), TypeError, r"unexpected keyword.*rtool"),
+    ("batch-solver-and-loose", lambda c: solve_batch(SIMPLE, {"x": jnp.zeros((2, 3, 2))}, None, solver=VonMarcardLM(), tridiagonal="scan"), ValueError, r"solve_batch\(\) got solver= and also tridiagonal="),
     ("solve-not-problem", lambda c: solve([SIMPLE.terms[0]], {"x": jnp.zeros((3, 2))}), ValueError, r"problem must be"),
     ("solve-frame-mask", lambda c: solve(SIMPLE, {"x": jnp.zeros((3, 2))}, frame_mask=jnp.ones(4, bool)), ValueError, r"frame_mask"),
     ("solve-frame-lengths", lambda c: solve(SIMPLE, {"x": jnp.zeros((3, 2)), "y": jnp.zeros((4, 2))}), ValueError, r"same leading frame axis"),
@@ -340,6 +347,7 @@ CASES = [
     ("problem-undeclared-sequence", lambda c: Problem([Term("a", lambda p, d: p["x"])], unknowns={"g": sequence()}), ValueError, r"'g'"),
     ("bandwidth-check", lambda c: check_bandwidths(WRONG_BAND, {"x": jnp.zeros((7, 2))}), ValueError, r"Term 'shift' declares bandwidth=0 but reads 1"),
     ("solve-check-bandwidth", lambda c: solve(WRONG_BAND, {"x": jnp.zeros((7, 2))}, check_bandwidth=True), ValueError, r"Term 'shift'"),
+    ("batch-check-bandwidth", lambda c: solve_batch(WRONG_BAND, {"x": jnp.zeros((2, 7, 2))}, None, check_bandwidth=True), ValueError, r"Term 'shift'"),
     ("batch-weights-negative", lambda c: solve_batch(SIMPLE, {"x": jnp.zeros((2, 3, 2))}, None, weights={"fit": jnp.array([1.0, -1.0])}), ValueError, r"weights\['fit'\]"),
     ("batch-max-steps", lambda c: solve_batch(SIMPLE, {"x": jnp.zeros((2, 3, 2))}, None, max_steps=0), ValueError, r"max_steps"),
     ("term-reads-typo", lambda c: solve(Problem([Term("fit", lambda p, d: p["x"] - 1.0, reads=(("xx", None),))]), {"x": jnp.zeros((3, 2))}), ValueError, r"Term 'fit' reads \['xx'\], which is not among the unknowns \['x'\]"),
@@ -628,7 +636,7 @@ def test_first_complete_frame():
 
 
 def test_bandwidth_check_accepts_honest_terms():
-    from jaxmocap.solve import measure_bandwidths
+    from jaxmocap.solve.solver import measure_bandwidths
     from jaxmocap.timeseries import second_difference
 
     honest = Problem(
@@ -701,7 +709,9 @@ def test_forward_checks_accept_lists_and_skip_traced_inputs(ctx):
 def test_solve_batch_equal_to_other_axes(B):
     target = np.arange(B)[:, None, None] + np.zeros((B, 3, 2))
     problem = Problem([Term("fit", lambda p, d: p["x"] - d)])
-    sol = solve_batch(problem, {"x": jnp.zeros((B, 3, 2))}, jnp.asarray(target), rtol=np.full(B, 1e-8))
+    sol = solve_batch(
+        problem, {"x": jnp.zeros((B, 3, 2))}, jnp.asarray(target), solver=VonMarcardLM(rtol=np.full(B, 1e-8))
+    )
     assert sol.value["x"].shape == (B, 3, 2)
     np.testing.assert_allclose(sol.value["x"], target, atol=1e-6)
     padded, mask = pad_sequences([np.zeros((3, 2))] * 3)  # as many sequences as frames

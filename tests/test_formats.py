@@ -345,11 +345,11 @@ def test_layout_counts_and_body25b_order_match_the_sensor_layouts():
 
 def test_body25b_extra_joints_sit_where_the_names_say():
     import jaxmocap
-    from jaxmocap.geometry.keypoints import BODY25B_NAMES, keypoint_regressor
+    from jaxmocap.geometry.keypoints import BODY25B_NAMES, rest_keypoints
 
     body = jaxmocap.default_body("low")
     rest = np.asarray(body.v_template, np.float64)
-    kp = keypoint_regressor(body, "body25b") @ rest
+    kp = rest_keypoints(body, "body25b")
     y = {n: kp[i, 1] for i, n in enumerate(BODY25B_NAMES)}
     assert y["head_top"] == pytest.approx(rest[:, 1].max())  # the crown
     assert y["left_shoulder"] < y["upper_neck"] < y["nose"] < y["left_eye"] < y["head_top"]

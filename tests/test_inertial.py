@@ -85,7 +85,7 @@ def _exp_all(w):
 
 def _lm_step(problem, params, data, lam=0.1):
     """Cost and damped LM step of the engine's linearisation (float64), layout order."""
-    from jaxmocap.solve import Args
+    from jaxmocap.solve.linearisation import Args
 
     st = Args(problem, data, None, problem.layout(params)).structure()
     return (st, *_jit_lm_step(problem, params, data, lam))
@@ -94,7 +94,7 @@ def _lm_step(problem, params, data, lam=0.1):
 @eqx.filter_jit
 def _jit_lm_step(problem, params, data, lam):
     # One compiled program per problem: run op by op, the linearisation was ~770 small ones.
-    from jaxmocap.solve import Args
+    from jaxmocap.solve.linearisation import Args
     from jaxmocap.solve.linearisation import linearise
     from jaxmocap.solve.factorise import factor, solve_factored
 

@@ -19,7 +19,7 @@ from jaxmocap.body.io import default_body
 from jaxmocap.cli import main
 from jaxmocap.formats import CalibratedCamera, save_calibration, write_openpose
 from jaxmocap.geometry.camera import project_points, ring_cameras
-from jaxmocap.geometry.keypoints import keypoint_regressor
+from jaxmocap.geometry.keypoints import keypoint_regressor, regress_keypoints
 from jaxmocap.methods.multiview import PRESETS, STATURE_CV
 from jaxmocap.motion.amass import Z_UP_TO_Y_UP, load_amass
 from jaxmocap.motion.library import walk
@@ -60,7 +60,7 @@ def recording(tmp_path_factory):
     motion = walk(T, fps=FPS, body=body)
     verts, joints = posed_vertices(body, motion)
     reg = keypoint_regressor(body, "body25b")
-    subject = np.einsum("kn,tnc->tkc", reg, verts.astype(np.float64)) @ Z_UP_TO_Y_UP  # z-up world
+    subject = regress_keypoints(reg, verts.astype(np.float64), joints.astype(np.float64)) @ Z_UP_TO_Y_UP  # z-up world
     other = subject[0] + np.array([1.3, -1.2, 0.0])  # a second person standing to the side
     cams = _cameras()
     rng = np.random.default_rng(1)
@@ -312,8 +312,10 @@ def test_one_camera_stands_on_a_given_floor(demo_recording, tmp_path, capsys):
     report = json.loads((tmp_path / "m" / "report.json").read_text())
     assert report["monocular"] is True and report["floor"] == {"height_m": 0.0, "used": True}
     depth = report["depth"]
-    # the ground's evidence entered the depth record (without a floor it is None) ...
-    assert depth["ground"] is not None and depth["ground"]["frames"] > 0 and abs(depth["scale"] - 1) < 0.1
+    # the ground's evidence entered the depth record (without a floor it is None); on these 6
+    # frames the stages leave the body 10-11 % close and the ground's scale moves it back
+    # (measured 1.097 before keypoints at joints were the posed joints, 1.110 after) ...
+    assert depth["ground"] is not None and depth["ground"]["frames"] > 0 and 1.0 < depth["scale"] < 1.15
     # ... and the fitted feet meet the floor where the detected feet's rays cut it (the demo's
     # body is the mean body, standing on z = 0)
     assert abs(depth["floor"]["ratio"] - 1) < 0.05, depth["floor"]

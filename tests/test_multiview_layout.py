@@ -14,21 +14,21 @@ from jaxmocap.app.layout import check_layout, layout_scores
 from jaxmocap.body import posed_vertices
 from jaxmocap.body.io import default_body
 from jaxmocap.geometry.camera import ring_cameras
-from jaxmocap.geometry.keypoints import keypoint_regressor
+from jaxmocap.geometry.keypoints import keypoint_regressor, regress_keypoints
 from jaxmocap.motion.library import walk
 
 
 @pytest.fixture(scope="module")
 def scene():
     body = default_body("low")
-    verts, _ = posed_vertices(body, walk(20, fps=30.0, body=body))
+    verts, joints = posed_vertices(body, walk(20, fps=30.0, body=body))
     R, t = ring_cameras(4, 4.5, 1.6, [0.0, 0.9, 0.2], start_angle=0.4)
     K = np.array([[1000.0, 0.0, 640.0], [0.0, 1000.0, 360.0], [0.0, 0.0, 1.0]])
     P = np.stack([K @ np.concatenate([R[v], t[v][:, None]], 1) for v in range(4)])
     rng = np.random.default_rng(0)
     subjects = {}
     for layout in ("body25", "body25b"):
-        X = np.einsum("kn,tnc->tkc", keypoint_regressor(body, layout), np.asarray(verts, np.float64))
+        X = regress_keypoints(keypoint_regressor(body, layout), *(np.asarray(a, np.float64) for a in (verts, joints)))
         x = np.einsum("vab,tkb->vtka", P[:, :, :3], X) + P[:, None, None, :, 3]
         uv = x[..., :2] / x[..., 2:] + rng.normal(scale=3.0, size=x[..., :2].shape)
         conf = np.where(rng.random(uv.shape[:-1]) < 0.1, 0.0, 0.8)

@@ -129,7 +129,7 @@ QUOTES = [
         [0, 0, 0, 0, 0],
     ),
     (
-        r"up\s+to ([\d.]+) % \(held out ([\d.]+) %: arms short, shanks long\), while its limb points jitter an\s+"
+        r"up\s+to ([\d.]+) % \(held out ([\d.]+) %: the held-out subject's\s+triangulated legs[^)]*\), while its limb points jitter an\s+"
         r"eighth as much \(([\d.]+) against ([\d.]+) m/s²\)",
         "experiments/results/multiview_real.json",
         [

@@ -13,7 +13,7 @@ import jax
 import jax.numpy as jnp
 
 import jaxmocap
-from jaxmocap.body.model import SMPL_PARENTS
+from jaxmocap.body.model import SMPL_JOINT_NAMES, SMPL_PARENTS
 from jaxmocap.formats.dip import load_dip
 from jaxmocap.geometry import camera, imu_calibration, keypoints, raster
 from jaxmocap.objects import RigidObject
@@ -261,9 +261,9 @@ def test_rasterised_square_and_depth_points():
 def test_keypoint_regressors_and_detector(body):
     for layout, names in keypoints.KEYPOINT_FORMATS.items():
         reg = keypoints.keypoint_regressor(body, layout)
-        assert reg.shape == (len(names), body.num_vertices)
+        assert reg.shape == (len(names), body.num_vertices + 24)
         np.testing.assert_allclose(reg.sum(1), 1.0)
-        kp = np.asarray(keypoints.regress_keypoints(reg, body.v_template))
+        kp = keypoints.rest_keypoints(body, layout)
         pairs = keypoints.flip_pairs(names)
         for a, b in pairs:  # left keypoints on +x, mirrored on the right
             assert kp[a, 0] > 0 > kp[b, 0]
@@ -281,6 +281,23 @@ def test_keypoint_regressors_and_detector(body):
     i, j = keypoints.COCO18_NAMES.index("left_wrist"), keypoints.COCO18_NAMES.index("right_wrist")
     np.testing.assert_allclose(det.keypoints[:, 0, i, :2], uv[0, :, j])
     assert det.swapped[:, 0, i].all()
+
+
+def test_joint_keypoints_are_the_posed_joints_also_at_a_bent_elbow(body):
+    """Eq. 4.3 projects R_θ(J_i(β)), the joints posed by forward kinematics; 𝒥 of the
+    posed mesh would move a bent elbow into the arm (LBS collapses the skin there)."""
+    pose = np.zeros((24, 3))
+    pose[19, 1] = pose[18, 1] = 1.6  # elbows bent about 90 degrees
+    pose[5, 0] = 1.2  # right knee
+    out = forward(body, jnp.asarray(pose), jnp.asarray(np.linspace(-1, 1, 10)))
+    names = keypoints.COCO18_NAMES
+    kp = np.asarray(keypoints.regress_keypoints(keypoints.keypoint_regressor(body, "coco18"), out.vertices, out.joints))
+    for name in ("left_elbow", "right_elbow", "right_knee", "left_wrist"):
+        np.testing.assert_allclose(kp[names.index(name)], out.joints[SMPL_JOINT_NAMES.index(name)], atol=1e-6)
+    neck = 0.5 * (out.joints[16] + out.joints[17])
+    np.testing.assert_allclose(kp[names.index("neck")], neck, atol=1e-6)
+    with pytest.raises(ValueError, match="pass both"):
+        keypoints.regress_keypoints(keypoints.keypoint_regressor(body, "coco18"), out.vertices)
 
 
 def test_object_follows_the_hand_during_contact(body):

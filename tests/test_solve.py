@@ -17,20 +17,22 @@ import scipy.optimize
 
 from jaxmocap._compat import DIVERGENCE, MAX_STEPS, SUCCESSFUL
 from jaxmocap.solve import (
-    Args,
     Cauchy,
     GemanMcClure,
     Huber,
     Problem,
     Term,
-    WindowBasis,
-    basis_term,
+    VonMarcardLM,
     pad_sequences,
     result_message,
     solve,
     solve_batch,
 )
-from jaxmocap.solve import frame, linear_solver, sequence, window
+from jaxmocap.solve import frame, sequence, window
+from jaxmocap.solve.basis import WindowBasis, basis_term
+from jaxmocap.solve.linearisation import Args
+from jaxmocap.solve.options import SOLVERS
+from jaxmocap.solve.solver import linear_solver
 from jaxmocap.solve.linearisation import residuals
 from jaxmocap.solve.unknowns import to_manifold
 from solve_chain import (
@@ -54,7 +56,7 @@ from solve_chain import (
 def test_known_minimiser_recovered(method):
     truth, init, data = motion(8)
     atol = 1e-7 if method == "jaxopt" else 1e-12  # jaxopt: a bound on ‖Jᵀr‖
-    sol = solve(CHAIN, init, data, method=method, max_steps=60, rtol=1e-10, atol=atol)
+    sol = solve(CHAIN, init, data, max_steps=60, solver=SOLVERS[method](rtol=1e-10, atol=atol))
     assert int(sol.result) == 0, (method, int(sol.result), float(sol.cost))
     assert rot_error(sol.value["rot"], truth["rot"]) < 1e-6
     np.testing.assert_allclose(sol.value["trans"], truth["trans"], atol=1e-6)
@@ -67,7 +69,7 @@ def test_manifold_parametrisations_converge_alike():
     truth, init, data = motion(8, seed=3)
     steps = {}
     for method in ("lm", "optx_lm"):
-        sol = solve(CHAIN, init, data, method=method, max_steps=60, rtol=1e-10, atol=1e-12)
+        sol = solve(CHAIN, init, data, max_steps=60, solver=SOLVERS[method](rtol=1e-10, atol=1e-12))
         assert rot_error(sol.value["rot"], truth["rot"]) < 1e-6
         assert int(sol.result) == 0, (method, int(sol.result))
         steps[method] = int(sol.num_steps)
@@ -365,10 +367,10 @@ def test_optimistix_solvers_use_the_structure():
     """optx.LevenbergMarquardt / GaussNewton with `StructuredCholesky` (border and windows)."""
     problems, data = _variants(8, seed=2)
     problem, params = problems["all"]
-    ref = solve(problem, params, data, max_steps=60, rtol=1e-12, atol=1e-14)
+    ref = solve(problem, params, data, max_steps=60, solver=VonMarcardLM(rtol=1e-12, atol=1e-14))
     assert int(ref.result) == 0
     for method in ("optx_lm", "optx_gn"):
-        sol = solve(problem, params, data, method=method, max_steps=100, rtol=1e-12, atol=1e-14)
+        sol = solve(problem, params, data, max_steps=100, solver=SOLVERS[method](rtol=1e-12, atol=1e-14))
         # Gauss-Newton converges only linearly on this non-zero-residual problem.
         assert int(sol.result) == 0 or method == "optx_gn", method
         np.testing.assert_allclose(float(sol.cost), float(ref.cost), rtol=1e-6)
@@ -393,7 +395,7 @@ def test_sequence_unknowns_recovered():
         {"rot": frame("so3"), "heading": sequence("angle"), "offset": sequence()},
     )  # fmt: skip
     params = dict(init, heading=jnp.zeros(3), offset=jnp.zeros(3))
-    sol = solve(problem, params, data, max_steps=80, rtol=1e-12, atol=1e-14)
+    sol = solve(problem, params, data, max_steps=80, solver=VonMarcardLM(rtol=1e-12, atol=1e-14))
     assert int(sol.result) == 0 and float(sol.cost) < 1e-14
     np.testing.assert_allclose(sol.value["heading"], gamma, atol=1e-6)
     np.testing.assert_allclose(sol.value["offset"], offset, atol=1e-6)
@@ -419,7 +421,9 @@ def test_se3_unknowns_converge():
         ],
         {"T": frame("se3")},
     )
-    sol = solve(problem, {"T": true + 0.3}, {"p": pts, "obs": obs}, max_steps=50, rtol=1e-12, atol=1e-14)
+    sol = solve(
+        problem, {"T": true + 0.3}, {"p": pts, "obs": obs}, max_steps=50, solver=VonMarcardLM(rtol=1e-12, atol=1e-14)
+    )
     assert int(sol.result) == 0 and float(sol.cost) < 1e-20
     M2 = to_manifold(sol.value, lay)["T"]
     np.testing.assert_allclose(M2, M, atol=1e-8)
@@ -456,11 +460,13 @@ def test_per_member_weights_in_solve_batch():
     B = 3
     ws = jnp.asarray([0.0, 0.05, 5.0])
     batch = jax.tree_util.tree_map(lambda x: jnp.broadcast_to(x, (B,) + x.shape), (init, data))
-    sol = solve_batch(CHAIN, *batch, weights={"acc": ws}, max_steps=40, rtol=1e-10, atol=1e-12)
+    sol = solve_batch(CHAIN, *batch, weights={"acc": ws}, max_steps=40, solver=VonMarcardLM(rtol=1e-10, atol=1e-12))
     from jaxmocap.solve.batch import with_weights
 
     for b in range(B):
-        one = solve(with_weights(CHAIN, {"acc": ws[b]}), init, data, max_steps=40, rtol=1e-10, atol=1e-12)
+        one = solve(
+            with_weights(CHAIN, {"acc": ws[b]}), init, data, max_steps=40, solver=VonMarcardLM(rtol=1e-10, atol=1e-12)
+        )
         np.testing.assert_allclose(sol.value["rot"][b], one.value["rot"], atol=1e-10)
         np.testing.assert_allclose(sol.costs["acc"][b], one.costs["acc"], rtol=1e-8, atol=1e-14)
     assert float(sol.costs["acc"][0]) == 0.0 < float(sol.costs["acc"][2])
@@ -492,7 +498,7 @@ def test_lm_never_accepts_a_cost_increase():
     init = {"rot": init["rot"] * 4.0, "trans": init["trans"]}
     costs = [float(jax.jit(CHAIN.cost)(init, data))]  # one program, not one per eager operation
     for steps in range(1, 9):  # max_steps is a traced loop bound for "lm": one compilation
-        sol = solve(CHAIN, init, data, method="lm", max_steps=steps, rtol=0.0, atol=0.0)
+        sol = solve(CHAIN, init, data, max_steps=steps, solver=VonMarcardLM(rtol=0.0, atol=0.0))
         costs.append(float(sol.cost))
     # A rejected step leaves the cost unchanged, but costs[0] comes from `Problem.cost`
     # and the rest from the solver's own evaluation: allow their last-bit difference.
@@ -508,13 +514,13 @@ def test_padded_frames_do_not_change_the_result(method):
     # The reference is `test_known_minimiser_recovered`'s solve (same shapes and settings:
     # its compiled program); the padded one adds 3 junk frames.
     truth, init, data = motion(8)
-    ref = solve(CHAIN, init, data, method=method, max_steps=60, rtol=1e-10, atol=1e-12)
+    ref = solve(CHAIN, init, data, max_steps=60, solver=SOLVERS[method](rtol=1e-10, atol=1e-12))
     rng = np.random.default_rng(5)
     junk = lambda x: jnp.concatenate([x, jnp.asarray(rng.normal(size=(3,) + x.shape[1:]))])  # noqa: E731
     init_p = jax.tree_util.tree_map(junk, init)
     data_p = jax.tree_util.tree_map(junk, data)
     mask = jnp.arange(11) < 8
-    sol = solve(CHAIN, init_p, data_p, frame_mask=mask, method=method, max_steps=60, rtol=1e-10, atol=1e-12)
+    sol = solve(CHAIN, init_p, data_p, frame_mask=mask, max_steps=60, solver=SOLVERS[method](rtol=1e-10, atol=1e-12))
     for k in ref.value:
         np.testing.assert_allclose(sol.value[k][:8], ref.value[k], atol=1e-8)
         np.testing.assert_allclose(sol.value[k][8:], init_p[k][8:], atol=1e-12)  # padded: untouched
@@ -537,7 +543,7 @@ def test_batch_reports_converging_and_diverging_problems(method):
     datas = [{"target": jnp.full((T, 1), v)} for T, v in ((4, 2.0), (3, -1.0), (4, np.nan))]
     params, mask = pad_sequences(seqs)
     data, _ = pad_sequences(datas)
-    sol = solve_batch(problem, params, data, mask, method=method, max_steps=15, rtol=1e-8, atol=1e-10)
+    sol = solve_batch(problem, params, data, mask, max_steps=15, solver=SOLVERS[method](rtol=1e-8, atol=1e-10))
     assert sol.result.shape == (3,) and sol.num_steps.shape == (3,) and sol.cost.shape == (3,)
     ok, no_minimum, nan = (int(r) for r in sol.result)
     assert ok == SUCCESSFUL
@@ -551,9 +557,9 @@ def test_batch_reports_converging_and_diverging_problems(method):
 
 def test_batch_of_one_equals_unbatched():
     truth, init, data = motion(6)
-    one = solve(CHAIN, init, data, method="lm", max_steps=40)
+    one = solve(CHAIN, init, data, max_steps=40)
     init1, data1 = jax.tree_util.tree_map(lambda x: x[None], (init, data))
-    batch = solve_batch(CHAIN, init1, data1, method="lm", max_steps=40)
+    batch = solve_batch(CHAIN, init1, data1, max_steps=40)
     for k in one.value:
         np.testing.assert_allclose(batch.value[k][0], one.value[k], rtol=1e-12, atol=1e-12)
     assert int(batch.num_steps[0]) == int(one.num_steps) and int(batch.result[0]) == int(one.result)
@@ -563,9 +569,9 @@ def test_long_solves_report_progress(capfd):
     # One stderr line per LM step (step, cost, s/step, ETA); the same answer as without.
     params = {"x": jnp.zeros((3, 1))}
     data = {"target": jnp.full((3, 1), 2.0)}
-    quiet = solve(_exp_problem(), params, data, method="lm", max_steps=8, rtol=0.0, atol=0.0)
+    quiet = solve(_exp_problem(), params, data, max_steps=8, solver=VonMarcardLM(rtol=0.0, atol=0.0))
     assert capfd.readouterr().err == ""  # 3 frames: below PROGRESS_FRAMES, silent
-    loud = solve(_exp_problem(), params, data, method="lm", max_steps=8, rtol=0.0, atol=0.0, progress=True)
+    loud = solve(_exp_problem(), params, data, max_steps=8, solver=VonMarcardLM(rtol=0.0, atol=0.0), progress=True)
     err = capfd.readouterr().err
     assert "LM step 1/8: cost" in err and "LM step 8/8" in err and "ETA" in err and err.endswith("\n")
     np.testing.assert_array_equal(np.asarray(loud.value["x"]), np.asarray(quiet.value["x"]))
@@ -574,8 +580,8 @@ def test_long_solves_report_progress(capfd):
 def test_per_sequence_tolerances():
     params = {"x": jnp.zeros((2, 3, 1))}
     data = {"target": jnp.full((2, 3, 1), 2.0)}
-    sol = solve_batch(_exp_problem(), params, data, method="lm", max_steps=40,
-                      rtol=jnp.array([1e-1, 1e-12]), atol=jnp.array([1e-1, 1e-14]))  # fmt: skip
+    sol = solve_batch(_exp_problem(), params, data, max_steps=40,
+                      solver=VonMarcardLM(rtol=jnp.array([1e-1, 1e-12]), atol=jnp.array([1e-1, 1e-14])))  # fmt: skip
     assert int(sol.num_steps[0]) < int(sol.num_steps[1])
     assert (np.asarray(sol.result) == 0).all()
 
@@ -584,11 +590,11 @@ def test_float32_default_and_float64_on_request():
     # float32 inputs cast from the float64 motion (the other tests' eager programs, not a float32 set)
     truth, init, data = jax.tree_util.tree_map(lambda x: x.astype(jnp.float32), motion(6))
     data32 = data
-    sol = solve(CHAIN, init, data32, method="lm", max_steps=40)
+    sol = solve(CHAIN, init, data32, max_steps=40)
     assert sol.value["rot"].dtype == jnp.float32 and bool(jnp.isfinite(sol.cost))
     assert rot_error(sol.value["rot"], truth["rot"]) < 1e-3
     x32 = {"x": jnp.zeros((3, 1), jnp.float32)}
-    sol64 = solve(_exp_problem(), x32, {"target": jnp.full((3, 1), 2.0)}, method="lm", dtype=jnp.float64)
+    sol64 = solve(_exp_problem(), x32, {"target": jnp.full((3, 1), 2.0)}, dtype=jnp.float64)
     assert sol64.value["x"].dtype == jnp.float64 and sol64.cost.dtype == jnp.float64
 
 
@@ -602,7 +608,7 @@ def test_robust_minimiser_matches_robust_cost(loss):
     problem = Problem([Term("fit", lambda p, d: p["x"][:, None, :] - d["pts"], loss=loss)])
     data = {"pts": jnp.asarray(points)[None]}
     x0 = {"x": jnp.asarray([[0.3, -0.2]])}
-    sol = solve(problem, x0, data, method="lm", max_steps=100, rtol=1e-12, atol=1e-14)
+    sol = solve(problem, x0, data, max_steps=100, solver=VonMarcardLM(rtol=1e-12, atol=1e-14))
 
     def robust_cost(x):
         return 0.5 * np.sum(np.asarray(loss.rho(jnp.asarray(np.sum((x - points) ** 2, 1)))))
@@ -643,7 +649,7 @@ def test_masks_drop_nan_observations():
     )
     for k, c in jax.jit(explicit.costs)(init, data).items():
         np.testing.assert_allclose(float(costs[k]), float(c), rtol=1e-12)
-    sol = solve(CHAIN, init, holey, method="lm", max_steps=60, rtol=1e-10, atol=1e-12)
+    sol = solve(CHAIN, init, holey, max_steps=60, solver=VonMarcardLM(rtol=1e-10, atol=1e-12))
     assert int(sol.result) == 0 and float(sol.cost) < 1e-12
     assert np.isfinite(np.asarray(sol.value["rot"])).all()
     # Frame 5 lost all orientations (only accelerations and the chain see it); the others
@@ -659,8 +665,8 @@ def test_clear_errors():
     truth, init, data = motion(6)
     with pytest.raises(ValueError, match="leading frame axis"):
         solve(CHAIN, {"rot": init["rot"], "trans": init["trans"][:4]}, data)
-    with pytest.raises(ValueError, match="method"):
-        solve(CHAIN, init, data, method="bfgs")
+    with pytest.raises(ValueError, match="solver must be a solver object"):
+        solve(CHAIN, init, data, solver="bfgs")
     with pytest.raises(ValueError, match="unique"):
         Problem([Term("a", e_ori), Term("a", e_acc)])
     bad = Problem([Term("flat", lambda p, d: jnp.zeros((3,)))])
@@ -745,8 +751,8 @@ def test_basis_term_steps_equal_the_generic_window_elimination():
     window_of, rows = _BASIS_TERM.basis.table(12)
     np.testing.assert_array_equal(window_of, np.arange(12) // 5)
     np.testing.assert_allclose(rows[10:, :2], _poly_basis(2)) and np.testing.assert_array_equal(rows[10:, 2], 0.0)
-    fast = solve(_BASIS, p0, data, max_steps=3, rtol=0.0, atol=0.0)
-    slow = solve(_GENERIC, p0, data, max_steps=3, rtol=0.0, atol=0.0)
+    fast = solve(_BASIS, p0, data, max_steps=3, solver=VonMarcardLM(rtol=0.0, atol=0.0))
+    slow = solve(_GENERIC, p0, data, max_steps=3, solver=VonMarcardLM(rtol=0.0, atol=0.0))
     assert float(fast.cost) < 0.5 * float(jax.jit(_BASIS.cost)(p0, data))
     for k in p0:
         np.testing.assert_allclose(fast.value[k], slow.value[k], atol=1e-9, err_msg=k)
@@ -756,7 +762,7 @@ def test_basis_term_steps_equal_the_generic_window_elimination():
 
 def test_basis_term_converges_to_the_least_squares_minimiser():
     _, p0, data = _basis_start()
-    sol = solve(_BASIS, p0, data, max_steps=200, rtol=1e-9, atol=1e-12)
+    sol = solve(_BASIS, p0, data, max_steps=200, solver=VonMarcardLM(rtol=1e-9, atol=1e-12))
     assert int(sol.result) == SUCCESSFUL and int(sol.num_steps) < 200, result_message(sol.result)
     # Independent reference: SciPy on the same (robust, square-root) residual vector, in the
     # stored parameters; the pinned coefficient (column 2 of the last window) is left out.

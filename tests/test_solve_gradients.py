@@ -8,7 +8,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxmocap.solve import Problem, Term, solve, solve_batch
+from jaxmocap.solve import Problem, Term, VonMarcardLM, solve, solve_batch
 from jaxmocap.timeseries import second_difference
 from solve_chain import _variants
 
@@ -30,7 +30,7 @@ def _scalar(v, frames=6):
             + jnp.sum(v["heading"]) + 3 * jnp.sum(v["offset"][..., 0]))  # fmt: skip
 
 
-_KW = dict(max_steps=100, rtol=1e-13, atol=1e-15)
+_KW = dict(max_steps=100, solver=VonMarcardLM(rtol=1e-13, atol=1e-15))
 
 
 def _solution_scalar(problem, params, data, w_acc, obs, const):
@@ -93,7 +93,9 @@ def test_gradient_through_solve_with_a_gauge_freedom():
             Term("acc", lambda p, d: second_difference(p["x"]) - d["acc"], jnp.exp(log_w), 1),
             Term("obs", lambda p, d: second_difference(p["x"]) - d["obs"], 1.0, 1),
         ])  # fmt: skip
-        x = solve(problem, {"x": jnp.zeros((T, 1))}, data, max_steps=100, rtol=1e-12, atol=1e-14).value["x"]
+        x = solve(
+            problem, {"x": jnp.zeros((T, 1))}, data, max_steps=100, solver=VonMarcardLM(rtol=1e-12, atol=1e-14)
+        ).value["x"]
         return jnp.sum(second_difference(x)[1:-1] ** 2)
 
     g = float(jax.grad(f)(0.0))

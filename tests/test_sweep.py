@@ -23,7 +23,8 @@ import pytest
 
 from jaxmocap.app import SweepConfigError, run_sweep, validate_config, variants
 from jaxmocap.app.sweep import Store
-from jaxmocap.solve import Problem, Term, length_buckets, plan_batch, solve_batch
+from jaxmocap.solve import Problem, Term, solve_batch
+from jaxmocap.solve.batch import length_buckets, plan_batch
 from jaxmocap.timeseries import second_difference
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -127,7 +128,8 @@ SHARDED = """
 import jax, jax.numpy as jnp, numpy as np
 jax.config.update("jax_enable_x64", True)
 from sweep_toy import PROBLEM
-from jaxmocap.solve import solve_batch, plan_batch
+from jaxmocap.solve import solve_batch
+from jaxmocap.solve.batch import plan_batch
 devs = jax.devices()
 assert len(devs) == 2, devs
 rng = np.random.default_rng(1)

@@ -20,7 +20,7 @@ from jaxmocap.body.io import default_body
 from jaxmocap.cli import main
 from jaxmocap.formats import CalibratedCamera, read_config, read_openpose, save_calibration
 from jaxmocap.formats.video import DETECTOR_ENV, DetectorMissing, detect_video, detector_python, find_videos
-from jaxmocap.geometry.keypoints import BODY25_NAMES, KEYPOINT_FORMATS, flip_pairs, keypoint_regressor
+from jaxmocap.geometry.keypoints import BODY25_NAMES, KEYPOINT_FORMATS, flip_pairs, keypoint_regressor, rest_keypoints
 
 # mediapipe's PoseLandmark enum, in order (its MOUTH_LEFT / MOUTH_RIGHT are our left_mouth / right_mouth)
 POSE_LANDMARK = (
@@ -77,7 +77,7 @@ def test_mediapipe33_regressor_on_the_body(resolution):
     body = default_body(resolution)
     reg = keypoint_regressor(body, "mediapipe33")
     names = KEYPOINT_FORMATS["mediapipe33"]
-    assert reg.shape == (33, body.num_vertices) and np.allclose(reg.sum(1), 1.0)
+    assert reg.shape == (33, body.num_vertices + 24) and np.allclose(reg.sum(1), 1.0)
     # the limb joints are the same rows as OpenPose's (one definition of "left knee")
     b25 = keypoint_regressor(body, "body25")
     for joint in ("shoulder", "elbow", "wrist", "hip", "knee", "ankle", "heel"):
@@ -85,7 +85,7 @@ def test_mediapipe33_regressor_on_the_body(resolution):
             n = f"{side}_{joint}"
             assert np.array_equal(reg[names.index(n)], b25[BODY25_NAMES.index(n)]), n
     # where the extra points sit on the rest mesh (y up, facing +z, left = +x, arms out along x)
-    p = dict(zip(names, reg @ np.asarray(body.v_template, np.float64)))
+    p = dict(zip(names, rest_keypoints(body, "mediapipe33")))
     for side, s in (("left", 1.0), ("right", -1.0)):
         inner, eye, outer = (s * p[f"{side}_eye{x}"][0] for x in ("_inner", "", "_outer"))
         assert 0.005 < inner < eye < outer < 0.07

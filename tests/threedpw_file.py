@@ -17,7 +17,8 @@ from jaxmocap.motion import library
 
 def joints_and_keypoints(body, poses, trans, betas):
     out = forward(body, jnp.asarray(poses), jnp.asarray(betas), jnp.asarray(trans))
-    return np.asarray(out.joints), np.asarray(regress_keypoints(keypoint_regressor(body, "coco18"), out.vertices))
+    kp = regress_keypoints(keypoint_regressor(body, "coco18"), out.vertices, out.joints)
+    return np.asarray(out.joints), np.asarray(kp)
 
 
 def threedpw_dict(body, T: int = 20) -> tuple[dict, dict]:

@@ -546,7 +546,7 @@ def fit_recording(
         stage_one,
         stage_two,
     )
-    from ..geometry.keypoints import KEYPOINT_FORMATS, keypoint_regressor
+    from ..geometry.keypoints import KEYPOINT_FORMATS, keypoint_regressor, regress_keypoints
     from ..geometry.triangulation import projection_matrices, select_person
     from ..body.io import resolve_body
     from .layout import check_layout
@@ -723,8 +723,9 @@ def fit_recording(
         say(f"warning: one camera ({camera.name}): depth along its line of sight is not observed; it comes from "
             f"{d['from']}: {d['depth_m']:.2f} m ± {d['depth_uncertainty_m']:.2f} m (1σ). Add a second camera to "
             "measure it.")  # fmt: skip
-        verts, _ = _posed(body_model, final["pose"], final["betas"], final["trans"])
-        model_kp = np.einsum("kn,tnc->tkc", keypoint_regressor(body_model, layout), verts)
+        model_kp = regress_keypoints(
+            keypoint_regressor(body_model, layout), *_posed(body_model, final["pose"], final["betas"], final["trans"])
+        )
         cut = ground_depth(camera, keypoints[:, placed["view"]], model_kp, KEYPOINT_FORMATS[layout],
                            report["world_up"])  # fmt: skip
         d["floor"] = cut
@@ -761,6 +762,7 @@ def _write_outputs(
 ) -> dict:
     from ..motion.amass import rotate_world, pelvis_rest, save_amass
     from ..motion.sequence import Motion
+    from ..geometry.keypoints import regress_keypoints
     from ..geometry.triangulation import projection_matrices
     from ..viz.mesh import export_sequence
 
@@ -772,11 +774,11 @@ def _write_outputs(
     # reprojection in undistorted OpenCV pixels (the detections' frame)
     P = projection_matrices(cameras)  # (V, 3, 4)
     errors = {}
-    for name, v in (("stage1", verts1), ("final", verts)):
-        kp3 = np.einsum("kn,tnc->tkc", regressor, v)
+    for name, v, j in (("stage1", verts1, joints1), ("final", verts, joints)):
+        kp3 = regress_keypoints(regressor, v, j)
         x = np.einsum("vab,tkb->tvka", P[:, :, :3], kp3) + P[None, :, None, :, 3]
         errors[name] = reprojection_errors(x[..., :2] / x[..., 2:], keypoints)
-    kp_final = np.einsum("kn,tnc->tkc", regressor, verts)
+    kp_final = regress_keypoints(regressor, verts, joints)
 
     # AMASS npz: calibration world → y up → (save_amass) z up
     up, to_y = world_to_y_up(cameras)

@@ -42,7 +42,7 @@ def write_demo_recording(root, frames: int = 16, fps: float = 60.0, views: int =
     from ..motion.amass import Z_UP_TO_Y_UP
     from ..motion.library import walk
     from ..geometry.camera import project_points, ring_cameras
-    from ..geometry.keypoints import keypoint_regressor
+    from ..geometry.keypoints import keypoint_regressor, regress_keypoints
 
     root = Path(root)
     W, H = 1280, 720
@@ -50,7 +50,10 @@ def write_demo_recording(root, frames: int = 16, fps: float = 60.0, views: int =
     motion = walk(frames, fps=fps, body=body)
     verts, joints = posed_vertices(body, motion)
     z_up = Z_UP_TO_Y_UP  # Pose2Sim and Qualisys worlds are z up: x_y = Z x_z
-    keypoints = np.einsum("kn,tnc->tkc", keypoint_regressor(body, "body25b"), np.asarray(verts, np.float64)) @ z_up
+    keypoints = regress_keypoints(
+        keypoint_regressor(body, "body25b"), *(np.asarray(a, np.float64) for a in (verts, joints))
+    )
+    keypoints = keypoints @ z_up
     R, t = ring_cameras(views, 4.5, 1.6, [0.0, 0.9, 0.4], start_angle=0.4)
     rng = np.random.default_rng(seed)
     numbers = np.arange(1, frames + 1)

@@ -526,7 +526,7 @@ def run_sweep(config: dict, out=None, *, prepare_only: bool = False, summary: bo
     # batches are cut from the whole grid, whatever is on disk, and batch b belongs to
     # process b mod P: every process count solves the same batches, so the results are
     # the same bit for bit; finished cells are dropped from their batch afterwards.
-    from ..solve import length_buckets
+    from ..solve.batch import length_buckets
 
     batches = []
     for name in methods:

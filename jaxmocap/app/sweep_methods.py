@@ -259,7 +259,7 @@ class InertialMethod:
         # SOP with the thesis weights starts every SIP variant: one shared start per
         # sequence, so variants differ by their weights alone (paired comparisons).
         if self.name == "sip":
-            from ..solve import length_buckets
+            from ..solve.batch import length_buckets
 
             ok = [it for it in out if isinstance(it, InertialItem)]
             for T, members in length_buckets([it.length for it in ok]):
@@ -276,7 +276,7 @@ class InertialMethod:
         (B, T)); the solve runs in the setups' dtype (float64 setups: a float64 solve).
         """
         from ..methods import inertial as I
-        from ..solve import solve_batch
+        from ..solve import VonMarcardLM, solve_batch
 
         T = max(it.length for it in items)
         stacked, mask = I.pad_setups([it.setup for it in items], T)
@@ -292,7 +292,7 @@ class InertialMethod:
             init = jnp.asarray(np.stack([pad(it.init) for it in items]), dtype)
             trans = jnp.broadcast_to(stacked.trans0[:, None], (len(items), T, 3))
             sol = solve_batch(problem, {"pose": init, "trans": trans}, stacked.data, mask, weights=term_w,
-                              max_steps=steps, rtol=options.get("rtol", 1e-6), atol=options.get("atol", 1e-10),
+                              max_steps=steps, solver=VonMarcardLM(rtol=options.get("rtol", 1e-6), atol=options.get("atol", 1e-10)),
                               memory_fraction=options.get("memory_fraction", 0.6))  # fmt: skip
             return sol.value["pose"], np.asarray(sol.result), np.asarray(sol.num_steps), np.asarray(sol.cost), mask
         poses, codes = _sop_batch(stacked, term_w, steps)
@@ -320,13 +320,15 @@ class InertialMethod:
 def _sop_batch(stacked, term_weights=None, steps=20):
     """The sequential orientation poser on a stacked batch; (B, T, 24, 3), (B, T) codes."""
     from ..methods import inertial as I
-    from ..solve import with_weights
+    from ..solve import VonMarcardLM, with_weights
 
     def one(setup, w):
         problem = I.inertial_problem(setup, "thesis", acceleration=False)
         if w is not None:
             problem = with_weights(problem, w)
-        return I.solve_frames_sequentially(problem, setup.data, setup.pose0, max_steps=steps, rtol=1e-6, atol=1e-10)
+        return I.solve_frames_sequentially(
+            problem, setup.data, setup.pose0, max_steps=steps, solver=VonMarcardLM(rtol=1e-6, atol=1e-10)
+        )
 
     poses, codes = jax.vmap(one)(stacked, term_weights)
     return poses if term_weights is None else (poses, codes)

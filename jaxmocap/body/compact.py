@@ -6,8 +6,9 @@ T̄ + B_s β + B_p θ) is, exactly, a sum of one rigidly skinned point per joint
 c_kj = Σ_i 𝒦_ki w_ij ≠ 0, at the rest position Σ_i 𝒦_ki w_ij t_i / c_kj (whose blend shapes
 are the same mixture). A fit that reads only keypoints, joints and a few vertices can
 therefore pose a body of those points instead of the mesh: same energies, a fraction of
-the forward pass (on the default body, 18 COCO keypoints are 75 points and the joints 24,
-against 1229 vertices).
+the forward pass. Keypoints at joints (`geometry.keypoints`) read the posed joints
+directly; on the default body COCO-18's five face points are 5 skinned points, with the 24
+joints 29 points against 1229 vertices.
 """
 
 from __future__ import annotations
@@ -23,13 +24,14 @@ __all__ = ["compact_body"]
 
 
 def compact_body(body: Body, regressor, keep=None):
-    """(small body, its keypoint regressor, has_pose_blend) for `regressor` (K, V).
+    """(small body, its keypoint regressor, has_pose_blend) for `regressor` (K, V + J) or (K, V).
 
     The small body has, in this order: the vertices `keep` (indices, default none), one
     point per (keypoint, joint) pair of the regressor's skinning mixture, and one point per
     joint at J(β) = 𝒥(T̄ + B_s β), so that its joints, and with them the skinning
     transforms, are the full body's. Posing it gives exactly the full body's joints, joint
-    rotations, keypoints (through the new regressor) and kept vertices. has_pose_blend:
+    rotations, keypoints (through the new regressor, (K, V_small + J): its joint columns
+    are the full one's, read from the posed joints) and kept vertices. has_pose_blend:
     whether the body has pose blend shapes at all (a caller may then skip B_p).
     """
     a = {k: np.asarray(getattr(body, k), np.float64) for k in ("v_template", "shapedirs", "J_regressor", "weights")}
@@ -38,8 +40,10 @@ def compact_body(body: Body, regressor, keep=None):
     reg_dtype = regressor.dtype
     reg = np.asarray(regressor, np.float64)
     V, J = a["weights"].shape
-    if reg.ndim != 2 or reg.shape[1] != V:
-        raise ValueError(f"regressor has shape {reg.shape}; expected (K, {V}) for this body.")
+    if reg.ndim != 2 or reg.shape[1] not in (V, V + J):
+        raise ValueError(f"regressor has shape {reg.shape}; expected (K, {V + J}) or (K, {V}) for this body.")
+    on_joints = reg[:, V:] if reg.shape[1] == V + J else np.zeros((len(reg), J))
+    reg = reg[:, :V]
     keep = np.zeros(0, np.int64) if keep is None else np.asarray(keep, np.int64)
     mix = np.einsum("kv,vj->kj", reg, a["weights"])  # c_kj
     k_idx, j_idx = np.nonzero(np.abs(mix) > 1e-12)
@@ -53,8 +57,9 @@ def compact_body(body: Body, regressor, keep=None):
         return np.moveaxis(out, 0, -2)
 
     weights = np.concatenate([a["weights"][keep], np.eye(J)[j_idx], np.eye(J)])
-    small_regressor = np.zeros((len(reg), n + P + J))
+    small_regressor = np.zeros((len(reg), n + P + J + J))
     small_regressor[k_idx, n + np.arange(P)] = mix[k_idx, j_idx]
+    small_regressor[:, n + P + J :] = on_joints
     J_regressor = np.concatenate([np.zeros((J, n + P)), np.eye(J)], 1)
     dtype = body.dtype
     size = n + P + J

@@ -44,7 +44,8 @@ from ..body.model import Body
 from ..geometry.camera import project
 from ..geometry.keypoints import regress_keypoints
 from ..priors.pose_prior import PosePrior
-from ..solve import GemanMcClure, Huber, Term, WindowBasis, basis_term, window
+from ..solve import GemanMcClure, Huber, Term, window
+from ..solve.basis import WindowBasis, basis_term
 from .imu import mahalanobis_term
 from .posed import POSED_BODY, posed_body, shared
 
@@ -106,8 +107,8 @@ def silhouette_data(masks: np.ndarray, num_points: int = 256, seed: int = 0) -> 
 class CameraData(eqx.Module):
     """Observations of calibrated static views and what the camera terms need.
 
-    body: the body model; prior: the pose prior; regressor: (K, N) keypoint regressor
-    (`geometry.keypoint_regressor`) mapping mesh vertices to the detector's keypoints.
+    body: the body model; prior: the pose prior; regressor: (K, N + J) keypoint regressor
+    (`geometry.keypoint_regressor`) mapping posed vertices and joints to the detector's keypoints.
     K, R, t: (V, 3, 3), (V, 3, 3), (V, 3) intrinsics and world-to-camera extrinsics
     (undistorted pixels: apply `undistort_pixels` to detections first).
     keypoints: (T, V, K, 2) pixels; confidence: (T, V, K), 0 = missing (NaN keypoints
@@ -165,7 +166,8 @@ def keypoint_term(sigma: float = 100.0, weight: float = 1.0) -> Term:
     loss = GemanMcClure(sigma)
 
     def fn(params, data: CameraData):
-        kp = regress_keypoints(data.regressor, posed_in_views(params, data).vertices)
+        body = posed_in_views(params, data)
+        kp = regress_keypoints(data.regressor, body.vertices, body.joints)
         uv, _ = project_to_views(data, kp)
         scale = jnp.sqrt(data.confidence * data.joint_weights)[..., None]
         return scale * loss(uv - data.keypoints)

@@ -388,7 +388,8 @@ def floor_contact_term(up, height: float, points, offsets, sigma: float | None =
     loss = None if sigma is None else GemanMcClure(sigma)
 
     def fn(params, data):
-        feet = regress_keypoints(data.regressor, posed_in_views(params, data).vertices)[:, points]  # (T, P, 3)
+        body = posed_in_views(params, data)
+        feet = regress_keypoints(data.regressor, body.vertices, body.joints)[:, points]  # (T, P, 3)
         above = feet @ jnp.asarray(up, feet.dtype) - jnp.asarray(offsets, feet.dtype) - height
         r = jnp.min(above, axis=-1)[:, None, None]
         return r if loss is None else loss(r)

@@ -191,7 +191,7 @@ def image_term(weight, sigma: float = 100.0, free_camera: bool = True) -> Term:
 
     def fn(params, data: VIPData):
         body = posed_body(params, data.body, data.betas)
-        kp = regress_keypoints(data.regressor, body.vertices)  # (T, 18, 3)
+        kp = regress_keypoints(data.regressor, body.vertices, body.joints)  # (T, 18, 3)
         R, t = world_to_camera(params["cam"] if free_camera else data.camera)
         uv, _ = project(data.K[None], R, t, kp)
         e = (uv - data.keypoints) * data.pixel_scale

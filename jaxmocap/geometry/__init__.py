@@ -32,6 +32,7 @@ from .imu_calibration import virtual_bone_orientations as virtual_bone_orientati
 from .keypoints import KEYPOINT_FORMATS as KEYPOINT_FORMATS
 from .keypoints import keypoint_regressor as keypoint_regressor
 from .keypoints import regress_keypoints as regress_keypoints
+from .keypoints import rest_keypoints as rest_keypoints
 from .raster import rasterize_views as rasterize_views
 from .triangulation import projection_matrices as projection_matrices
 from .triangulation import select_person as select_person

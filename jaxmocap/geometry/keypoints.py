@@ -1,26 +1,29 @@
 """2D keypoint layouts: COCO-18 / BODY_25 / BODY_25B / HALPE_26 / MediaPipe-33 and their regressors on the body.
 
-Regressor: a (K, V) matrix 𝒦 with keypoints = 𝒦 · vertices (posed mesh), built per body
-from its rest mesh:
-  - body joints (shoulders, elbows, wrists, hips, knees, ankles) = rows of 𝒥 (SMPL's
-    joint regressor), so they move exactly like the model's joints;
-  - neck = mean of the shoulder rows, MidHip = mean of the hip rows (OpenPose's
+Regressor: a (K, V + J) matrix 𝒦 with keypoints = 𝒦 · [posed vertices; posed joints]
+(`regress_keypoints`), built per body from its rest mesh:
+  - body joints (shoulders, elbows, wrists, hips, knees, ankles) = the model's joints posed
+    by forward kinematics, Huang's R_θ(J_i(β)) (eq. 4.3), not 𝒥 applied to the posed mesh:
+    linear blend skinning collapses the skin at a bent joint, and 𝒥 of that mesh moved
+    the elbow 10 cm into the arm at 90° (default body: fitted upper arms 24 % short of
+    the triangulated ones on a real recording, experiments/results/multiview_real.md);
+  - neck = mean of the shoulder joints, MidHip = mean of the hip joints (OpenPose's
     definitions);
   - face and feet (nose, eyes, ears, big/small toes, heels) = single vertices picked with
     `surface.ray_vertex`: the skin point straight out from a joint-relative point, among
     vertices skinned mostly to the head / foot bones. Offsets in `_SURFACE` (metres, rest
     pose, y up, facing +z).
   - BODY_25B's upper neck (below the chin, from MPII's "upper neck") = the mean of SMPL's
-    neck and head rows; its head top = the crown vertex straight above the head joint.
+    neck and head joints; its head top = the crown vertex straight above the head joint.
   - MediaPipe Pose's 33 landmarks (BlazePose: `jaxmocap.formats.video`) add eye corners,
     mouth corners, three hand points and the foot's tip, all single skin vertices as
-    above; its shoulders, elbows, wrists, hips, knees and ankles are 𝒥's rows like the
+    above; its shoulders, elbows, wrists, hips, knees and ankles are joints like the
     others' (BlazePose was trained on the same kind of joint-centre annotations as COCO).
 OpenPose's hips sit lower and more lateral than SMPL's; we keep SMPL's (documented
 difference, as in SMPLify's use of 𝒥 for the hips).
 
-How each layout maps onto SMPL (index in each layout; J(x) = row x of 𝒥, mean(·) = mean
-of rows, vertex(x) = a skin vertex near joint x; left/right mirror each other):
+How each layout maps onto SMPL (index in each layout; J(x) = joint x posed, mean(·) = mean
+of joints, vertex(x) = a skin vertex near joint x; left/right mirror each other):
 
     keypoint          coco18  body25  body25b  halpe26  SMPL
     nose                 0       0       0           0  vertex(head), front of the face
@@ -94,6 +97,7 @@ __all__ = [
     "KEYPOINT_FORMATS",
     "keypoint_regressor",
     "regress_keypoints",
+    "rest_keypoints",
     "flip_pairs",
 ]
 
@@ -197,7 +201,8 @@ def _surface_vertex(body: Body, name: str, joints: np.ndarray) -> int:
 
 
 def keypoint_regressor(body: Body, layout: str = "coco18") -> np.ndarray:
-    """(K, V) keypoint regressor for `layout` (a `KEYPOINT_FORMATS` name) on `body`."""
+    """(K, V + J) keypoint regressor for `layout` (a `KEYPOINT_FORMATS` name) on `body`:
+    its first V columns weigh the posed vertices, the last J the posed joints."""
     if not hasattr(body, "J_regressor") or not hasattr(body, "num_vertices"):
         raise ValueError(
             f"keypoint_regressor: body must be a jaxmocap Body (e.g. default_body()), got {type(body).__name__}."
@@ -205,18 +210,40 @@ def keypoint_regressor(body: Body, layout: str = "coco18") -> np.ndarray:
     if layout not in KEYPOINT_FORMATS:
         raise ValueError(f"Unknown keypoint layout {layout!r}; choose from {sorted(KEYPOINT_FORMATS)}.")
     names = KEYPOINT_FORMATS[layout]
-    Jreg = np.asarray(body.J_regressor, np.float64)
+    V, J = body.num_vertices, np.shape(body.J_regressor)[0]
     joints = rest_joints(body)
-    out = np.zeros((len(names), body.num_vertices))
+    out = np.zeros((len(names), V + J))
     for k, name in enumerate(names):
         if name in _JOINT_ROWS:
             rows = [_J[j] for j in _JOINT_ROWS[name]]
-            out[k] = Jreg[rows].mean(0)
+            out[k, V + np.asarray(rows)] = 1.0 / len(rows)
         else:
             out[k, _surface_vertex(body, name, joints)] = 1.0
     return out
 
 
-def regress_keypoints(regressor: Array, vertices: Array) -> Array:
-    """3D keypoints 𝒦 v: (K, V) x (..., V, 3) -> (..., K, 3)."""
-    return jnp.einsum("kv,...vc->...kc", jnp.asarray(regressor, vertices.dtype), vertices)
+def regress_keypoints(regressor: Array, vertices: Array, joints: Array | None = None) -> Array:
+    """3D keypoints (..., K, 3) = 𝒦 · [vertices; joints] of a posed body.
+
+    regressor: (K, V + J) (`keypoint_regressor`), or (K, V) for one that reads the mesh
+    alone; vertices (..., V, 3) and joints (..., J, 3) posed (`BodyOutput`'s). NumPy
+    inputs give a NumPy answer in their own precision, others a JAX array.
+    """
+    xp = np if isinstance(vertices, np.ndarray) and (joints is None or isinstance(joints, np.ndarray)) else jnp
+    n, V = regressor.shape[-1], vertices.shape[-2]
+    if n != V:
+        if joints is None or n != V + joints.shape[-2]:
+            got = f"{V} vertices" + ("" if joints is None else f" and {joints.shape[-2]} joints")
+            raise ValueError(
+                f"regress_keypoints: the regressor has {n} columns but was given {got}; a regressor of "
+                "`keypoint_regressor` reads the posed vertices and joints: pass both (output.vertices, output.joints)."
+            )
+        joints = xp.broadcast_to(xp.asarray(joints, vertices.dtype), (*vertices.shape[:-2], *joints.shape[-2:]))
+        vertices = xp.concatenate([vertices, joints], -2)
+    return xp.einsum("kv,...vc->...kc", xp.asarray(regressor, vertices.dtype), vertices)
+
+
+def rest_keypoints(body: Body, layout: str = "coco18") -> np.ndarray:
+    """(K, 3) keypoints of `layout` on `body`'s mean shape in its rest pose, NumPy float64."""
+    points = np.concatenate([np.asarray(body.v_template, np.float64), rest_joints(body)])
+    return keypoint_regressor(body, layout) @ points

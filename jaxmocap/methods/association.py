@@ -96,7 +96,7 @@ import scipy.sparse
 
 from ..geometry.keypoints import COCO18_NAMES, flip_pairs
 from ..rotation import axis_angle_to_matrix, matrix_to_axis_angle
-from ..solve import Problem, Term, frame, solve
+from ..solve import Problem, Term, VonMarcardLM, frame, solve
 
 __all__ = ["AssociationModel", "Association", "AssociationGraph", "HypothesisFeatures", "load_model", "associate",
            "association_graph", "solve_graph", "hypothesis_features", "pair_features", "solve_labelling", "camera_fit",
@@ -232,7 +232,7 @@ def camera_fit(X, uv, w, R0, group, num_groups: int, free_rotation: bool = True,
     p0 = {"trans": _translation(R0, X, uv, w, group, num_groups)[None]}
     if free_rotation:
         p0["rot"] = matrix_to_axis_angle(R0)[None]
-    sol = solve(_CAMERA_FIT[free_rotation], p0, data, max_steps=max_steps, damping="marquardt")
+    sol = solve(_CAMERA_FIT[free_rotation], p0, data, max_steps=max_steps, solver=VonMarcardLM(damping="marquardt"))
     R = axis_angle_to_matrix(sol.value["rot"][0]) if free_rotation else R0
     t = sol.value["trans"][0]
     q = X @ R.T + t[group]

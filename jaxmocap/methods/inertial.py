@@ -42,7 +42,7 @@ from ..energies.imu import (
 )
 from ..priors.pose_prior import PosePrior, default_pose_prior
 from .._progress import report
-from ..solve import NO_OBSERVATIONS, Problem, Solution, solve, solve_batch
+from ..solve import NO_OBSERVATIONS, Problem, Solution, VonMarcardLM, solve, solve_batch
 from ..solve.solver import PROGRESS_FRAMES
 
 __all__ = [
@@ -142,12 +142,13 @@ def preset(weights: SIPWeights | str = "validated") -> InertialPreset:
     return dataclasses.replace(PRESETS["validated"], weights=weights, source="user weights, validated stopping rule")
 
 
-def _limits(p: InertialPreset, max_steps, rtol, atol, sop: bool = False) -> dict:
-    """The solve limits: the preset's, unless given."""
+def _limits(p: InertialPreset, max_steps, rtol, atol, sop: bool = False, tridiagonal: str | None = None) -> dict:
+    """The solve limits (`solve`'s max_steps and solver): the preset's, unless given."""
     ms, rt, at = (p.sop_steps, p.sop_rtol, p.sop_atol) if sop else (p.max_steps, p.rtol, p.atol)
     ms = ms if max_steps is None else max_steps
     check_max_steps(ms)
-    return dict(max_steps=ms, rtol=rt if rtol is None else rtol, atol=at if atol is None else atol)
+    lm = VonMarcardLM(rtol=rt if rtol is None else rtol, atol=at if atol is None else atol, tridiagonal=tridiagonal)
+    return dict(max_steps=ms, solver=lm)
 
 
 class InertialSetup(eqx.Module):
@@ -559,7 +560,7 @@ def sparse_inertial_poser_batch(
     Returns the engine's batched `Solution` (value["pose"], value["trans"], per-sequence
     result codes and costs); `frame_mask` (B, T) marks real frames of padded sequences.
     `weights`, `max_steps`, `rtol`, `atol` as `sparse_inertial_poser`'s (preset by default).
-    `tridiagonal`: how the frame band is factorised (`jaxmocap.solve.solve`'s; speed only).
+    `tridiagonal`: how the frame band is factorised (`VonMarcardLM`'s option; speed only).
     """
     if not isinstance(setups, InertialSetup) or setups.pose0.ndim != 3:
         raise ValueError("setups must be one batched InertialSetup (from stack_setups or pad_setups).")
@@ -574,8 +575,8 @@ def sparse_inertial_poser_batch(
     problem = inertial_problem(setups, weights, acceleration=True)
     dtype = setups.pose0.dtype
     params = {"pose": jnp.asarray(init, dtype), "trans": trans.astype(dtype)}
-    sol = solve_batch(problem, params, setups.data, frame_mask, **_limits(preset(weights), max_steps, rtol, atol),
-                      tridiagonal=tridiagonal)  # fmt: skip
+    limits = _limits(preset(weights), max_steps, rtol, atol, tridiagonal=tridiagonal)
+    sol = solve_batch(problem, params, setups.data, frame_mask, **limits)
     return eqx.tree_at(lambda s: s.result, sol, _unless_observed(setups.data, sol.result, frame_mask))
 
 

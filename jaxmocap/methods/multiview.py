@@ -74,7 +74,8 @@ from ..energies.camera import (
     temporal_term,
 )
 from ..geometry.camera import intrinsics
-from ..geometry.keypoints import KEYPOINT_FORMATS, flip_pairs, keypoint_regressor
+from ..geometry.keypoints import KEYPOINT_FORMATS, flip_pairs, keypoint_regressor, regress_keypoints
+from ..geometry.surface import rest_joints
 from ..geometry.triangulation import triangulate
 from ..priors.pose_prior import PosePrior, default_pose_prior
 from ..rotation import matrix_to_axis_angle
@@ -615,7 +616,7 @@ def _floor_spec(data: CameraData, floor, sigma: float | None) -> tuple | None:
     if one.model_points is not None:
         raise ValueError("floor: pass the CameraData of camera_data, not a compact one.")
     rest = np.asarray(one.body.v_template, np.float64)
-    feet = np.asarray(one.regressor, np.float64)[points] @ rest
+    feet = regress_keypoints(np.asarray(one.regressor, np.float64)[points], rest, rest_joints(one.body))
     offsets = feet @ up - float((rest @ up).min())
     return (tuple(up.tolist()), height, tuple(points), tuple(offsets.tolist()), sigma)
 
@@ -776,8 +777,7 @@ def reprojection_px(data: CameraData, params: dict) -> float:
     if _batched(data):
         return float(np.median([reprojection_px(_member(data, i), {k: v[i] for k, v in params.items()})
                                 for i in range(data.keypoints.shape[0])]))  # fmt: skip
-    verts, _ = _full_pose(data, params)
-    kp = np.einsum("kn,tnc->tkc", np.asarray(data.regressor, np.float64), verts)
+    kp = regress_keypoints(np.asarray(data.regressor, np.float64), *_full_pose(data, params))
     K, R, t = (np.asarray(a, np.float64) for a in (data.K, data.R, data.t))
     cam = np.einsum("vab,tkb->tvka", R, kp) + t[None, :, None]
     uv = np.einsum("vab,tvkb->tvka", K, cam)
@@ -885,8 +885,7 @@ def monocular_depth(data: CameraData, params: dict, floor=None) -> dict:
         np.median(np.abs(per_frame - median_filter(per_frame, min(9, len(per_frame)), mode="nearest")))
     )
     # the detections' scale error: reprojection over the body's extent in the image
-    reg = np.asarray(data.regressor, np.float64)
-    kp = np.einsum("kn,tnc->tkc", reg, verts) @ R.T + t
+    kp = regress_keypoints(np.asarray(data.regressor, np.float64), verts, joints) @ R.T + t
     uv = kp[..., :2] / kp[..., 2:] * np.diag(K)[:2] + K[:2, 2]
     det = np.asarray(data.keypoints, np.float64)[:, view]
     seen = np.asarray(data.confidence)[:, view] > 0

@@ -180,7 +180,7 @@ def vip_data(
     sensor_point = np.einsum("sba,sb->sa", R_b0, np.asarray(out.vertices)[v] - np.asarray(out.joints)[b])
     a = lambda x: jnp.asarray(x, dtype)  # noqa: E731
     # Ours, for speed: the terms pose a body of the keypoints' skinned points and the joints
-    # (`body.compact`, exact), not the mesh: 99 points instead of 1229 on the default body.
+    # (`body.compact`, exact), not the mesh: 29 points instead of 1229 on the default body.
     body, regressor, _ = compact_body(body, keypoint_regressor(body, "coco18"))
     return VIPData(
         orientation=a(orientation), orientation0=a(orientation[0]),
@@ -407,7 +407,7 @@ def world_keypoints(data: VIPData, poses, trans) -> np.ndarray:
     """COCO-18 keypoints (T, 18, 3) in the world of the posed model."""
     dtype = data.body.dtype
     out = forward(data.body, jnp.asarray(poses, dtype), data.betas, jnp.asarray(trans, dtype))
-    return np.asarray(regress_keypoints(data.regressor, out.vertices), np.float64)
+    return np.asarray(regress_keypoints(data.regressor, out.vertices, out.joints), np.float64)
 
 
 @dataclasses.dataclass(frozen=True)

@@ -273,7 +273,7 @@ def reach(
         raise ValueError(f"reach blend must be an int >= 1 (frames), got {blend!r}.")
     if not (np.all(np.isfinite(poses)) and np.all(np.isfinite(trans))):
         raise ValueError("reach: poses and trans must be finite (no NaN frames).")
-    from ..solve import solve
+    from ..solve import VonMarcardLM, solve
 
     dtype = body.dtype
     free, weights, planted, keep = _free_joints(part)
@@ -302,7 +302,9 @@ def reach(
     params = {"free": jnp.asarray(poses[frame : frame + 1, free], dtype), "trans": data["trans"]}
     steps = 0
     for _ in range(3):
-        sol = solve(_problem(), params, with_vertex(vertex), max_steps=max_steps, rtol=1e-4, atol=1e-5)
+        sol = solve(
+            _problem(), params, with_vertex(vertex), max_steps=max_steps, solver=VonMarcardLM(rtol=1e-4, atol=1e-5)
+        )
         params, steps = sol.value, steps + int(sol.num_steps)
         pose = poses[frame].copy()
         pose[free] = np.asarray(params["free"][0], np.float64)

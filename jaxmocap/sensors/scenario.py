@@ -263,10 +263,10 @@ def _posed(body, poses, betas, trans) -> BodyOutput:
 
 
 @jax.jit
-def _keypoints_2d_jit(regressor, K, R, t, vertices):
-    """Keypoints of P bodies (P, T, V, 3) seen by C cameras R (C, T, 3, 3): (C, P, T, K, ...).
-    One program per shape; run eagerly, the regression and projection compiled ~13."""
-    kp3 = regress_keypoints(regressor, vertices)
+def _keypoints_2d_jit(regressor, K, R, t, vertices, joints):
+    """Keypoints of P bodies (P, T, V, 3), (P, T, J, 3) seen by C cameras R (C, T, 3, 3):
+    (C, P, T, K, ...). One program per shape; run eagerly, the regression and projection compiled ~13."""
+    kp3 = regress_keypoints(regressor, vertices, joints)
     return project(K, R[:, None], t[:, None], kp3[None])
 
 
@@ -565,7 +565,8 @@ def _make_sequence(body, items, config, rngs, cache, placement, regressor, obj) 
 
     if regressor is not None:
         uv, z = _keypoints_2d_jit(jnp.asarray(regressor), jnp.asarray(K), jnp.asarray(R), jnp.asarray(t),
-                                  jnp.asarray(np.stack(verts)))  # (C, P, T, K, ...)  # fmt: skip
+                                  jnp.asarray(np.stack(verts)),
+                                  jnp.asarray(np.stack([np.asarray(x[3].joints) for x in people])))  # fmt: skip
         uv, z = np.swapaxes(np.asarray(uv), 0, 1), np.swapaxes(np.asarray(z), 0, 1)
         out["kp_true"], out["kp_depth"] = uv, z
         names = KEYPOINT_FORMATS[config.keypoints]

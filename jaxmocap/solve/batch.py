@@ -39,9 +39,8 @@ from jax import Array
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from .._checks import check_weight
-from .._checks import check_max_steps
 from .linearisation import Args
-from .solver import METHODS, Solution, check_inputs, check_tridiagonal, solve_unjitted
+from .solver import Solution, check_inputs, prepare, solve_unjitted
 
 __all__ = [
     "pad_sequences",
@@ -260,58 +259,55 @@ def solve_batch(
     data: Any,
     frame_mask: Array | None = None,
     *,
+    solver: Any = None,
     weights: dict[str, Array] | None = None,
-    method: str = "lm",
-    rtol: float | Array = 1e-6,
-    atol: float | Array = 1e-8,
     max_steps: int = 100,
-    factor_dtype: Any = None,
     dtype: Any = None,
-    damping: str = "levenberg",
+    adjoint: Any = None,
+    check_bandwidth: bool = False,
     chunk_size: int | str | None = "auto",
     devices: Sequence | None = None,
     memory_fraction: float = 0.6,
-    tridiagonal: str | None = None,
+    **deprecated,
 ) -> Solution:
     """`solve` over a leading batch axis of `params0`, `data` and `frame_mask`.
 
-    Args are those of `solve`, each with a leading batch axis B (`rtol` and `atol` may be
-    scalars or (B,) arrays: per-sequence tolerances). `weights` maps term names to (B,)
-    weights, one per member: an ablation grid is a batch axis, one compilation.
+    Args are those of `solve`, each with a leading batch axis B; the solver's `rtol` and
+    `atol` may be scalars or (B,) arrays (per-sequence tolerances, e.g.
+    `VonMarcardLM(rtol=jnp.array([1e-3, 1e-8]))`). `check_bandwidth` measures the first
+    member. `weights` maps term names to (B,) weights, one per member: an ablation grid is
+    a batch axis, one compilation.
     chunk_size, devices, memory_fraction: see `plan_batch` (default: chunks that fit
     60 % of the free memory of every local device, the batch split over all of them).
     Every leaf of `data` is batched (leading axis B); the devices share the sequences.
     Returns a `Solution` whose every field has the batch axis first.
     """
-    if method not in METHODS:
-        raise ValueError(f"method must be one of {METHODS}, got {method!r}.")
-    check_max_steps(max_steps)
     for k, v in (weights or {}).items():
         check_weight(f"weights[{k!r}]", v)
     leaves = jax.tree_util.tree_leaves(params0)
     if not leaves:
         raise ValueError("params0 is empty; give a dict of batched (B, ...) initial parameters.")
     B = jnp.shape(leaves[0])[0]
-    first = jax.tree_util.tree_map(lambda x: x[0], params0)
-    layout, _, _, dtype = check_inputs(problem, first, None, None if frame_mask is None else frame_mask[0], dtype)
+    bad = [jnp.shape(x) for x in jax.tree_util.tree_leaves(data) if not jnp.shape(x) or jnp.shape(x)[0] != B]
+    if bad:
+        raise ValueError(f"every leaf of data needs the batch axis B={B} first; got leaves of shapes {bad[:3]}.")
+    first = lambda t: jax.tree_util.tree_map(lambda x: x[0], t)  # noqa: E731
+    layout, _, _, dtype, how = prepare(
+        problem, first(params0), first(data), None if frame_mask is None else frame_mask[0], dtype, solver,
+        deprecated, max_steps, check_bandwidth, "solve_batch",
+    )  # fmt: skip
     params0 = {k: jnp.asarray(params0[k], dtype) for k in layout.keys}
-    if factor_dtype is None:
-        factor_dtype = jnp.float64 if jax.config.jax_enable_x64 else dtype
-    rtol = jnp.broadcast_to(jnp.asarray(rtol, dtype), (B,))
-    atol = jnp.broadcast_to(jnp.asarray(atol, dtype), (B,))
+    rtol = jnp.broadcast_to(how.rtol, (B,))
+    atol = jnp.broadcast_to(how.atol, (B,))
     weights = {k: jnp.broadcast_to(jnp.asarray(v, dtype), (B,)) for k, v in (weights or {}).items()}
     with_weights(problem, weights and {k: v[0] for k, v in weights.items()})  # names checked here
     if frame_mask is not None:
         frame_mask = jnp.asarray(frame_mask, bool)
-    bad = [jnp.shape(x) for x in jax.tree_util.tree_leaves(data) if not jnp.shape(x) or jnp.shape(x)[0] != B]
-    if bad:
-        raise ValueError(f"every leaf of data needs the batch axis B={B} first; got leaves of shapes {bad[:3]}.")
-    max_steps = jnp.asarray(max_steps) if method == "lm" else int(max_steps)
-    static = dict(method=method, factor_dtype=jnp.dtype(factor_dtype), damping=damping,
-                  tridiagonal=check_tridiagonal(tridiagonal))  # fmt: skip
+    max_steps = how.max_steps
+    static = dict(solver=how.solver, factor_dtype=how.factor_dtype, tridiagonal=how.tridiagonal, adjoint=adjoint)
     devices = tuple(jax.local_devices() if devices is None else devices)
     plan = plan_batch(problem, params0, data, frame_mask, chunk_size=chunk_size, devices=devices,
-                      memory_fraction=memory_fraction, dtype=dtype, factor_dtype=factor_dtype)  # fmt: skip
+                      memory_fraction=memory_fraction, dtype=dtype, factor_dtype=how.factor_dtype)  # fmt: skip
     batched = (params0, data, frame_mask, weights, rtol, atol)
     if len(devices) == 1 and plan.num_chunks == 1 and plan.chunk_size == B:
         return _batch_jit(problem, layout, *batched, max_steps, **static)
@@ -367,7 +363,7 @@ def _to_device(tree, device):
 def _batch_core(problem, layout, params0, data, frame_mask, weights, rtol, atol, max_steps, static):
     def one(p, d, m, w, rt, at):
         args = Args(with_weights(problem, w), d, m, layout)
-        return solve_unjitted(args, p, rt, at, max_steps, solver=None, adjoint=None, **static)
+        return solve_unjitted(args, p, rt, at, max_steps, **static)
 
     mask_axis = None if frame_mask is None else 0
     return jax.vmap(one, in_axes=(0, 0, mask_axis, 0, 0, 0))(params0, data, frame_mask, weights, rtol, atol)

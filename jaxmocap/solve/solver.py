@@ -7,22 +7,21 @@ so `throw=False` result codes, step limits, implicit differentiation and any opt
 least-squares solver come from optimistix. `args` carries the problem (terms with their
 weights), the data and the frame mask, so gradients flow to all of them.
 
-Solvers (`method=`, or any optimistix least-squares solver as `solver=`):
+Solvers (`solver=`, an object carrying its own options; see `options` for the design):
 
-- ``"lm"`` (default) — `VonMarcardLM`, von Marcard's Levenberg-Marquardt (§2.3.2,
-  §3.3.4) as an optimistix solver: δ = -(JᵀJ + λI)⁻¹ Jᵀr (eq. 2.52, `damping="levenberg"`)
-  or -(JᵀJ + λ diag(JᵀJ))⁻¹ Jᵀr (eq. 2.54, `"marquardt"`), λ₀ = 10, ×10 on a rejected
-  step, ×0.1 on an accepted one, manifold unknowns updated x ← x ⊕ δ and re-anchored
-  after every accepted step (eq. 2.56-2.60). Jacobian blocks (a term's analytic
-  `Term.jacobian`, else forward-mode AD by colouring over what the term `reads`) and H
-  are built once per accepted iterate, at the top of the step that leaves it (so never
-  for the last), and compiled once; a rejected step only refactorises with the new λ.
-  Levenberg damping is the default: on the SIP problem Marquardt's diag(JᵀJ) scaling
-  let joints seen only by the 0.003-weight prior take multi-radian steps.
-- ``"optx_lm"`` / ``"optx_gn"`` — `optx.LevenbergMarquardt` / `optx.GaussNewton` with the
-  structured factorisation as their linear solver (`StructuredCholesky`); they iterate
-  additively on the stored parameters and rebuild the Jacobian on every step.
-- ``"jaxopt"`` — `jaxopt.LevenbergMarquardt` with a dense Jacobian, for small problems.
+- `VonMarcardLM(rtol, atol, damping, factor_dtype, tridiagonal)` (default) — von
+  Marcard's Levenberg-Marquardt (§2.3.2, §3.3.4) as an optimistix solver (`lm.py`):
+  Levenberg damping λI by default, manifold unknowns updated x ← x ⊕ δ and re-anchored
+  after every accepted step (eq. 2.56-2.60), H built once per accepted iterate.
+- `OptxLevenbergMarquardt` / `OptxGaussNewton` — optimistix's solvers with the structured
+  factorisation as their linear solver (`StructuredCholesky`); they iterate additively on
+  the stored parameters and rebuild the Jacobian on every step.
+- `JaxoptLevenbergMarquardt` — jaxopt's LM with a dense Jacobian, for small problems.
+- any optimistix least-squares solver, as it is.
+
+What belongs to one call stays a keyword of `solve`: the frame mask, the step cap
+`max_steps` (as in `optx.least_squares`), the working dtype, the adjoint, the bandwidth
+check and progress.
 
 Differentiation: `jax.grad` of anything computed from `Solution.value` flows through the
 solve by the implicit function theorem (`optx.ImplicitAdjoint`): the adjoint system is the
@@ -32,7 +31,6 @@ banded-plus-border structure and solved with the same factorisation — never a 
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from typing import Any
 
 import equinox as eqx
@@ -43,24 +41,23 @@ import numpy as np
 import optimistix as optx
 from jax import Array
 
-from .._checks import check_max_steps
-from .._progress import report
 from .._compat import DIVERGENCE, MAX_STEPS, SUCCESSFUL, result_code
 from .._compat import result_message as optx_message
-from .assembly import half_squared_norm
-from .linearisation import Args, linearise, residuals
+from .linearisation import Args, residuals
+from .lm import VonMarcardLM
+from .options import SOLVERS, JaxoptLevenbergMarquardt, OptxLevenbergMarquardt, resolve, structured_solver
 from .residuals import Problem, sanitise
 from .structure import full_precision
 from .structured import StructuredCholesky
-from .tridiagonal import TRIDIAGONAL_METHODS, default_tridiagonal_method
-from .unknowns import from_manifold, retract, to_manifold
+from .unknowns import to_manifold
 
 __all__ = [
-    "Solution", "VonMarcardLM", "solve", "result_message", "METHODS", "linear_solver",
+    "Solution", "VonMarcardLM", "solve", "result_message", "METHODS", "linear_solver", "check_inputs", "prepare",
     "NO_OBSERVATIONS", "PROGRESS_FRAMES", "measure_bandwidths", "check_bandwidths",
 ]  # fmt: skip
 
-METHODS = ("lm", "optx_lm", "optx_gn", "jaxopt")
+#: The old `method=` names (`options.SOLVERS`), kept for one release.
+METHODS = tuple(SOLVERS)
 
 #: `Solution.result` when every masked (observation) term masked out all of its rows: the
 #: "solution" is the priors' alone. Beyond optimistix's codes, so `converged` is False.
@@ -75,12 +72,12 @@ class Solution(eqx.Module):
     Attributes:
         value: the parameters at the solution, same structure as `params0`.
         result: `optx.RESULTS` index: 0 successful, else see `result_message`.
-        num_steps: iterations taken (for "lm": trial steps, accepted or not).
+        num_steps: iterations taken (for `VonMarcardLM`: trial steps, accepted or not).
         cost: final total cost ½‖r‖².
         costs: final per-term costs ½ w Σ ρ(‖e‖²), keyed by term name.
         decrease: how far from converged: the relative cost decrease of the last accepted
-            step, (cost before - cost after) / cost before ("lm" only; NaN for other
-            methods, inf before any accepted step). A fit stopped at its step cap with a
+            step, (cost before - cost after) / cost before (`VonMarcardLM` only; NaN for
+            other solvers, inf before any accepted step). A fit stopped at its step cap with a
             decrease well above its rtol was still improving: give it more steps.
     """
 
@@ -147,137 +144,7 @@ def linear_solver(
     return StructuredCholesky(args.layout, bw, cols, hessian, factor_dtype, args.frame_mask, tridiagonal=tridiagonal)
 
 
-#: `linearise` as a nested jit: init's shape query and step's call share one trace.
-_linearise_once = eqx.filter_jit(linearise)
-
-
-class _LMState(eqx.Module):
-    normal: Any  # the linearisation at y when not `stale`
-    grad: tuple
-    cost: Array
-    lam: Array
-    step: Array
-    done: Array
-    result: Array
-    stale: Array  # y moved since (or before) the last linearisation
-    decrease: Array  # relative cost decrease of the last accepted step
-
-
-def _report_step(step, max_steps, cost, accepted, done) -> None:
-    """One stderr line per LM step of a long solve: step, cost, time per step, ETA."""
-    report("LM step", step, max_steps, f"cost {float(cost):.6g} ({'accepted' if accepted else 'rejected'})", bool(done))
-
-
-class VonMarcardLM(optx.AbstractLeastSquaresSolver):
-    """Von Marcard's Levenberg-Marquardt on the structured normal equations (optimistix solver).
-
-    λ₀ = 10, ×10 on a rejected step and ×0.1 on an accepted one (eq. 2.52, or eq. 2.54
-    with `marquardt=True`); x ← x ⊕ δ on each unknown's manifold, re-anchored after every
-    accepted step (eq. 2.56-2.60). Stops when an accepted step changes neither the cost
-    (by more than rtol·cost + atol) nor any unknown (by more than rtol·|x| + atol), when a
-    rejected step is already that small, or when λ exceeds 1e10 (no descent left at any
-    damping); `max_steps` (an array: no recompilation per value) ends it otherwise.
-
-    Its `args` must be the `Args` of a jaxmocap `Problem` (use `jaxmocap.solve.solve`).
-    """
-
-    rtol: float | Array = 1e-6
-    atol: float | Array = 1e-8
-    norm: Callable = optx.max_norm
-    max_steps: int | Array = 100
-    marquardt: bool = eqx.field(static=True, default=False)
-    factor_dtype: Any = eqx.field(static=True, default=None)
-    progress: bool = eqx.field(static=True, default=False)
-    tridiagonal: str | None = eqx.field(static=True, default=None)
-
-    def _setup(self, y, args):
-        if not isinstance(args, Args):
-            raise ValueError(
-                "VonMarcardLM solves jaxmocap Problems: call jaxmocap.solve.solve(problem, "
-                f"params0, data), or pass a jaxmocap.solve.Args as args (got {type(args).__name__})."
-            )
-        dtype = jtu.tree_leaves(y)[0].dtype
-        return args.structure(), dtype, self.factor_dtype or dtype
-
-    def init(self, fn, y, args, options, f_struct, aux_struct, tags):
-        # The linearisation happens at the top of `step`, so that it is traced (and
-        # compiled) once, not also here: init holds zeros of its shape, marked stale.
-        st, dtype, fdtype = self._setup(y, args)
-        res, _ = fn(y, args)
-        cost = half_squared_norm(res, fdtype)
-        shapes = eqx.filter_eval_shape(_linearise_once, y, args, st, dtype, fdtype, self.tridiagonal)[:2]
-        normal, grad = jtu.tree_map(lambda s: jnp.zeros(s.shape, s.dtype), shapes)
-        ok = jnp.isfinite(cost)
-        return _LMState(
-            normal, grad, cost, jnp.asarray(10.0, fdtype), jnp.asarray(0), ~ok,
-            jnp.where(ok, SUCCESSFUL, DIVERGENCE), jnp.asarray(True), jnp.asarray(jnp.inf, fdtype),
-        )  # fmt: skip
-
-    def step(self, fn, y, args, options, state: _LMState, tags):
-        st, dtype, fdtype = self._setup(y, args)
-        layout = args.layout
-        # Linearise at y after an accepted step (and at the start); not after the last.
-        normal, grad = jax.lax.cond(
-            state.stale,
-            lambda: _linearise_once(y, args, st, dtype, fdtype, self.tridiagonal)[:2],
-            lambda: (state.normal, state.grad),
-        )  # fmt: skip
-        # A `Normal` or, for a basis term, a `BasisNormal`: each factorises its own structure.
-        dF, dW, dG = normal.factor(st, state.lam, self.marquardt, self.tridiagonal).solve(*grad)
-        cast = lambda d: None if d is None else (-d).astype(dtype)  # noqa: E731
-        delta = layout.unravel(cast(st.from_solver_order(dF)), cast(dW), cast(dG))
-        y_new = from_manifold(retract(to_manifold(y, layout), delta, layout), layout)
-        res_new, _ = fn(y_new, args)
-        cost_new = half_squared_norm(res_new, fdtype)
-        accept = jnp.isfinite(cost_new) & (cost_new < state.cost)
-        # Cauchy-type test (as optimistix): an accepted step that changes neither the cost
-        # nor the parameters noticeably, or a rejected step already negligible.
-        small_step = jnp.all(
-            jnp.asarray([jnp.all(jnp.abs(d) <= self.rtol * jnp.abs(v) + self.atol) for d, v in
-                         zip(jtu.tree_leaves(delta), jtu.tree_leaves({k: y[k] for k in delta}))])
-        )  # fmt: skip
-        small_cost = (state.cost - cost_new) <= self.rtol * state.cost + self.atol
-        converged = (accept & small_cost & small_step) | (~accept & small_step) | (state.lam > 1e10)
-
-        cost = jnp.where(accept, cost_new, state.cost)
-        y_next = jtu.tree_map(lambda a, b: jnp.where(accept, a, b), y_new, y)
-        step = state.step + 1
-        done = converged | (step >= self.max_steps)
-        result = jnp.where(converged, SUCCESSFUL, MAX_STEPS)
-        lam = jnp.where(accept, state.lam * 0.1, state.lam * 10.0)
-        if self.progress:
-            jax.debug.callback(_report_step, step, self.max_steps, cost, accept, done)
-        decrease = jnp.where(
-            accept, (state.cost - cost_new) / jnp.maximum(state.cost, jnp.finfo(fdtype).tiny), state.decrease
-        )
-        new = _LMState(normal, grad, cost, lam, step, done, jnp.where(done, result, state.result), accept, decrease)
-        return y_next, new, None
-
-    def terminate(self, fn, y, args, options, state: _LMState, tags):
-        return state.done, optx.RESULTS.where(
-            state.result == SUCCESSFUL,
-            optx.RESULTS.successful,
-            optx.RESULTS.where(
-                state.result == DIVERGENCE,
-                optx.RESULTS.nonlinear_divergence,
-                optx.RESULTS.nonlinear_max_steps_reached,
-            ),
-        )
-
-    def postprocess(self, fn, y, aux, args, options, state, tags, result):
-        return y, aux, {}
-
-
 # --- the front door ------------------------------------------------------------------------
-
-
-def check_tridiagonal(tridiagonal: str | None) -> str:
-    """`tridiagonal` checked, None resolved to the backend's default (static under jit)."""
-    if tridiagonal is None:
-        return default_tridiagonal_method()
-    if tridiagonal not in TRIDIAGONAL_METHODS:
-        raise ValueError(f"tridiagonal must be one of {TRIDIAGONAL_METHODS} or None, got {tridiagonal!r}.")
-    return tridiagonal
 
 
 def check_inputs(problem, params0, data, frame_mask, dtype):
@@ -313,24 +180,31 @@ def check_inputs(problem, params0, data, frame_mask, dtype):
     return layout, params0, frame_mask, dtype
 
 
+def prepare(problem, params0, data, frame_mask, dtype, solver, deprecated: dict, max_steps, check_bandwidth, where):
+    """Everything `solve` and `solve_batch` check, in one place (`solve_batch` passes its
+    first member): the inputs (`check_inputs`), the solver and its options (`options.resolve`,
+    the deprecated loose keywords included), the step cap, and the measured bandwidths if
+    asked. Returns (layout, params0, frame_mask, dtype, `options.Resolved`)."""
+    layout, params0, frame_mask, dtype = check_inputs(problem, params0, data, frame_mask, dtype)
+    how = resolve(solver, deprecated, dtype, max_steps, where)
+    if check_bandwidth:
+        check_bandwidths(problem, params0, data, frame_mask)
+    return layout, params0, frame_mask, dtype, how
+
+
 def solve(
     problem: Problem,
     params0: dict,
     data: Any = None,
     *,
+    solver: Any = None,
     frame_mask: Array | None = None,
-    method: str = "lm",
-    solver: optx.AbstractLeastSquaresSolver | None = None,
-    rtol: float | Array = 1e-6,
-    atol: float | Array = 1e-8,
     max_steps: int = 100,
-    factor_dtype: Any = None,
     dtype: Any = None,
-    damping: str = "levenberg",
     adjoint: optx.AbstractAdjoint | None = None,
     check_bandwidth: bool = False,
     progress: bool | None = None,
-    tridiagonal: str | None = None,
+    **deprecated,
 ) -> Solution:
     """Minimise `problem` from `params0` given `data`; returns a `Solution` of arrays.
 
@@ -339,55 +213,38 @@ def solve(
         params0: dict of initial parameters (per-frame (T, ...), per-sequence (...),
             per-window (W, ...), as the problem declares).
         data: any pytree the term functions read (observations, constants).
+        solver: how to iterate, with its options: `VonMarcardLM(rtol=1e-6, atol=1e-8,
+            damping="levenberg", factor_dtype=None, tridiagonal=None)` by default; another
+            solver of `jaxmocap.solve.options` or any optimistix least-squares solver
+            (e.g. `optx.Dogleg(..., linear_solver=...)`, see the module docstring).
         frame_mask: (T,) bool, False for padded frames (they keep their initial value).
-        method: one of `METHODS` (see the module docstring); ignored if `solver` is given.
-        solver: any optimistix least-squares solver (e.g. `optx.Dogleg(...,
-            linear_solver=jaxmocap.solve.linear_solver(...))`).
-        rtol, atol: stopping tolerances (arrays allowed, e.g. per sequence under vmap).
-        max_steps: iteration cap; for "lm" a traced bound (no recompilation per value).
-        factor_dtype: dtype of H and its factor (default: float64 when x64 is on, else
-            the problem dtype).
+        max_steps: iteration cap; for `VonMarcardLM` a traced bound (no recompilation per value).
         dtype: dtype of the solve (default: that of `params0`; float32 by default).
-        damping: for "lm": "levenberg", JᵀJ + λI (eq. 2.52), or "marquardt" (eq. 2.54).
         adjoint: how gradients flow through the solve (default: implicit
             differentiation with the structured Hessian factorisation).
         check_bandwidth: first measure each term's true frame coupling at params0
             (`check_bandwidths`; one Jacobian-vector product per term, best on a short
             sequence) and raise if a term reads further than its declared `bandwidth`,
             which would otherwise give a wrong answer reported as successful.
-        progress: print each LM step (cost, time per step, ETA) on stderr ("lm" only).
-            Default: on for sequences of `PROGRESS_FRAMES` frames or more, whose solves
-            take seconds to minutes; off inside `solve_batch`.
-        tridiagonal: how the frame band is factorised: "rows" (sequential, the fill kept
-            in the coupling terms' rows, fewest flops where they have fewer rows per frame
-            than coupled unknowns and there are no windows; "scan" otherwise), "scan"
-            (sequential block Cholesky of the band) or
-            "cyclic" (cyclic reduction, ⌈log₂ T⌉ parallel levels); default: "rows" on
-            the CPU, "cyclic" on accelerators. Speed only: all are exact.
+        progress: print each LM step (cost, time per step, ETA) on stderr (`VonMarcardLM`
+            only). Default: on for sequences of `PROGRESS_FRAMES` frames or more, whose
+            solves take seconds to minutes; off inside `solve_batch`.
+        **deprecated: the loose solver options of the last release (`method`, `rtol`,
+            `atol`, `damping`, `factor_dtype`, `tridiagonal`), mapped onto the solver with a
+            DeprecationWarning; with `solver=` as well they are an error.
     Returns:
         `Solution(value, result, num_steps, cost, costs, decrease)`; `result` is `NO_OBSERVATIONS`
         when every masked term masked out all of its rows.
     """
-    if method not in METHODS:
-        raise ValueError(f"method must be one of {METHODS}, got {method!r}.")
-    if damping not in ("levenberg", "marquardt"):
-        raise ValueError(f"damping must be 'levenberg' or 'marquardt', got {damping!r}.")
-    layout, params0, frame_mask, dtype = check_inputs(problem, params0, data, frame_mask, dtype)
-    check_max_steps(max_steps)
-    if check_bandwidth:
-        check_bandwidths(problem, params0, data, frame_mask)
-    if factor_dtype is None:
-        factor_dtype = jnp.float64 if jax.config.jax_enable_x64 else dtype
+    layout, params0, frame_mask, dtype, how = prepare(
+        problem, params0, data, frame_mask, dtype, solver, deprecated, max_steps, check_bandwidth, "solve"
+    )
     args = Args(problem, data, frame_mask, layout)
     if progress is None:
         progress = layout.T >= PROGRESS_FRAMES
-    # "lm" takes max_steps as a traced loop bound: no recompilation per value.
-    max_steps = jnp.asarray(max_steps) if method == "lm" and solver is None else int(max_steps)
     return _solve_jit(
-        args, params0, jnp.asarray(rtol, dtype), jnp.asarray(atol, dtype), max_steps,
-        method=method, solver=solver, factor_dtype=jnp.dtype(factor_dtype), damping=damping, adjoint=adjoint,
-        progress=bool(progress) and method == "lm" and solver is None,
-        tridiagonal=check_tridiagonal(tridiagonal),
+        args, params0, how.rtol, how.atol, how.max_steps, solver=how.solver, factor_dtype=how.factor_dtype,
+        tridiagonal=how.tridiagonal, adjoint=adjoint, progress=bool(progress) and isinstance(how.solver, VonMarcardLM),
     )  # fmt: skip
 
 
@@ -441,49 +298,29 @@ def check_bandwidths(problem: Problem, params0: dict, data: Any = None, frame_ma
 
 
 @full_precision
-def solve_unjitted(
-    args: Args,
-    params0,
-    rtol,
-    atol,
-    max_steps,
-    *,
-    method,
-    solver,
-    factor_dtype,
-    damping,
-    adjoint,
-    progress=False,
-    tridiagonal="scan",
-):
-    """The unbatched, unjitted solve (vmapped by `solve_batch`)."""
+def solve_unjitted(args: Args, params0, rtol, atol, max_steps, *, solver, factor_dtype, tridiagonal, adjoint,
+                   progress=False):  # fmt: skip
+    """The unbatched, unjitted solve (vmapped by `solve_batch`); `solver` as `options.resolve` leaves it."""
     dtype = jtu.tree_leaves(params0)[0].dtype
     decrease = jnp.asarray(jnp.nan, dtype)
-    if method == "jaxopt" and solver is None:
+    if isinstance(solver, JaxoptLevenbergMarquardt):
         value, result, steps = _jaxopt(args, params0, atol, max_steps)
     else:
         y0 = params0
-        if solver is None:
-            if method == "lm":
-                solver = VonMarcardLM(
-                    rtol, atol, max_steps=max_steps, marquardt=damping == "marquardt", factor_dtype=factor_dtype,
-                    progress=progress, tridiagonal=tridiagonal,
-                )  # fmt: skip
-            else:
-                if jax.config.jax_enable_x64:
-                    # optimistix 0.1 keeps its damping λ in float64 when x64 is on and then
-                    # fails to match a float32 iterate: iterate in float64 there.
-                    y0 = jtu.tree_map(lambda v: v.astype(jnp.float64), y0)
-                cls = optx.LevenbergMarquardt if method == "optx_lm" else optx.GaussNewton
-                solver = cls(
-                    rtol=rtol, atol=atol, linear_solver=linear_solver(args, factor_dtype, tridiagonal=tridiagonal)
-                )
+        if jax.config.jax_enable_x64 and isinstance(solver, OptxLevenbergMarquardt):  # or its OptxGaussNewton
+            # optimistix 0.1 keeps its damping λ in float64 when x64 is on and then fails
+            # to match a float32 iterate: iterate in float64 there.
+            y0 = jtu.tree_map(lambda v: v.astype(jnp.float64), y0)
+        solver = structured_solver(
+            solver, rtol, atol, max_steps, factor_dtype, tridiagonal, progress,
+            lambda: linear_solver(args, factor_dtype, tridiagonal=tridiagonal),
+        )  # fmt: skip
         if adjoint is None:
             adjoint = optx.ImplicitAdjoint(linear_solver=linear_solver(args, factor_dtype, True, tridiagonal))
         steps_cap = None if isinstance(solver, VonMarcardLM) else int(max_steps)
         sol = optx.least_squares(residuals, solver, y0, args, max_steps=steps_cap, adjoint=adjoint, throw=False)
         value, result, steps = sol.value, result_code(sol.result), sol.stats["num_steps"]
-        if isinstance(sol.state, _LMState):
+        if isinstance(solver, VonMarcardLM):
             decrease = sol.state.decrease.astype(dtype)
     value = {k: v.astype(dtype) for k, v in value.items()}
     res = residuals(value, args)
