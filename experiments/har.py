@@ -85,7 +85,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxmocap.body import default_body
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import _provenance  # noqa: E402,F401  (its commit is taken now, at the start of the run, not when it writes)
+
+from jaxmocap.body import default_body  # noqa: E402
 from jaxmocap.learned import activity as A
 from jaxmocap.motion import library
 from jaxmocap.motion.corpus import corpus
@@ -880,7 +883,6 @@ def main(argv=None) -> int:
             + " --out DIR)",
         }
     args.out.mkdir(parents=True, exist_ok=True)
-    sys.path.insert(0, str(Path(__file__).resolve().parent))
     from _provenance import record, write_json, write_text
 
     # The split record with its folds (who trained and tuned what) is the provenance's too.

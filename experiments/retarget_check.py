@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 
 import jaxmocap
-from _provenance import subjects_of, write_json, write_text
+from _provenance import record, subjects_of, write_json, write_text
 from jaxmocap.body import SMPL_JOINT_NAMES
 from jaxmocap.motion import load_motion
 from jaxmocap.motion.bvh import load_bvh
@@ -186,7 +186,10 @@ def main(argv=None) -> int:
     from jaxmocap.app.demo import export_motion
 
     dance = load_motion(args.cc / args.dance, fps=30.0, body=body)
-    pictures = export_motion(dance, body, args.out / "retarget_dance", fmt="glb", every=3).pictures
+    exported = export_motion(dance, body, args.out / "retarget_dance", fmt="glb", every=3)
+    pictures = exported.pictures
+    for written in [*exported.meshes, *pictures]:  # committed results too: each needs its provenance entry
+        record(written, split=SPLIT, data={"clips": [args.dance], "subjects": subjects_of([args.dance])})
 
     P = result["walks_pooled"]
     rows = [

@@ -7,6 +7,7 @@ A config the README shows "in full" must parse to the same TOML as the file.
 """
 
 import json
+import math
 import re
 import tomllib
 from pathlib import Path
@@ -139,6 +140,23 @@ QUOTES = [
         ],
         [1, 1, 1, 1],
     ),
+    # "at both resolutions": the low- and the high-resolution stage 1 must both read as quoted.
+    *(
+        (
+            r"`experiments/results/muvs_resolution.json`: stage 1 ([\d.]+) mm at both resolutions, stage 2 ([\d.]+)\s+"
+            r"against ([\d.]+) mm; in raw pixels ([\d.]+) / ([\d.]+) mm\)",
+            "experiments/results/muvs_resolution.json",
+            [
+                f"mpjpe_mm.{resolution}.stage1",
+                "mpjpe_mm.high_resolution.stage2",
+                "mpjpe_mm.low_resolution.stage2",
+                "mpjpe_mm.high_resolution_raw_pixels.stage1",
+                "mpjpe_mm.high_resolution_raw_pixels.stage2",
+            ],
+            [1, 1, 1, 1, 1],
+        )
+        for resolution in ("low_resolution", "high_resolution")
+    ),
     (
         r"`make demo`: ([\d.]+) s the first time,\s+([\d.]+) s after",
         "benchmarks/results/cold_start.json",
@@ -195,3 +213,25 @@ def test_defaults_quotes():
                   README, re.S)  # fmt: skip
     assert m and res["sip_vs_sop_percent"] < 0 and res["sip_default_vs_best_percent"] < 0
     assert m.groups() == (f"{-res['sip_vs_sop_percent']:.1f}", f"{-res['sip_default_vs_best_percent']:.1f}")
+
+
+def _range(values, d: int = 2) -> str:
+    """The README's way of quoting several values: "0.05" when they round alike, else "lo-hi"."""
+    lo, hi = f"{min(values):.{d}f}", f"{max(values):.{d}f}"
+    return lo if lo == hi else f"{lo}-{hi}"
+
+
+def test_multiview_layout_margins_quotes():
+    res = json.loads((ROOT / "experiments/results/multiview_layout_margins.json").read_text())
+    m = re.search(r"multiview_layout_margins\.py`: on a simulated walk with 3 px noise the\s+true layout scores "
+                  r"([\d.-]+) against ([\d.-]+) for the other, one camera ([\d.-]+) against ([\d.-]+),\s+and the "
+                  r"other scores at least ([\d.]+)x the true one", README)  # fmt: skip
+    assert m, "the README's sentence on the layout margins changed; update this test"
+    four, one = ([r for r in res["rows"] if r["case"] == "noise 3 px" and r["views"] == v] for v in (4, 1))
+    assert m.groups() == (
+        _range([r["score_true"] for r in four]),
+        _range([r["score_other"] for r in four]),
+        _range([r["score_true"] for r in one]),
+        _range([r["score_other"] for r in one]),
+        f"{math.floor(10 * res['min_ratio']) / 10:.1f}",
+    )
