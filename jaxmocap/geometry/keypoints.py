@@ -238,8 +238,11 @@ def regress_keypoints(regressor: Array, vertices: Array, joints: Array | None = 
                 f"regress_keypoints: the regressor has {n} columns but was given {got}; a regressor of "
                 "`keypoint_regressor` reads the posed vertices and joints: pass both (output.vertices, output.joints)."
             )
-        joints = xp.broadcast_to(xp.asarray(joints, vertices.dtype), (*vertices.shape[:-2], *joints.shape[-2:]))
-        vertices = xp.concatenate([vertices, joints], -2)
+        # two products, not one over the concatenation: no (..., V + J, 3) copy per evaluation
+        reg = xp.asarray(regressor, vertices.dtype)
+        return xp.einsum("kv,...vc->...kc", reg[:, :V], vertices) + xp.einsum(
+            "kj,...jc->...kc", reg[:, V:], xp.asarray(joints, vertices.dtype)
+        )
     return xp.einsum("kv,...vc->...kc", xp.asarray(regressor, vertices.dtype), vertices)
 
 
