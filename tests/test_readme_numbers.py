@@ -157,6 +157,23 @@ QUOTES = [
         )
         for resolution in ("low_resolution", "high_resolution")
     ),
+    # The InterCap table's two fitted rows (MPJPE, object ADD-S, contact gap).
+    *(
+        (
+            rf"\| {label} \| [\d /%]+ \| [\d.]+ \| ([\d.]+) \| [\d.]+ \| [\d.]+ \| ([\d.]+) \| ([\d.]+) \|",
+            "experiments/results/intercap_tables.json",
+            [f"table.{row}.contact_gap_mm", f"table.{row}.mpjpe_mm", f"table.{row}.add_s_mm"],
+            [1, 1, 1],
+        )
+        for label, row in (("separate fits", "separate"), ("joint, detected contact", "joint"))
+    ),
+    # MuVS with four views, the default column of each stage.
+    (
+        r"\| 4 \| ([\d.]+) / [\d.]+ \| ([\d.]+) / [\d.]+ \| ([\d.]+) / [\d.]+ \| ([\d.]+) / [\d.]+ \|",
+        "experiments/results/muvs_tables.json",
+        ["mpjpe_mm.views_4.stage1", "mpjpe_mm.views_4.S", "mpjpe_mm.views_4.S_T", "mpjpe_mm.views_4.S_T_H"],
+        [1, 1, 1, 1],
+    ),
     (
         r"`make demo`: ([\d.]+) s the first time,\s+([\d.]+) s after",
         "benchmarks/results/cold_start.json",

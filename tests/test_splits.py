@@ -38,7 +38,6 @@ PREDATE_SPLITS = {
     "vip_tables.json": "vip_tables.py on the GPU",
     "vip_tables_per_clip/*.json": "vip_tables.py's per-clip cache (its split is vip_tables.json's)",
     "dip_init.json": "dip_init.py on the GPU",
-    "prior_forms.json": "prior_forms.py (GPU, or > 15 min on 2 CPU cores)",
     "learn_weights.json": "trained and tested on subject 02 before 2026-11-28; learn_weights.py (CPU, > 40 min when loaded)",
 }
 
