@@ -99,7 +99,9 @@ TABLES = (
           "python experiments/vip_tables.py --clips 10 --frames 300 --out experiments/results", "gpu", "~60",
           "several processes: --shard k/n, then --finished-only"),
     Table("intercap_tables", ("intercap_tables.json", "intercap_tables.md", "intercap_scene06/"),
-          "python experiments/intercap_tables.py --scenes 10 --frames 60 --out experiments/results", "gpu", "~30"),
+          "python experiments/intercap_tables.py --scenes 10 --frames 60 --out experiments/results", "gpu", "~10",
+          "2026-12-07 on an H100: five processes of `--only i,j` (3.5 min for every row) then the gathering run; "
+          "set XLA_FLAGS=--xla_gpu_autotune_level=0 when processes share a GPU (ten autotuning at once took minutes each)"),
     Table("sip_ablation", ("sip_ablation/",),
           "jaxmocap sweep experiments/sweeps/sip_ablation.toml --out experiments/results/sip_ablation", "gpu", "~15"),
     Table("sip_ablation_library", ("sip_ablation_library/",),
