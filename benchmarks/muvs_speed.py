@@ -93,12 +93,8 @@ def _generic_stage_two(data, params1, w):
         t = ec.temporal_term(*args, **kwargs)
         return Term(t.name, t.fn, t.weight, loss=t.loss, reads=t.reads)
 
-    mv._stage_two_problem.cache_clear()
-    try:
-        with mock.patch.object(mv, "temporal_term", plain):
-            return mv.stage_two(data, params1, w)
-    finally:
-        mv._stage_two_problem.cache_clear()
+    with mock.patch.object(mv, "temporal_term", plain):  # problems are built per call: no cache to clear
+        return mv.stage_two(data, params1, w)
 
 
 def main(argv=None):

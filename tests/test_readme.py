@@ -37,4 +37,6 @@ def test_readme_block(code, line, monkeypatch):
     if "../shared/data/cmu" in code and not (REPO.parent / "shared" / "data" / "cmu").is_dir():
         pytest.skip("the CMU clips are not beside this checkout")
     monkeypatch.chdir(REPO)  # the README's paths are relative to the repository root
-    exec(compile(code, f"README.md, block at line {line}", "exec"), {"__name__": "__readme__"})
+    # dont_inherit: the block runs without this file's `from __future__ import annotations`, as a
+    # user's script would (postponed annotations break a dataclass defined in an exec'd block).
+    exec(compile(code, f"README.md, block at line {line}", "exec", dont_inherit=True), {"__name__": "__readme__"})

@@ -3,7 +3,10 @@
 Every term reads the shared posed body (`posed.posed_body`) and the `CameraData` of
 calibrated, static views; all are per frame (bandwidth 0), so a sequence is solved as
 one batch of independent frames (stage 1) or tied only through per-window DCT
-coefficients (stage 2).
+coefficients (stage 2). Each residual is an equinox module whose configuration (σ,
+stride, slack) is static (`KeypointResidual(sigma)`, ...) and each mask a module-level
+function; the `*_term` constructors wrap them in `Term`s. Problems built twice with the
+same settings are therefore equal and share one compiled solve.
 
 - E_J (eq. 4.3-4.4): Σ_views Σ_i w_i c_i ρ_σ(Π_K(J_i) - Ĵ_i), Geman-McClure ρ on the 2-D
   residual's norm, c_i the detector's confidence, w_i a per-keypoint weight. Choice: ρ is
@@ -55,6 +58,14 @@ __all__ = [
     "silhouette_data",
     "dct_basis",
     "DCTBasis",
+    "KeypointResidual",
+    "ModelToMask",
+    "MaskToModel",
+    "Betas",
+    "PosedJoints",
+    "detected",
+    "has_mask",
+    "mask_point_valid",
     "keypoint_term",
     "silhouette_terms",
     "mask_to_model",
@@ -161,21 +172,27 @@ def project_to_views(data: CameraData, points: Array) -> tuple[Array, Array]:
     return project(data.K[None], data.R[None], data.t[None], points[:, None])
 
 
-def keypoint_term(sigma: float = 100.0, weight: float = 1.0) -> Term:
-    """E_J (eq. 4.3): confidence-weighted Geman-McClure reprojection error, (T, V, K, 2)."""
-    loss = GemanMcClure(sigma)
+class KeypointResidual(eqx.Module):
+    """E_J (eq. 4.3-4.4): √(c_i w_i) ρ_σ(Π_K(J_i) - Ĵ_i) per frame, view and keypoint, (T, V, K, 2)."""
 
-    def fn(params, data: CameraData):
+    sigma: float = eqx.field(static=True)
+
+    def __call__(self, params, data: CameraData) -> Array:
         body = posed_in_views(params, data)
         kp = regress_keypoints(data.regressor, body.vertices, body.joints)
         uv, _ = project_to_views(data, kp)
         scale = jnp.sqrt(data.confidence * data.joint_weights)[..., None]
-        return scale * loss(uv - data.keypoints)
+        return scale * GemanMcClure(self.sigma)(uv - data.keypoints)
 
-    def mask(data: CameraData):
-        return (data.confidence > 0) & jnp.all(jnp.isfinite(data.keypoints), -1)
 
-    return Term("keypoints", fn, weight, mask=mask)
+def detected(data) -> Array:
+    """Keypoints that count: confidence > 0 and finite, (T, V, K) (or (T, K))."""
+    return (data.confidence > 0) & jnp.all(jnp.isfinite(data.keypoints), -1)
+
+
+def keypoint_term(sigma: float = 100.0, weight: float = 1.0) -> Term:
+    """E_J (eq. 4.3): confidence-weighted Geman-McClure reprojection error, (T, V, K, 2)."""
+    return Term("keypoints", KeypointResidual(float(sigma)), weight, mask=detected)
 
 
 def _bilinear(image: Array, uv: Array) -> Array:
@@ -225,6 +242,43 @@ def mask_to_model(uv: Array, silhouettes: Silhouettes, slack: float = 2.0, loss=
     return per_point * loss(e * (jnp.maximum(d - slack, 0.0) / d))  # (T, V, M, 2)
 
 
+class ModelToMask(eqx.Module):
+    """First sum of eq. 4.5, Σ_{x∈Ŝ} l(x, U)²: the distance transform of the observed mask
+    at each projected model point, (T, V, N, 1) (`silhouette_terms`)."""
+
+    stride: int = eqx.field(static=True, default=1)
+
+    def __call__(self, params, data: CameraData) -> Array:
+        verts = _model_points(posed_in_views(params, data).vertices, data, self.stride)
+        uv, _ = project_to_views(data, verts)  # (T, V, N, 2)
+        dist = jax.vmap(jax.vmap(_bilinear))(data.silhouettes.distance, uv)
+        per_point = jnp.sqrt(data.silhouettes.area / uv.shape[-2])[..., None]  # each vertex: area/N px
+        return (per_point * dist)[..., None]  # (T, V, N, 1)
+
+
+class MaskToModel(eqx.Module):
+    """Second sum of eq. 4.5, Σ_{x∈U} l(x, Ŝ) (`mask_to_model`), (T, V, M, 2)."""
+
+    stride: int = eqx.field(static=True, default=1)
+    slack: float = eqx.field(static=True, default=2.0)
+    huber: float = eqx.field(static=True, default=1.0)
+
+    def __call__(self, params, data: CameraData) -> Array:
+        verts = _model_points(posed_in_views(params, data).vertices, data, self.stride)
+        uv, _ = project_to_views(data, verts)  # (T, V, N, 2)
+        return mask_to_model(uv, data.silhouettes, self.slack, Huber(self.huber))
+
+
+def has_mask(data: CameraData) -> Array:
+    """Views with an observed mask, (T, V, 1)."""
+    return jnp.any(data.silhouettes.valid, -1)[..., None]
+
+
+def mask_point_valid(data: CameraData) -> Array:
+    """The sampled mask points that exist, (T, V, M)."""
+    return data.silhouettes.valid
+
+
 def silhouette_terms(
     w_model: float = 1.0, w_mask: float = 1.0, stride: int = 1, slack: float = 2.0, huber: float = 1.0
 ) -> list[Term]:
@@ -238,35 +292,23 @@ def silhouette_terms(
     body to shrink the gaps (measured: +20 mm shape error). `huber` (px): δ of the Huber
     loss of the mask→model distances.
     """
-    loss = Huber(huber)
-
-    def model_points(params, data: CameraData):
-        verts = _model_points(posed_in_views(params, data).vertices, data, stride)
-        uv, _ = project_to_views(data, verts)  # (T, V, N, 2)
-        dist = jax.vmap(jax.vmap(_bilinear))(data.silhouettes.distance, uv)
-        per_point = jnp.sqrt(data.silhouettes.area / uv.shape[-2])[..., None]  # each vertex: area/N px
-        return (per_point * dist)[..., None]  # (T, V, N, 1)
-
-    def mask_points(params, data: CameraData):
-        verts = _model_points(posed_in_views(params, data).vertices, data, stride)
-        uv, _ = project_to_views(data, verts)  # (T, V, N, 2)
-        return mask_to_model(uv, data.silhouettes, slack, loss)
-
-    def has_mask(data: CameraData):
-        return jnp.any(data.silhouettes.valid, -1)[..., None]  # (T, V, 1)
-
-    def point_valid(data: CameraData):
-        return data.silhouettes.valid
-
+    stride = int(stride)
     return [
-        Term("silhouette_model", model_points, w_model, mask=has_mask),
-        Term("silhouette_mask", mask_points, w_mask, mask=point_valid),
+        Term("silhouette_model", ModelToMask(stride), w_model, mask=has_mask),
+        Term("silhouette_mask", MaskToModel(stride, float(slack), float(huber)), w_mask, mask=mask_point_valid),
     ]
+
+
+class Betas(eqx.Module):
+    """E_β's residual: β itself, (T, B)."""
+
+    def __call__(self, params, data) -> Array:
+        return params["betas"]
 
 
 def shape_term(weight: float = 1.0) -> Term:
     """E_β = ‖β‖² per frame (stage 1, where every frame has its own β)."""
-    return Term("shape", lambda params, data: params["betas"], weight, reads=(("betas", None),))
+    return Term("shape", Betas(), weight, reads=(("betas", None),))
 
 
 def pose_prior_term(weight: float = 1.0) -> Term:
@@ -323,17 +365,20 @@ def dct_window(length: int = 30):
     return window(length)
 
 
+class PosedJoints(eqx.Module):
+    """E_T's features: the posed joints of each frame, flattened, (T, J·3)."""
+
+    def __call__(self, params, data: CameraData) -> Array:
+        j = posed_in_views(params, data).joints
+        return j.reshape(j.shape[0], -1)
+
+
 def temporal_term(length: int = 30, num_dct: int = 10, sigma: float = 0.05, weight: float = 1.0) -> Term:
     """E_T (eq. 4.8): joints (T, J, 3) against their reconstruction B c from the per-window
     coefficients params["coef"] (W, K, J, 3), ρ_σ per coordinate (σ in metres); a
     basis term (`jaxmocap.solve.basis`), so the LM eliminates the coefficients by their
     Kronecker structure. Windows of `length` frames, the last one as `DCTBasis` says."""
-
-    def joints(params, data: CameraData):
-        j = posed_in_views(params, data).joints
-        return j.reshape(j.shape[0], -1)
-
-    basis = WindowBasis("coef", joints, DCTBasis(length, num_dct), length)
+    basis = WindowBasis("coef", PosedJoints(), DCTBasis(int(length), int(num_dct)), int(length))
     return basis_term("temporal", basis, (("pose", None), ("trans", None)), weight, GemanMcClure(sigma))
 
 

@@ -5,7 +5,9 @@ object's world-from-object pose `object` (T, 4, 4) (an SE(3) unknown per frame,
 `solve.frame("se3")`). Each term reads `InteractionData` (object geometry, selected masks,
 labelled point clouds, contact flags, floor) and, for the keypoints and the body, the
 `CameraData` of `energies.camera`; a problem gets both through
-`CombinedData((camera_data, interaction_data))`.
+`CombinedData((camera_data, interaction_data))`. As in `energies.camera`, each residual
+is an equinox module with static configuration (`VertexAcceleration(stride)`, ...), built
+into a `Term` by the constructor named in the table.
 
 | term | equation | residual (per frame) |
 | --- | --- | --- |
@@ -75,6 +77,18 @@ __all__ = [
     "contact_term",
     "floor_contact_term",
     "BEND_JOINTS",
+    "ObjectMaskResidual",
+    "ObjectDepthResidual",
+    "BodyDepthResidual",
+    "BendResidual",
+    "SelfPenetrationResidual",
+    "VertexAcceleration",
+    "CornerAcceleration",
+    "PenetrationResidual",
+    "GroundResidual",
+    "ObjectGroundResidual",
+    "ContactResidual",
+    "FloorContactResidual",
 ]
 
 
@@ -127,43 +141,73 @@ def _object_local(pose: Array, points: Array) -> Array:
 # --- object fitting (eq. 5.1) ------------------------------------------------------------
 
 
+class ObjectMaskResidual(eqx.Module):
+    """λ_segm part of E_O (eq. 5.1): observed object-mask points against the projected object
+    surface samples (`camera.mask_to_model`), (T, V, M, 2)."""
+
+    slack: float = eqx.field(static=True, default=1.0)
+
+    def __call__(self, params, data) -> Array:
+        uv, _ = project_to_views(data, object_world(params["object"], data.surface))
+        return mask_to_model(uv, data.object_masks, self.slack)
+
+
+def object_mask_valid(data) -> Array:
+    """The sampled object-mask points that exist, (T, V, M)."""
+    return data.object_masks.valid
+
+
 def object_mask_term(weight: float = 1.0, slack: float = 1.0) -> Term:
     """λ_segm part of E_O (eq. 5.1): every observed object-mask point lies within `slack`
     px of the projected object surface samples (mask-to-model, Huber tails), (T, V, M, 2)."""
+    fn = ObjectMaskResidual(float(slack))
+    return Term("object_mask", fn, weight, mask=object_mask_valid, reads=(("object", None),))
 
-    def fn(params, data):
-        uv, _ = project_to_views(data, object_world(params["object"], data.surface))
-        return mask_to_model(uv, data.object_masks, slack)
 
-    return Term("object_mask", fn, weight, mask=lambda d: d.object_masks.valid, reads=(("object", None),))
+class ObjectDepthResidual(eqx.Module):
+    """λ_depth part of E_O (eq. 5.1): signed distance (m) of each observed object point to the
+    posed object's surface, (T, V, M, 1)."""
+
+    def __call__(self, params, data) -> Array:
+        local = _object_local(params["object"], data.object_points.astype(params["object"].dtype))
+        return data.sdf(local)[..., None]
+
+
+def object_point_valid(data) -> Array:
+    """The observed object points that exist, (T, V, M)."""
+    return data.object_valid
 
 
 def object_depth_term(weight: float = 1.0, sigma: float = 0.02) -> Term:
     """λ_depth part of E_O (eq. 5.1): signed distance (m) of each observed object point to
     the posed object's surface, Geman-McClure ρ_σ (mislabelled points), (T, V, M, 1)."""
-    loss = GemanMcClure(sigma)
-
-    def fn(params, data):
-        local = _object_local(params["object"], data.object_points.astype(params["object"].dtype))
-        return data.sdf(local)[..., None]
-
-    return Term("object_depth", fn, weight, loss=loss, mask=lambda d: d.object_valid, reads=(("object", None),))
+    return Term("object_depth", ObjectDepthResidual(), weight, loss=GemanMcClure(sigma), mask=object_point_valid,
+                reads=(("object", None),))  # fmt: skip
 
 
 # --- human fitting (eq. 5.2-5.5) -----------------------------------------------------------
 
 
-def body_depth_term(weight: float = 1.0, delta: float = 0.01) -> Term:
+class BodyDepthResidual(eqx.Module):
     """E_D (eq. 5.4): observed body points minus their matched visible vertices
-    (`data.body_match`, re-found between solves), Huber δ (m), (T, V, Mb, 3)."""
+    (`data.body_match`), (T, V, Mb, 3)."""
 
-    def fn(params, data):
+    def __call__(self, params, data) -> Array:
         verts = posed_in_views(params, data).vertices  # (T, N, 3)
         T, V, M = data.body_match.shape
         matched = jnp.take_along_axis(verts, data.body_match.reshape(T, V * M)[..., None], axis=1)
         return data.body_points.astype(verts.dtype) - matched.reshape(T, V, M, 3)
 
-    return Term("body_depth", fn, weight, loss=Huber(delta), mask=lambda d: d.body_valid)
+
+def body_point_valid(data) -> Array:
+    """The observed body points that exist, (T, V, Mb)."""
+    return data.body_valid
+
+
+def body_depth_term(weight: float = 1.0, delta: float = 0.01) -> Term:
+    """E_D (eq. 5.4): observed body points minus their matched visible vertices
+    (`data.body_match`, re-found between solves), Huber δ (m), (T, V, Mb, 3)."""
+    return Term("body_depth", BodyDepthResidual(), weight, loss=Huber(delta), mask=body_point_valid)
 
 
 #: (joint, rotation axis, sign s): E_α penalises exp(s θ), θ the bending angle about the
@@ -177,18 +221,23 @@ def _axis_angle_about(R: Array, axis: int) -> Array:
     return jnp.arctan2(R[..., j, i], R[..., i, i])
 
 
+#: The joints E_α reads (`BEND_JOINTS`).
+_BEND_IDS = tuple(SMPL_JOINT_NAMES.index(n) for n, _, _ in BEND_JOINTS)
+
+
+class BendResidual(eqx.Module):
+    """E_α (eq. 5.2): exp(s θ / 2) of each joint of `BEND_JOINTS`, (T, 4, 1)."""
+
+    def __call__(self, params, data) -> Array:
+        R = params["pose"][:, np.asarray(_BEND_IDS)]  # (T, 4, 3, 3)
+        theta = jnp.stack([_axis_angle_about(R[:, k], a) for k, (_, a, _) in enumerate(BEND_JOINTS)], -1)
+        signs = jnp.asarray([s for _, _, s in BEND_JOINTS], theta.dtype)
+        return jnp.exp(0.5 * signs * theta)[..., None]
+
+
 def bend_term(weight: float = 1.0) -> Term:
     """E_α (eq. 5.2): Σ exp(s θ) over elbows and knees (SMPLify), as residuals exp(s θ / 2)."""
-    joints = tuple(SMPL_JOINT_NAMES.index(n) for n, _, _ in BEND_JOINTS)
-    axes = np.array([a for _, a, _ in BEND_JOINTS])
-    signs = np.array([s for _, _, s in BEND_JOINTS])
-
-    def fn(params, data):
-        R = params["pose"][:, np.asarray(joints)]  # (T, 4, 3, 3)
-        theta = jnp.stack([_axis_angle_about(R[:, k], int(axes[k])) for k in range(len(joints))], -1)
-        return jnp.exp(0.5 * jnp.asarray(signs, theta.dtype) * theta)[..., None]
-
-    return Term("bend", fn, weight, reads=(("pose", joints),))
+    return Term("bend", BendResidual(), weight, reads=(("pose", _BEND_IDS),))
 
 
 def body_spheres(body: Body, betas=None, per_bone: int = 2, min_links: int = 3) -> dict:
@@ -255,11 +304,10 @@ def _tree_distance(parents) -> np.ndarray:
     return out
 
 
-def self_penetration_term(weight: float = 1.0) -> Term:
-    """E_P (eq. 5.5): max(0, r_i + r_j - ‖c_i - c_j‖) for the sphere pairs, (T, P, 1);
-    centres from the posed joints (`body_spheres`)."""
+class SelfPenetrationResidual(eqx.Module):
+    """E_P (eq. 5.5): max(0, r_i + r_j - ‖c_i - c_j‖) for the sphere pairs, (T, P, 1)."""
 
-    def fn(params, data):
+    def __call__(self, params, data) -> Array:
         joints = posed_in_views(params, data).joints  # (T, J, 3)
         centres = jnp.einsum("sj,tjc->tsc", data.sphere_weights.astype(joints.dtype), joints)
         i, k = data.sphere_pairs[:, 0], data.sphere_pairs[:, 1]
@@ -268,7 +316,11 @@ def self_penetration_term(weight: float = 1.0) -> Term:
         r = (data.sphere_radius[i] + data.sphere_radius[k]).astype(joints.dtype)
         return jax.nn.relu(r - d)[..., None]
 
-    return Term("self_penetration", fn, weight)
+
+def self_penetration_term(weight: float = 1.0) -> Term:
+    """E_P (eq. 5.5): max(0, r_i + r_j - ‖c_i - c_j‖) for the sphere pairs, (T, P, 1);
+    centres from the posed joints (`body_spheres`)."""
+    return Term("self_penetration", SelfPenetrationResidual(), weight)
 
 
 # --- joint fit over all frames (eq. 5.6-5.7) -----------------------------------------------
@@ -281,15 +333,28 @@ def _second_difference(points: Array) -> Array:
     return jnp.concatenate([zero, inner, zero], 0)
 
 
+class VertexAcceleration(eqx.Module):
+    """E_A (eq. 5.6): second differences of every `stride`-th posed body vertex, (T, N, 3)."""
+
+    stride: int = eqx.field(static=True, default=8)
+
+    def __call__(self, params, data) -> Array:
+        return _second_difference(posed_in_views(params, data).vertices[:, :: self.stride])
+
+
 def smoothness_term(weight: float = 1.0, stride: int = 8, delta: float | None = None) -> Term:
     """E_A (eq. 5.6): accelerations of every `stride`-th body vertex (m per frame²), bandwidth 1;
     Huber δ (m per frame²) when given (see `object_smoothness_term`)."""
-
-    def fn(params, data):
-        return _second_difference(posed_in_views(params, data).vertices[:, ::stride])
-
     loss = None if delta is None else Huber(delta)
-    return Term("smooth", fn, weight, loss=loss, bandwidth=1, reads=(("pose", None), ("trans", None)))
+    return Term("smooth", VertexAcceleration(int(stride)), weight, loss=loss, bandwidth=1,
+                reads=(("pose", None), ("trans", None)))  # fmt: skip
+
+
+class CornerAcceleration(eqx.Module):
+    """E_B (eq. 5.6): second differences of the posed object's bounding-box corners, (T, 8, 3)."""
+
+    def __call__(self, params, data) -> Array:
+        return _second_difference(object_world(params["object"], data.corners))
 
 
 def object_smoothness_term(weight: float = 1.0, delta: float | None = None) -> Term:
@@ -304,42 +369,67 @@ def object_smoothness_term(weight: float = 1.0, delta: float | None = None) -> T
     motion).
     """
 
-    def fn(params, data):
-        return _second_difference(object_world(params["object"], data.corners))
-
     loss = None if delta is None else Huber(delta)
-    return Term("object_smooth", fn, weight, loss=loss, bandwidth=1, reads=(("object", None),))
+    return Term("object_smooth", CornerAcceleration(), weight, loss=loss, bandwidth=1, reads=(("object", None),))
+
+
+class PenetrationResidual(eqx.Module):
+    """max(0, -sdf) of every `stride`-th posed body vertex in the posed object, (T, N, 1) (eq. 5.6)."""
+
+    stride: int = eqx.field(static=True, default=1)
+
+    def __call__(self, params, data) -> Array:
+        verts = posed_in_views(params, data).vertices[:, :: self.stride]
+        return jax.nn.relu(-data.sdf(_object_local(params["object"], verts)))[..., None]
 
 
 def penetration_term(weight: float = 1.0, stride: int = 1) -> Term:
     """Body-object interpenetration (eq. 5.6, as in PROX with a moving object): max(0, -sdf)
     of every `stride`-th posed body vertex in the posed object, (T, N, 1)."""
+    return Term("penetration", PenetrationResidual(int(stride)), weight)
 
-    def fn(params, data):
-        verts = posed_in_views(params, data).vertices[:, ::stride]
-        return jax.nn.relu(-data.sdf(_object_local(params["object"], verts)))[..., None]
 
-    return Term("penetration", fn, weight)
+class GroundResidual(eqx.Module):
+    """E_G (eq. 5.6): max(0, h - y) of every `stride`-th posed body vertex, (T, N, 1)."""
+
+    stride: int = eqx.field(static=True, default=1)
+
+    def __call__(self, params, data) -> Array:
+        y = posed_in_views(params, data).vertices[:, :: self.stride, 1]
+        return jax.nn.relu(data.floor.astype(y.dtype) - y)[..., None]
 
 
 def ground_term(weight: float = 1.0, stride: int = 1) -> Term:
     """E_G (eq. 5.6): max(0, h - y) of every `stride`-th body vertex, (T, N, 1)."""
+    return Term("ground", GroundResidual(int(stride)), weight, reads=(("pose", None), ("trans", None)))
 
-    def fn(params, data):
-        y = posed_in_views(params, data).vertices[:, ::stride, 1]
+
+class ObjectGroundResidual(eqx.Module):
+    """E_G' (eq. 5.6): max(0, h - y) of the posed object's surface points, (T, S, 1)."""
+
+    def __call__(self, params, data) -> Array:
+        y = object_world(params["object"], data.surface)[..., 1]
         return jax.nn.relu(data.floor.astype(y.dtype) - y)[..., None]
-
-    return Term("ground", fn, weight, reads=(("pose", None), ("trans", None)))
 
 
 def object_ground_term(weight: float = 1.0) -> Term:
     """E_G' (eq. 5.6): max(0, h - y) of the object's surface points, (T, S, 1)."""
+    return Term("object_ground", ObjectGroundResidual(), weight, reads=(("object", None),))
 
-    def fn(params, data):
-        y = object_world(params["object"], data.surface)[..., 1]
-        return jax.nn.relu(data.floor.astype(y.dtype) - y)[..., None]
 
-    return Term("object_ground", fn, weight, reads=(("object", None),))
+class ContactResidual(eqx.Module):
+    """E_C (eq. 5.7): √Q_t · the least signed distance of the body contact vertices to the
+    posed object, (T, 1, 1) (`contact_term`)."""
+
+    def __call__(self, params, data) -> Array:
+        verts = posed_in_views(params, data).vertices[:, data.contact_vertices]
+        d = jnp.min(data.sdf(_object_local(params["object"], verts)), axis=-1, keepdims=True)
+        return (jnp.sqrt(data.contact.astype(d.dtype))[:, None] * d)[..., None]
+
+
+def in_contact(data) -> Array:
+    """The contact frames, Q_t > 0, (T, 1)."""
+    return (data.contact > 0)[:, None]
 
 
 def contact_term(weight: float = 1.0) -> Term:
@@ -358,12 +448,28 @@ def contact_term(weight: float = 1.0) -> Term:
     penetrating closest vertex is pushed out.
     """
 
-    def fn(params, data):
-        verts = posed_in_views(params, data).vertices[:, data.contact_vertices]
-        d = jnp.min(data.sdf(_object_local(params["object"], verts)), axis=-1, keepdims=True)
-        return (jnp.sqrt(data.contact.astype(d.dtype))[:, None] * d)[..., None]
+    return Term("contact", ContactResidual(), weight, mask=in_contact)
 
-    return Term("contact", fn, weight, mask=lambda d: (d.contact > 0)[:, None])
+
+class FloorContactResidual(eqx.Module):
+    """E_G and E_C (eq. 5.6-5.7) with the floor {x: up·x = height} as the surface: the
+    signed height of the lowest sole point, ρ_σ when `sigma` is given, (T, 1, 1)
+    (`floor_contact_term`)."""
+
+    up: tuple[float, float, float] = eqx.field(static=True)
+    height: float = eqx.field(static=True)
+    points: tuple[int, ...] = eqx.field(static=True)
+    offsets: tuple[float, ...] = eqx.field(static=True)
+    sigma: float | None = eqx.field(static=True, default=None)
+
+    def __call__(self, params, data) -> Array:
+        body = posed_in_views(params, data)
+        points = np.asarray(self.points, np.int32)
+        feet = regress_keypoints(data.regressor, body.vertices, body.joints)[:, points]  # (T, P, 3)
+        up, offsets = np.asarray(self.up, np.float64), np.asarray(self.offsets, np.float64)
+        above = feet @ jnp.asarray(up, feet.dtype) - jnp.asarray(offsets, feet.dtype) - self.height
+        r = jnp.min(above, axis=-1)[:, None, None]
+        return r if self.sigma is None else GemanMcClure(self.sigma)(r)
 
 
 def floor_contact_term(up, height: float, points, offsets, sigma: float | None = None, weight: float = 1.0) -> Term:
@@ -383,15 +489,8 @@ def floor_contact_term(up, height: float, points, offsets, sigma: float | None =
     if up.shape != (3,) or not np.linalg.norm(up) > 0:
         raise ValueError(f"floor_contact_term: up must be a non-zero 3-vector; got {up!r}.")
     up = up / np.linalg.norm(up)
-    points = np.asarray(points, np.int32)
+    points = np.asarray(points, np.int32).reshape(-1)
     offsets = np.broadcast_to(np.asarray(offsets, np.float64), points.shape)
-    loss = None if sigma is None else GemanMcClure(sigma)
-
-    def fn(params, data):
-        body = posed_in_views(params, data)
-        feet = regress_keypoints(data.regressor, body.vertices, body.joints)[:, points]  # (T, P, 3)
-        above = feet @ jnp.asarray(up, feet.dtype) - jnp.asarray(offsets, feet.dtype) - height
-        r = jnp.min(above, axis=-1)[:, None, None]
-        return r if loss is None else loss(r)
-
+    fn = FloorContactResidual(tuple(up.tolist()), float(height), tuple(points.tolist()), tuple(offsets.tolist()),
+                              None if sigma is None else float(sigma))  # fmt: skip
     return Term("floor", fn, weight)

@@ -10,6 +10,9 @@ Unknowns (`jaxmocap.solve` kinds; terms see rotations as matrices):
 | "heading" | sequence angle (S,) | γ_s, heading correction per body sensor (§4.2.4) |
 | "x0" | sequence so3 (24, 3) | the initial pose that defines the sensor-to-bone offsets |
 
+Each residual is an equinox module with static configuration (bones, fps, which unknowns
+are free), wrapped in a `Term` by the `*_term` constructors below (as `energies.imu`).
+
 A variant that keeps heading or x₀ fixed (VIP-vanilla, VIP-noHeadParam) reads them from
 `VIPData.heading` / `VIPData.x0` instead (`free_heading` / `free_x0` below).
 
@@ -49,6 +52,7 @@ from ..priors.pose_prior import PosePrior
 from ..rotation import matrix_to_axis_angle, rotation_y
 from ..solve import GemanMcClure, Term, nan_mask
 from ..timeseries import second_difference
+from .camera import detected
 from .posed import posed_body
 
 __all__ = [
@@ -61,6 +65,12 @@ __all__ = [
     "image_term",
     "initial_pose_term",
     "world_to_camera",
+    "HeadingOrientationResidual",
+    "HeadingAccelerationResidual",
+    "CameraOrientationResidual",
+    "CameraAccelerationResidual",
+    "ImageResidual",
+    "InitialPoseResidual",
 ]
 
 #: E_img is measured in pixels of an image this high (the thesis's 1080p video).
@@ -120,63 +130,106 @@ def _extra_reads(free_heading: bool, free_x0: bool) -> tuple:
     return (("heading", None),) * free_heading + (("x0", None),) * free_x0
 
 
-def heading_orientation_term(bones, weight, free_heading: bool = True, free_x0: bool = True) -> Term:
-    """w_ori E_ori over the body sensors with heading and initial pose (eq. 4.7-4.9, 4.20)."""
-    bones = tuple(int(b) for b in bones)
+class HeadingOrientationResidual(eqx.Module):
+    """E_ori with heading and initial pose (eq. 4.7-4.9, 4.20): log(R_b^g(x_t) R_s^b
+    (R_y(γ_s) R̃_s(t))ᵀ)^∨ per frame and body sensor, (T, S, 3)."""
 
-    def fn(params, data: VIPData):
+    bones: tuple[int, ...] = eqx.field(static=True)
+    free_heading: bool = eqx.field(static=True, default=True)
+    free_x0: bool = eqx.field(static=True, default=True)
+
+    def __call__(self, params, data: VIPData) -> Array:
+        bones = self.bones
         R, _ = chain_transforms(SMPL_PARENTS, params["pose"], data.rest_joints, bones)
-        R0, _ = chain_transforms(SMPL_PARENTS, _x0(params, data, free_x0)[None], data.rest_joints, bones)
-        Ry = rotation_y(_heading(params, data, free_heading))  # (S, 3, 3)
+        R0, _ = chain_transforms(SMPL_PARENTS, _x0(params, data, self.free_x0)[None], data.rest_joints, bones)
+        Ry = rotation_y(_heading(params, data, self.free_heading))  # (S, 3, 3)
         R_bone = jnp.stack([R[b] for b in bones], 1)  # (T, S, 3, 3)
         R_bone0 = jnp.stack([R0[b][0] for b in bones], 0)  # (S, 3, 3)
         offset = mat3_mul(jnp.swapaxes(R_bone0, -1, -2), mat3_mul(Ry, data.orientation0))  # eq. 4.9
         measured = mat3_mul(Ry[None], data.orientation)
         return matrix_to_axis_angle(mat3_mul(mat3_mul(R_bone, offset[None]), jnp.swapaxes(measured, -1, -2)))
 
-    reads = (("pose", ancestors(SMPL_PARENTS, bones)),) + _extra_reads(free_heading, free_x0)
-    return Term("ori", fn, weight, 0, None, lambda d: nan_mask(d.orientation, (-2, -1)), reads)
+
+def orientation_present(data: VIPData) -> Array:
+    """Body-sensor orientation samples that were not dropped, (T, S)."""
+    return nan_mask(data.orientation, (-2, -1))
 
 
-def heading_acceleration_term(bones, fps: float, weight, free_heading: bool = True) -> Term:
-    """w_acc E_acc over the body sensors, measurements turned by R_y(γ_s) (eq. 4.21-4.22)."""
-    bones = tuple(int(b) for b in bones)
-    fps = float(fps)
+def heading_orientation_term(bones, weight, free_heading: bool = True, free_x0: bool = True) -> Term:
+    """w_ori E_ori over the body sensors with heading and initial pose (eq. 4.7-4.9, 4.20)."""
+    fn = HeadingOrientationResidual(tuple(int(b) for b in bones), bool(free_heading), bool(free_x0))
+    reads = (("pose", ancestors(SMPL_PARENTS, fn.bones)),) + _extra_reads(free_heading, free_x0)
+    return Term("ori", fn, weight, 0, None, orientation_present, reads)
 
-    def fn(params, data: VIPData):
+
+class HeadingAccelerationResidual(eqx.Module):
+    """E_acc with the measurements turned by R_y(γ_s) (eq. 4.21-4.22): the model sensor
+    point's central-difference acceleration minus R_y(γ_s) ã^g(t), (T, S, 3)."""
+
+    bones: tuple[int, ...] = eqx.field(static=True)
+    fps: float = eqx.field(static=True)
+    free_heading: bool = eqx.field(static=True, default=True)
+
+    def __call__(self, params, data: VIPData) -> Array:
+        bones = self.bones
         R, J = chain_transforms(SMPL_PARENTS, params["pose"], data.rest_joints, bones)
         R_bone = jnp.stack([R[b] for b in bones], 1)
         p = mat3_apply(R_bone, data.sensor_point) + jnp.stack([J[b] for b in bones], 1)
         p = p + params["trans"][:, None, :]
-        a_model = second_difference(p) * fps**2
-        Ry = rotation_y(_heading(params, data, free_heading))
+        a_model = second_difference(p) * self.fps**2
+        Ry = rotation_y(_heading(params, data, self.free_heading))
         return a_model - jnp.einsum("sab,tsb->tsa", Ry, data.acceleration)
 
-    reads = (("pose", ancestors(SMPL_PARENTS, bones)), ("trans", None)) + _extra_reads(free_heading, False)
-    return Term("acc", fn, weight, 1, None, lambda d: nan_mask(d.acceleration, -1), reads)
+
+def acceleration_present(data: VIPData) -> Array:
+    """Body-sensor acceleration samples that were not dropped, (T, S)."""
+    return nan_mask(data.acceleration, -1)
+
+
+def heading_acceleration_term(bones, fps: float, weight, free_heading: bool = True) -> Term:
+    """w_acc E_acc over the body sensors, measurements turned by R_y(γ_s) (eq. 4.21-4.22)."""
+    fn = HeadingAccelerationResidual(tuple(int(b) for b in bones), float(fps), bool(free_heading))
+    reads = (("pose", ancestors(SMPL_PARENTS, fn.bones)), ("trans", None)) + _extra_reads(free_heading, False)
+    return Term("acc", fn, weight, 1, None, acceleration_present, reads)
+
+
+class CameraOrientationResidual(eqx.Module):
+    """The camera IMU's orientation against the camera pose's rotation (eq. 4.20), (T, 1, 3)."""
+
+    def __call__(self, params, data: VIPData) -> Array:
+        Rc = params["cam"][:, :3, :3]
+        return matrix_to_axis_angle(mat3_mul(Rc, jnp.swapaxes(data.cam_orientation, -1, -2)))[:, None]
+
+
+def camera_orientation_present(data: VIPData) -> Array:
+    """Camera-IMU orientation samples that were not dropped, (T, 1)."""
+    return nan_mask(data.cam_orientation, (-2, -1))[:, None]
 
 
 def camera_orientation_term(weight) -> Term:
     """The camera IMU's orientation against the camera pose's rotation (eq. 4.20): (T, 1, 3)."""
+    return Term("cam_ori", CameraOrientationResidual(), weight, 0, None, camera_orientation_present, (("cam", None),))
 
-    def fn(params, data: VIPData):
-        Rc = params["cam"][:, :3, :3]
-        return matrix_to_axis_angle(mat3_mul(Rc, jnp.swapaxes(data.cam_orientation, -1, -2)))[:, None]
 
-    return Term("cam_ori", fn, weight, 0, None, lambda d: nan_mask(d.cam_orientation, (-2, -1))[:, None],
-                (("cam", None),))  # fmt: skip
+class CameraAccelerationResidual(eqx.Module):
+    """The camera centre's central-difference acceleration against its IMU (eq. 4.22), (T, 1, 3)."""
+
+    fps: float = eqx.field(static=True)
+
+    def __call__(self, params, data: VIPData) -> Array:
+        centre = params["cam"][:, :3, 3]
+        return (second_difference(centre) * self.fps**2 - data.cam_acceleration)[:, None]
+
+
+def camera_acceleration_present(data: VIPData) -> Array:
+    """Camera-IMU acceleration samples that were not dropped, (T, 1)."""
+    return nan_mask(data.cam_acceleration, -1)[:, None]
 
 
 def camera_acceleration_term(fps: float, weight) -> Term:
     """The camera centre's central-difference acceleration against its IMU (eq. 4.22): (T, 1, 3)."""
-    fps = float(fps)
-
-    def fn(params, data: VIPData):
-        centre = params["cam"][:, :3, 3]
-        return (second_difference(centre) * fps**2 - data.cam_acceleration)[:, None]
-
-    return Term("cam_acc", fn, weight, 1, None, lambda d: nan_mask(d.cam_acceleration, -1)[:, None],
-                (("cam", None),))  # fmt: skip
+    fn = CameraAccelerationResidual(float(fps))
+    return Term("cam_acc", fn, weight, 1, None, camera_acceleration_present, (("cam", None),))
 
 
 def world_to_camera(cam: Array) -> tuple[Array, Array]:
@@ -185,32 +238,37 @@ def world_to_camera(cam: Array) -> tuple[Array, Array]:
     return R, -jnp.einsum("...ab,...b->...a", R, cam[..., :3, 3])
 
 
-def image_term(weight, sigma: float = 100.0, free_camera: bool = True) -> Term:
-    """w_img E_img (eq. 4.27-4.28): √c (π(K, camera, keypoint) - detection), (T, 18, 2)."""
-    loss = GemanMcClure(sigma)
+class ImageResidual(eqx.Module):
+    """E_img (eq. 4.27-4.28): √c ρ_σ(π(K, camera, keypoint) - detection) in reference pixels, (T, 18, 2)."""
 
-    def fn(params, data: VIPData):
+    sigma: float = eqx.field(static=True, default=100.0)
+    free_camera: bool = eqx.field(static=True, default=True)
+
+    def __call__(self, params, data: VIPData) -> Array:
         body = posed_body(params, data.body, data.betas)
         kp = regress_keypoints(data.regressor, body.vertices, body.joints)  # (T, 18, 3)
-        R, t = world_to_camera(params["cam"] if free_camera else data.camera)
+        R, t = world_to_camera(params["cam"] if self.free_camera else data.camera)
         uv, _ = project(data.K[None], R, t, kp)
         e = (uv - data.keypoints) * data.pixel_scale
-        return jnp.sqrt(data.confidence)[..., None] * loss(e)
+        return jnp.sqrt(data.confidence)[..., None] * GemanMcClure(self.sigma)(e)
 
-    def mask(data: VIPData):
-        return (data.confidence > 0) & jnp.all(jnp.isfinite(data.keypoints), -1)
 
+def image_term(weight, sigma: float = 100.0, free_camera: bool = True) -> Term:
+    """w_img E_img (eq. 4.27-4.28): √c (π(K, camera, keypoint) - detection), (T, 18, 2)."""
     reads = (("pose", None), ("trans", None)) + ((("cam", None),) if free_camera else ())
-    return Term("img", fn, weight, 0, None, mask, reads)
+    return Term("img", ImageResidual(float(sigma), bool(free_camera)), weight, 0, None, detected, reads)
+
+
+class InitialPoseResidual(eqx.Module):
+    """log(R_j(x₀) R̂_jᵀ) per joint on row 0, zero elsewhere, (T, 24, 3) (`initial_pose_term`)."""
+
+    def __call__(self, params, data: VIPData) -> Array:
+        e = matrix_to_axis_angle(mat3_mul(params["x0"], jnp.swapaxes(data.x0, -1, -2)))  # (24, 3)
+        first = (jnp.arange(data.num_frames) == 0).astype(e.dtype)
+        return first[:, None, None] * e[None]
 
 
 def initial_pose_term(weight) -> Term:
     """Keeps x₀ near its given value, log(R_j(x₀) R̂_jᵀ) per joint, on row 0 only (our
     choice: joints that carry no sensor are otherwise not seen by any energy)."""
-
-    def fn(params, data: VIPData):
-        e = matrix_to_axis_angle(mat3_mul(params["x0"], jnp.swapaxes(data.x0, -1, -2)))  # (24, 3)
-        first = (jnp.arange(data.num_frames) == 0).astype(e.dtype)
-        return first[:, None, None] * e[None]
-
-    return Term("x0", fn, weight, 0, None, None, (("x0", None),))
+    return Term("x0", InitialPoseResidual(), weight, 0, None, None, (("x0", None),))

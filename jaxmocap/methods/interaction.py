@@ -241,7 +241,7 @@ def _cube_rotations() -> np.ndarray:
     return np.stack(out)
 
 
-# --- problems (cached: a term's function is static, a new closure would recompile) ----------
+# --- problems (terms are equinox modules: equal settings, equal problems, one compiled solve) --
 
 _OBJECT_TERMS = ("object_mask", "object_depth")
 _HUMAN_TERMS = ("keypoints", "pose_prior", "body_depth", "bend", "self_penetration")
@@ -249,7 +249,6 @@ _JOINT_TERMS = _HUMAN_TERMS + _OBJECT_TERMS + ("smooth", "object_smooth", "penet
                                                "contact")  # fmt: skip
 
 
-@functools.lru_cache(maxsize=None)
 def _problem(names: tuple[str, ...], sigma: float, accel_delta: float | None = None) -> Problem:
     """The terms `names` at unit weights; E_O's depth σ is `_weighted`'s (an array there)."""
     makers = {
@@ -696,12 +695,11 @@ def accept_object(
     T = obs.num_frames
     problem = _weighted(_OBJECT_TERMS, weights, dtype)
     data = CombinedData((_cameras(obs, body, dtype), _interaction_data(obs, body, obj["masks"], weights, dtype=dtype)))
-    cost = jax.jit(lambda p, d, m: problem.cost(p, d, m))
     frames = np.eye(T, dtype=bool)
 
     def per_frame(R, t) -> np.ndarray:
         p = {"object": jnp.asarray(_pose6(R, t), dtype)}
-        return np.array([float(cost(p, data, jnp.asarray(frames[k]))) for k in range(T)])
+        return np.array([float(_cost(problem, p, data, jnp.asarray(frames[k]))) for k in range(T)])
 
     sep = per_frame(obj["R"], obj["t"])
     jnt = per_frame(joint["object_R"], joint["object_t"])
@@ -709,6 +707,12 @@ def accept_object(
     return {"object_R": np.where(keep[:, None, None], joint["object_R"], obj["R"]),
             "object_t": np.where(keep[:, None], joint["object_t"], obj["t"]), "accepted": keep,
             "cost_separate": sep, "cost_joint": jnt}  # fmt: skip
+
+
+@eqx.filter_jit
+def _cost(problem, params, data, frame_mask):
+    """`problem.cost`, one program for every frame and every call with equal settings."""
+    return problem.cost(params, data, frame_mask)
 
 
 def intercap(

@@ -46,7 +46,6 @@ elimination); every solve takes at most `MuVSWeights.steps` LM steps.
 from __future__ import annotations
 
 import dataclasses
-import functools
 import math
 import warnings
 from collections.abc import Sequence
@@ -558,18 +557,17 @@ def _monocular_root(data, uv, conf, torso: float = 0.5):
 
 
 # --- problems: one compiled solve each, weights traced ------------------------------------
+# Terms are equinox modules with static configuration: problems built twice with the same
+# settings are equal, so `solve`'s jit reuses one program without caching the problems.
 
 
-@functools.lru_cache(maxsize=None)
 def _stage_one_problem(
     sigma: float, stride: int, slack: float, silhouettes: bool, huber: float = 1.0, floor: tuple | None = None
 ) -> Problem:
-    # Cached: a term's function is static, so a new closure would mean a new compile.
     terms = [keypoint_term(sigma), pose_prior_term(), shape_term()] + _silhouettes(silhouettes, stride, slack, huber)
     return Problem(terms + _floor_terms(floor), {"pose": frame("so3"), "trans": frame(), "betas": frame()})
 
 
-@functools.lru_cache(maxsize=None)
 def _stage_two_problem(
     sigma: float,
     stride: int,

@@ -33,7 +33,6 @@ keypoints (VIP-2D) and true camera (`camera=…, free_camera=False`, VIP-Cam) ar
 from __future__ import annotations
 
 import dataclasses
-import functools
 import time
 
 import equinox as eqx
@@ -201,9 +200,7 @@ def tracker_hypotheses(datas, bones) -> np.ndarray:
     return np.stack([world_keypoints(d, inertial_tracker(d, bones), np.zeros((d.num_frames, 3))) for d in datas])
 
 
-@functools.lru_cache(maxsize=None)
 def _tracker_problem(bones: tuple[int, ...]) -> Problem:
-    # Cached: the term functions are static, a new closure would mean a new compile.
     terms = [heading_orientation_term(bones, 1.0, False, False), mahalanobis_term(1.0, 1.0),
              joint_limit_term(1.0, 1.0)]  # fmt: skip
     return Problem(terms, {"pose": frame("so3")})
@@ -278,7 +275,6 @@ def initial_camera(data: VIPData, poses, trans) -> np.ndarray:
     return np.concatenate([np.asarray(matrix_to_axis_angle(jnp.asarray(Rc))), centres], -1)
 
 
-@functools.lru_cache(maxsize=None)
 def _vip_problem(
     bones: tuple[int, ...], fps: float, free_heading: bool, free_x0: bool, free_camera: bool, sigma: float
 ) -> Problem:
