@@ -323,8 +323,10 @@ def test_weights_follow_the_image_resolution(scene):
     K2, kp2 = scene["K"].copy(), scene["kp"].copy()
     K2[:, :2] *= 2.0
     kp2[..., :2] *= 2.0
-    low = mv.camera_data(body, scene["K"], R, t, scene["kp"], "body25")
-    high = mv.camera_data(body, K2, R, t, kp2, "body25")
+    # With the masks (unread by these joint solves): the low-resolution solve is then the
+    # compiled joint solve of `test_stage_one_and_two_recover_a_known_motion`.
+    low = mv.camera_data(body, scene["K"], R, t, scene["kp"], "body25", masks=scene["masks"])
+    high = mv.camera_data(body, K2, R, t, kp2, "body25", masks=scene["masks"].repeat(2, -2).repeat(2, -1))
     w = mv.MuVSWeights(anneal=(1.0,))
     p0 = mv.initialise(low, w.num_betas)
     a, _ = mv.stage_one(low, p0, w, silhouettes=False, max_steps=5)
@@ -356,7 +358,8 @@ def test_one_view_says_it_is_monocular_and_how_uncertain_its_depth_is(scene, flo
     not monocular. (The joint-only solve of `test_weights_follow_the_image_resolution`.)"""
     body = scene["body"]
     w = MONOCULAR
-    data = mv.camera_data(body, scene["K"], scene["R"], scene["t"], scene["kp"], "body25")
+    # masks unread (no silhouettes): the joint solves of the stage tests' compiled programs
+    data = mv.camera_data(body, scene["K"], scene["R"], scene["t"], scene["kp"], "body25", masks=scene["masks"])
     one = mv.mask_views(data, [0])
     R, t = scene["R"][0], scene["t"][0]
     true_depth = float(np.median((scene["joints"][:, 0] @ R.T + t)[:, 2]))
@@ -440,7 +443,7 @@ def test_the_floor_term_moves_a_body_too_close_to_the_camera_back(scene, floor):
     it (the true feet stand on it) the feet pull the body back, and the depth error and the
     unaligned MPJPE shrink. Several views: the pipeline gives the stages no floor."""
     body = scene["body"]
-    data = mv.camera_data(body, scene["K"], scene["R"], scene["t"], scene["kp"], "body25")
+    data = mv.camera_data(body, scene["K"], scene["R"], scene["t"], scene["kp"], "body25", masks=scene["masks"])
     one = mv.mask_views(data, [0])
     truth = {"pose": scene["pose"], "trans": scene["trans"], "betas": np.broadcast_to(scene["betas"], (6, 10)).copy()}
     close = mv.rescale_about_camera(one, truth, 1 / 1.1, 0)
