@@ -3,6 +3,7 @@ two stages end to end on a short synthetic sequence with known truth."""
 
 from __future__ import annotations
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -213,18 +214,23 @@ def test_compact_body_gives_the_same_keypoints_joints_and_silhouette_terms(scene
     joints = mv._weighted(
         mv._stage_one_problem(w.sigma, w.silhouette_stride, w.silhouette_slack, False), w, jnp.float32
     )
+    costs = eqx.filter_jit(lambda problem, p, d: problem.costs(p, d))  # one program each, not op by op
     small = mv.compact(data, 0)
     assert small.body.num_vertices < 0.15 * body.num_vertices and not small.pose_blend
-    compact_costs = joints.costs(params, small)
-    for k, v in joints.costs(params, data).items():
+    compact_costs = costs(joints, params, small)
+    for k, v in costs(joints, params, data).items():
         np.testing.assert_allclose(float(compact_costs[k]), float(v), rtol=1e-5, err_msg=k)
     strided = mv.compact(data, None, w.silhouette_stride)  # the full body's model points: E_S unchanged
-    strided_costs = full.costs(params, strided)
-    for k, v in full.costs(params, data).items():
+    strided_costs = costs(full, params, strided)
+    for k, v in costs(full, params, data).items():
         np.testing.assert_allclose(float(strided_costs[k]), float(v), rtol=1e-4, err_msg=k)
-    pose = axis_angle_to_matrix(params["pose"])
     want = forward(body, params["pose"], params["betas"], params["trans"]).joints
-    got = ec.posed_in_views({"pose": pose, "trans": params["trans"], "betas": params["betas"]}, small).joints
+
+    @eqx.filter_jit
+    def posed(p, d):
+        return ec.posed_in_views({"pose": axis_angle_to_matrix(p["pose"]), "trans": p["trans"], "betas": p["betas"]}, d)
+
+    got = posed(params, small).joints
     np.testing.assert_allclose(np.asarray(got), np.asarray(want), atol=1e-5)
     with pytest.raises(ValueError, match="already compact"):
         mv.compact(small)
@@ -317,8 +323,10 @@ def test_weights_follow_the_image_resolution(scene):
     K2, kp2 = scene["K"].copy(), scene["kp"].copy()
     K2[:, :2] *= 2.0
     kp2[..., :2] *= 2.0
-    low = mv.camera_data(body, scene["K"], R, t, scene["kp"], "body25")
-    high = mv.camera_data(body, K2, R, t, kp2, "body25")
+    # With the masks (unread by these joint solves): the low-resolution solve is then the
+    # compiled joint solve of `test_stage_one_and_two_recover_a_known_motion`.
+    low = mv.camera_data(body, scene["K"], R, t, scene["kp"], "body25", masks=scene["masks"])
+    high = mv.camera_data(body, K2, R, t, kp2, "body25", masks=scene["masks"].repeat(2, -2).repeat(2, -1))
     w = mv.MuVSWeights(anneal=(1.0,))
     p0 = mv.initialise(low, w.num_betas)
     a, _ = mv.stage_one(low, p0, w, silhouettes=False, max_steps=5)
@@ -329,19 +337,32 @@ def test_weights_follow_the_image_resolution(scene):
     assert np.abs(raw["betas"] - a["betas"]).max() > 1e-2  # the keypoints weigh 4x more against the priors
 
 
-def test_one_view_says_it_is_monocular_and_how_uncertain_its_depth_is(scene):
+#: The monocular tests' weights: one annealing round, and σ₁ for one view at the several views'
+#: value, so that the one-view solves are the compiled programs of the several-view ones.
+MONOCULAR = mv.MuVSWeights(anneal=(1.0,), sigma_monocular=10.0)
+
+
+@pytest.fixture(scope="module")
+def floor(scene):
+    """The floor the true feet stand on (their lowest point over the frames): one value for
+    the monocular tests, whose floor solves are then one compiled program (the floor's
+    height is a static setting of the term)."""
+    out = forward(scene["body"], jnp.asarray(scene["pose"], jnp.float32), jnp.asarray(scene["betas"], jnp.float32),
+                  jnp.asarray(scene["trans"], jnp.float32))  # fmt: skip
+    return ((0.0, 1.0, 0.0), float(np.asarray(out.vertices)[..., 1].min()))
+
+
+def test_one_view_says_it_is_monocular_and_how_uncertain_its_depth_is(scene, floor):
     """One view measures size in pixels, not depth: the result says so, with a 1σ depth
     that holds the truth; the floor (where the true feet stand) narrows it. Several views:
     not monocular. (The joint-only solve of `test_weights_follow_the_image_resolution`.)"""
     body = scene["body"]
-    w = mv.MuVSWeights(anneal=(1.0,), sigma_monocular=10.0)
-    data = mv.camera_data(body, scene["K"], scene["R"], scene["t"], scene["kp"], "body25")
+    w = MONOCULAR
+    # masks unread (no silhouettes): the joint solves of the stage tests' compiled programs
+    data = mv.camera_data(body, scene["K"], scene["R"], scene["t"], scene["kp"], "body25", masks=scene["masks"])
     one = mv.mask_views(data, [0])
-    out = forward(body, jnp.asarray(scene["pose"], jnp.float32), jnp.asarray(scene["betas"], jnp.float32),
-                  jnp.asarray(scene["trans"], jnp.float32))  # fmt: skip
     R, t = scene["R"][0], scene["t"][0]
-    true_depth = float(np.median((np.asarray(out.joints)[:, 0] @ R.T + t)[:, 2]))
-    floor = ((0.0, 1.0, 0.0), float(np.asarray(out.vertices)[..., 1].min()))
+    true_depth = float(np.median((scene["joints"][:, 0] @ R.T + t)[:, 2]))
     alone = mv.multiview_smplify(one, w, silhouettes=False, temporal=False)
     ground = mv.multiview_smplify(one, w, silhouettes=False, temporal=False, floor=floor)
     for r in (alone, ground):
@@ -416,20 +437,19 @@ def ec_floor(*spec):
     return floor_contact_term(*spec)
 
 
-def test_the_floor_term_moves_a_body_too_close_to_the_camera_back(scene):
+def test_the_floor_term_moves_a_body_too_close_to_the_camera_back(scene, floor):
     """One view cannot tell a body 10 % too close (and small) from the truth
     (`rescale_about_camera`): started there, stage 1 stays too close without the floor; with
     it (the true feet stand on it) the feet pull the body back, and the depth error and the
     unaligned MPJPE shrink. Several views: the pipeline gives the stages no floor."""
     body = scene["body"]
-    data = mv.camera_data(body, scene["K"], scene["R"], scene["t"], scene["kp"], "body25")
+    data = mv.camera_data(body, scene["K"], scene["R"], scene["t"], scene["kp"], "body25", masks=scene["masks"])
     one = mv.mask_views(data, [0])
     truth = {"pose": scene["pose"], "trans": scene["trans"], "betas": np.broadcast_to(scene["betas"], (6, 10)).copy()}
     close = mv.rescale_about_camera(one, truth, 1 / 1.1, 0)
-    verts, joints = mv._full_pose(one, truth)
-    floor = ((0.0, 1.0, 0.0), float(verts[..., 1].min()))
+    _, joints = mv._full_pose(one, truth)
     depth = lambda p: np.median((mv._full_pose(one, p)[1][:, 0] @ scene["R"][0].T + scene["t"][0])[:, 2])  # noqa: E731
-    w = mv.MuVSWeights(anneal=(1.0,))
+    w = MONOCULAR  # the floor (the true feet's lowest point) and σ₁ of the one-view test: its compiled solves
     alone, _ = mv.stage_one(one, close, w, silhouettes=False, max_steps=15)
     ground, costs = mv.stage_one(one, close, w, silhouettes=False, max_steps=15, floor=floor)
     err_alone, err_ground = abs(depth(alone) - depth(truth)), abs(depth(ground) - depth(truth))

@@ -25,7 +25,9 @@ from jaxmocap.motion.amass import Z_UP_TO_Y_UP, load_amass
 from jaxmocap.motion.library import walk
 from jaxmocap.body import posed_vertices
 
-W, H, T, FPS = 1280, 720, 9, 30.0
+# 16 frames and the demo's focal lengths (1000 + 30 px per camera): σ₁ in pixels follows the
+# mean focal length, so stage 1 here is the compiled program of the demo's 16-frame fit.
+W, H, T, FPS = 1280, 720, 16, 30.0
 EMPTY = (3, 4)  # (view, frame): camera 4 sees no one in frame 4
 
 
@@ -36,7 +38,7 @@ def _cameras():
     rng = np.random.default_rng(0)
     cams = []
     for v in range(4):
-        f = 980.0 + 35.0 * v
+        f = 1000.0 + 30.0 * v  # as the demo's cameras (see T)
         K = [[f, 0.0, W / 2 - 4.0 + 3 * v], [0.0, f, H / 2 + 2.0 - 2 * v], [0.0, 0.0, 1.0]]
         dist = [-0.12 + 0.02 * v, 0.04, 2e-4 * rng.normal(), 2e-4 * rng.normal(), -0.005]
         cams.append(CalibratedCamera(f"cam{v + 1:02d}", K, dist, R[v] @ Z_UP_TO_Y_UP, t[v], W, H))
@@ -103,7 +105,7 @@ def test_multiview_fits_a_body25b_qualisys_recording_end_to_end(recording, tmp_p
     assert set(report["timings_s"]) >= {"read", "select person", "stage 1", "stage 2", "write", "total"}
     jitter = report["jitter_mm_s2"]
     assert np.isfinite([jitter["stage1"], jitter["final"]]).all()
-    assert jitter["final"] < 1.1 * jitter["stage1"], jitter  # stage 2 smooths, even on 9 frames
+    assert jitter["final"] < 1.1 * jitter["stage1"], jitter  # stage 2 smooths, even on 16 frames
     assert "| cam04_json |" in (out / "report.md").read_text()
 
     with np.load(out / "smpl.npz") as f:
@@ -158,7 +160,7 @@ def test_missing_keypoint_folders_and_empty_frame_ranges_are_named(recording, tm
     assert code == 2 and "cam09_json: missing camera folder" in io.err
     code, io = _run(["--keypoints", root / "pose", "--calib", calib, "--out", tmp_path / "o",
                      "--frames", "100:200", "--layout", "body25b"], capsys)  # fmt: skip
-    assert code == 2 and "frames 100:200 selects no frame" in io.err and "0..8" in io.err
+    assert code == 2 and "frames 100:200 selects no frame" in io.err and "0..15" in io.err
     with pytest.raises(SystemExit):
         main(["multiview", "--keypoints", str(root), "--calib", str(calib), "--out", "o", "--frames", "7"])
     assert "START:STOP" in capsys.readouterr().err
@@ -235,7 +237,7 @@ def test_inputs_are_checked_before_any_fit(recording, tmp_path, capsys):
     code, io = _run(["--keypoints", root / "pose", "--calib", calib, "--out", tmp_path / "o", "--layout", "body25"],
                     capsys)  # fmt: skip
     assert code == 2 and "--layout says the keypoints are body25" in io.err and "--layout body25b" in io.err
-    assert "read     4 cameras: cam01_json 9 frames (0..8)" in io.out
+    assert "read     4 cameras: cam01_json 16 frames (0..15)" in io.out
     assert "warning: the frame rate is not known" in io.err  # no --fps, no Config.toml
     assert not (tmp_path / "o").exists()
 

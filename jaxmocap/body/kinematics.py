@@ -99,16 +99,53 @@ def _chain_transforms(
         while j >= 0:
             keep.add(j)
             j = parents[j]
+    rotations, positions = {}, {}
+    for joints, R, p in _by_level(parents, local_rotations, rest_joints, frozenset(keep)):
+        for i, j in enumerate(joints):
+            rotations[j], positions[j] = R[..., i, :, :], p[..., i, :]
+    return rotations, positions
+
+
+def _by_level(parents, local_rotations: Array, rest_joints: Array, keep: frozenset):
+    """[(joints, rotations (..., n, 3, 3), positions (..., n, 3))] of the root and then of
+    the joints of `keep` one tree depth at a time: each level's parents are the level
+    above, so the chain is ~9 batched products instead of 23 sequential ones (fewer
+    operations to compile; every entry is the same arithmetic as joint by joint)."""
     rest = rest_joints.astype(local_rotations.dtype)
     batch = jnp.broadcast_shapes(local_rotations.shape[:-3], rest.shape[:-2])
-    rotations = {0: jnp.broadcast_to(local_rotations[..., 0, :, :], (*batch, 3, 3))}
-    positions = {0: jnp.broadcast_to(rest[..., 0, :], (*batch, 3))}
+    R = jnp.broadcast_to(local_rotations[..., :1, :, :], (*batch, 1, 3, 3))
+    p = jnp.broadcast_to(rest[..., :1, :], (*batch, 1, 3))
+    out = [((0,), R, p)]
+    for joints in _levels(parents, keep):
+        at = [out[-1][0].index(parents[j]) for j in joints]
+        R_p = R[..., at, :, :]
+        p = p[..., at, :] + mat3_apply(R_p, rest[..., joints, :] - rest[..., [parents[j] for j in joints], :])
+        R = mat3_mul(R_p, local_rotations[..., joints, :, :])
+        out.append((joints, R, p))
+    return out
+
+
+@functools.lru_cache(maxsize=None)
+def _levels(parents: tuple[int, ...], keep) -> tuple[tuple[int, ...], ...]:
+    """The joints of `keep` but the root, grouped by depth in the tree (depth 1 first)."""
+    depth = {0: 0}
     for j in range(1, len(parents)):
-        if j in keep:
-            p = parents[j]
-            rotations[j] = mat3_mul(rotations[p], local_rotations[..., j, :, :])
-            positions[j] = positions[p] + mat3_apply(rotations[p], rest[..., j, :] - rest[..., p, :])
-    return rotations, positions
+        depth[j] = depth[parents[j]] + 1
+    out: dict[int, list] = {}
+    for j in sorted(keep):
+        if j:
+            out.setdefault(depth[j], []).append(j)
+    return tuple(tuple(out[d]) for d in sorted(out))
+
+
+@functools.partial(jax.jit, static_argnums=0)
+def _forward_kinematics(parents: tuple[int, ...], local_rotations: Array, rest_joints: Array) -> tuple[Array, Array]:
+    """Every joint's global rotation and position, stacked in joint order."""
+    levels = _by_level(parents, local_rotations, rest_joints, frozenset(range(len(parents))))
+    order = np.argsort([j for joints, _, _ in levels for j in joints])
+    R = jnp.concatenate([R for _, R, _ in levels], -3)[..., order, :, :]
+    p = jnp.concatenate([p for _, _, p in levels], -2)[..., order, :]
+    return R, p
 
 
 def forward_kinematics(parents: Sequence[int], local_rotations: Array, rest_joints: Array) -> tuple[Array, Array]:
@@ -116,9 +153,7 @@ def forward_kinematics(parents: Sequence[int], local_rotations: Array, rest_join
 
     See `chain_transforms` (von Marcard eq. 2.29-2.32).
     """
-    rotations, positions = chain_transforms(parents, local_rotations, rest_joints)
-    order = range(len(parents))
-    return jnp.stack([rotations[j] for j in order], -3), jnp.stack([positions[j] for j in order], -2)
+    return _forward_kinematics(tuple(int(p) for p in parents), local_rotations, rest_joints)
 
 
 def ancestors(parents: Sequence[int], bones) -> tuple[int, ...]:
