@@ -67,6 +67,9 @@ TABLES = (
           "python experiments/defaults.py --out experiments/results", "cpu-long", "~30",
           "chooses the inertial posers' validated preset on 02/131, then measures it on 05-07; "
           "PRESETS['validated'] in jaxmocap/methods/inertial.py must equal its choice (tests/test_presets.py)"),
+    Table("muvs_monocular", ("muvs_monocular.json", "muvs_monocular.md"),
+          "python experiments/muvs_monocular.py --out experiments/results", "cpu-long", "~35",
+          "README quotes it (tests/test_readme_numbers.py); 33 min at a load of 3-15 on 2026-12-07"),
     Table("fuzz", ("fuzz.json",), "nice -n 19 python experiments/fuzz.py", "cpu-long", "~110",
           "reads no motion data"),
     Table("train_association", (),

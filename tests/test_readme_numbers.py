@@ -167,6 +167,17 @@ QUOTES = [
         )
         for label, row in (("separate fits", "separate"), ("joint, detected contact", "joint"))
     ),
+    # One view with the floor term (muvs_monocular): stage 2's unaligned error, placed -> floor, and the aligned one.
+    (
+        r"unaligned error after stage 2 falls from\s+([\d.]+) to ([\d.]+) mm, [\d.]+x the aligned ([\d.]+) mm",
+        "experiments/results/muvs_monocular.json",
+        [
+            "variants.placed.mpjpe.S_T_H.unaligned_mm",
+            "variants.floor_term.mpjpe.S_T_H.unaligned_mm",
+            "variants.floor_term.mpjpe.S_T_H.aligned_mm",
+        ],
+        [0, 0, 0],
+    ),
     # MuVS with four views, the default column of each stage.
     (
         r"\| 4 \| ([\d.]+) / [\d.]+ \| ([\d.]+) / [\d.]+ \| ([\d.]+) / [\d.]+ \| ([\d.]+) / [\d.]+ \|",

@@ -18,8 +18,8 @@
   as the surface touched, `energies.interaction.floor_contact_term`): one view's keypoint
   term alone pulls the body towards the camera (below). On 3 clips of the evaluated
   subjects (one view of 4, 40 frames, `experiments/results/muvs_monocular.md`) it lowers
-  the unaligned MPJPE after stage 2 (+H) from 429 to 194 mm (aligned 89 -> 75 mm: ratio
-  4.8 -> 2.6, per clip 2.1-3.1) and puts the median depth within 0.95-1.01 of the truth.
+  the unaligned MPJPE after stage 2 (+H) from 407 to 206 mm (aligned 84 -> 75 mm: ratio
+  4.9 -> 2.7, per clip 2.3-3.2) and puts the median depth within 0.96-0.99 of the truth.
 
 Left/right swaps (ours, on by default in `multiview_smplify` and the CLI): before stage 1,
 `resolve_left_right` flips back the leg labels of any view that disagrees with the others
