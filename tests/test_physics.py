@@ -431,22 +431,17 @@ def test_mjx_ground_term_on_rotation_matrices(scene):
 
 
 def test_physics_terms_share_one_posed_body(body64):
-    """Ground, foot-contact and object terms read one posed body per evaluation through
-    `params.shared`, and give the same residuals without it."""
+    """Ground, foot-contact and object terms read one posed body per evaluation, the
+    problem's (`Term.posed`), and give the same residuals as each computing its own."""
+    from jaxmocap.energies.posed import PosedBody
     from jaxmocap.physics import FootStationarityResidual, ObjectPenetrationResidual
 
     calls = []
 
-    class Memo(dict):
-        def __init__(self, values):
-            super().__init__(values)
-            self.cache = {}
-
-        def shared(self, key, compute):
-            if key not in self.cache:
-                calls.append(key)
-                self.cache[key] = compute()
-            return self.cache[key]
+    class Counted(eqx.Module):
+        def __call__(self, params, data):
+            calls.append(1)
+            return PosedBody()(params, data)
 
     T = 3
     rng = np.random.default_rng(4)
@@ -457,16 +452,23 @@ def test_physics_terms_share_one_posed_body(body64):
         body=body64, ground=Ground(-0.8), contact_weights=jnp.ones((T - 1, 4)), sdf=sdf,
         object_rotation=jnp.broadcast_to(jnp.eye(3), (T, 3, 3)), object_position=jnp.zeros((T, 3)),
     )  # fmt: skip
-    terms = [GroundSupportResidual(), FootStationarityResidual(), ObjectPenetrationResidual(margin=0.01)]
-    shared = Memo(params)
-    out = [f(shared, data) for f in terms]
-    assert calls == ["posed_body"]
-    for f, r in zip(terms, out):
-        np.testing.assert_array_equal(np.asarray(r), np.asarray(f(params, data)))
+    fns = [GroundSupportResidual(), FootStationarityResidual(), ObjectPenetrationResidual(margin=0.01)]
+    terms = [Term(f"t{i}", f, bandwidth=int(i == 1), posed=PosedBody()) for i, f in enumerate(fns)]
+    problem = Problem(terms + [Term("stay", lambda p, d: p["trans"][:, None])], rotations=("pose",), posed=Counted())
+    out = problem.residuals_on_manifold(params, data)
+    assert len(calls) == 1
+    problem.residuals_on_manifold(params, data, names=("stay",))
+    assert len(calls) == 1  # no term of these reads it: not computed
+    raw = [f(params, data) for f in fns]  # on its own, a residual poses the body itself
+    for i, r in enumerate(raw):
+        kept = r if i != 1 else r.at[0].set(0.0).at[-1].set(0.0)  # the bandwidth-1 term's edge rows are dropped
+        np.testing.assert_array_equal(np.asarray(out[f"t{i}"]), np.asarray(kept).reshape(T, -1))
     V = body64.num_vertices
-    assert [r.shape for r in out] == [(T, V, 1), (T, 4, 3), (T, V, 1)]
-    assert float(out[2].max()) > 0.05  # the box sits in the torso
-    assert float(jnp.abs(out[1][-1]).max()) == 0.0  # padding row
+    assert [r.shape for r in raw] == [(T, V, 1), (T, 4, 3), (T, V, 1)]
+    assert float(raw[2].max()) > 0.05  # the box sits in the torso
+    assert float(jnp.abs(raw[1][-1]).max()) == 0.0  # padding row
+    with pytest.raises(ValueError, match="different posed bodies"):
+        Problem(terms + [Term("other", fns[0], posed=Counted())], rotations=("pose",))
 
 
 def test_check_plot_title_is_the_file_name_and_the_legend_beside_the_curve(tmp_path):

@@ -1,6 +1,6 @@
 """Camera energies of Multi-view SMPLify (Huang §4.3): keypoints, silhouettes, DCT prior.
 
-Every term reads the shared posed body (`posed.posed_body`) and the `CameraData` of
+Every term reads the posed body (`PosedInViews`, computed once per evaluation) and the `CameraData` of
 calibrated, static views; all are per frame (bandwidth 0), so a sequence is solved as
 one batch of independent frames (stage 1) or tied only through per-window DCT
 coefficients (stage 2). Each residual is an equinox module whose configuration (σ,
@@ -42,7 +42,7 @@ import numpy as np
 from jax import Array
 from scipy.ndimage import distance_transform_edt
 
-from ..body.kinematics import forward_rotations_unchecked
+from ..body.kinematics import forward_rotations, forward_rotations_unchecked
 from ..body.model import Body
 from ..geometry.camera import project
 from ..geometry.keypoints import regress_keypoints
@@ -50,7 +50,6 @@ from ..priors.pose_prior import PosePrior
 from ..solve import GemanMcClure, Huber, Term, window
 from ..solve.basis import WindowBasis, basis_term
 from .imu import mahalanobis_term
-from .posed import POSED_BODY, posed_body, shared
 
 __all__ = [
     "CameraData",
@@ -58,6 +57,7 @@ __all__ = [
     "silhouette_data",
     "dct_basis",
     "DCTBasis",
+    "PosedInViews",
     "KeypointResidual",
     "ModelToMask",
     "MaskToModel",
@@ -152,13 +152,22 @@ class CameraData(eqx.Module):
         return self.keypoints.shape[0]
 
 
-def posed_in_views(params, data: CameraData):
-    """The posed body of `params` for camera terms (shared between the terms of one step)."""
-    betas = params["betas"] if "betas" in params else data.betas
-    if getattr(data, "pose_blend", True):
-        return posed_body(params, data.body, betas)
-    return shared(params, POSED_BODY, lambda: forward_rotations_unchecked(
-        data.body, params["pose"], betas, params.get("trans"), pose_blend=False))  # fmt: skip
+class PosedInViews(eqx.Module):
+    """`Problem.posed` of the camera terms: the body posed by params["pose"], params["trans"]
+    and the shape params["betas"] when it is an unknown, else data.betas; without the pose
+    blend shapes when `data.pose_blend` is False."""
+
+    def __call__(self, params, data: CameraData):
+        betas = params["betas"] if "betas" in params else data.betas
+        if getattr(data, "pose_blend", True):
+            return forward_rotations(data.body, params["pose"], betas, params.get("trans"))
+        return forward_rotations_unchecked(data.body, params["pose"], betas, params.get("trans"), pose_blend=False)
+
+
+def posed_in_views(params, data: CameraData, posed=None):
+    """The posed body a camera term reads: `posed` as the problem passes it, or (a term
+    called on its own) its own pass, `PosedInViews()(params, data)`."""
+    return PosedInViews()(params, data) if posed is None else posed
 
 
 def _model_points(vertices: Array, data: CameraData, stride: int) -> Array:
@@ -177,8 +186,8 @@ class KeypointResidual(eqx.Module):
 
     sigma: float = eqx.field(static=True)
 
-    def __call__(self, params, data: CameraData) -> Array:
-        body = posed_in_views(params, data)
+    def __call__(self, params, data: CameraData, posed=None) -> Array:
+        body = posed_in_views(params, data, posed)
         kp = regress_keypoints(data.regressor, body.vertices, body.joints)
         uv, _ = project_to_views(data, kp)
         scale = jnp.sqrt(data.confidence * data.joint_weights)[..., None]
@@ -192,7 +201,7 @@ def detected(data) -> Array:
 
 def keypoint_term(sigma: float = 100.0, weight: float = 1.0) -> Term:
     """E_J (eq. 4.3): confidence-weighted Geman-McClure reprojection error, (T, V, K, 2)."""
-    return Term("keypoints", KeypointResidual(float(sigma)), weight, mask=detected)
+    return Term("keypoints", KeypointResidual(float(sigma)), weight, mask=detected, posed=PosedInViews())
 
 
 def _bilinear(image: Array, uv: Array) -> Array:
@@ -248,8 +257,8 @@ class ModelToMask(eqx.Module):
 
     stride: int = eqx.field(static=True, default=1)
 
-    def __call__(self, params, data: CameraData) -> Array:
-        verts = _model_points(posed_in_views(params, data).vertices, data, self.stride)
+    def __call__(self, params, data: CameraData, posed=None) -> Array:
+        verts = _model_points(posed_in_views(params, data, posed).vertices, data, self.stride)
         uv, _ = project_to_views(data, verts)  # (T, V, N, 2)
         dist = jax.vmap(jax.vmap(_bilinear))(data.silhouettes.distance, uv)
         per_point = jnp.sqrt(data.silhouettes.area / uv.shape[-2])[..., None]  # each vertex: area/N px
@@ -263,8 +272,8 @@ class MaskToModel(eqx.Module):
     slack: float = eqx.field(static=True, default=2.0)
     huber: float = eqx.field(static=True, default=1.0)
 
-    def __call__(self, params, data: CameraData) -> Array:
-        verts = _model_points(posed_in_views(params, data).vertices, data, self.stride)
+    def __call__(self, params, data: CameraData, posed=None) -> Array:
+        verts = _model_points(posed_in_views(params, data, posed).vertices, data, self.stride)
         uv, _ = project_to_views(data, verts)  # (T, V, N, 2)
         return mask_to_model(uv, data.silhouettes, self.slack, Huber(self.huber))
 
@@ -294,8 +303,14 @@ def silhouette_terms(
     """
     stride = int(stride)
     return [
-        Term("silhouette_model", ModelToMask(stride), w_model, mask=has_mask),
-        Term("silhouette_mask", MaskToModel(stride, float(slack), float(huber)), w_mask, mask=mask_point_valid),
+        Term("silhouette_model", ModelToMask(stride), w_model, mask=has_mask, posed=PosedInViews()),
+        Term(
+            "silhouette_mask",
+            MaskToModel(stride, float(slack), float(huber)),
+            w_mask,
+            mask=mask_point_valid,
+            posed=PosedInViews(),
+        ),
     ]
 
 
@@ -368,8 +383,8 @@ def dct_window(length: int = 30):
 class PosedJoints(eqx.Module):
     """E_T's features: the posed joints of each frame, flattened, (T, J·3)."""
 
-    def __call__(self, params, data: CameraData) -> Array:
-        j = posed_in_views(params, data).joints
+    def __call__(self, params, data: CameraData, posed=None) -> Array:
+        j = posed_in_views(params, data, posed).joints
         return j.reshape(j.shape[0], -1)
 
 
@@ -378,7 +393,7 @@ def temporal_term(length: int = 30, num_dct: int = 10, sigma: float = 0.05, weig
     coefficients params["coef"] (W, K, J, 3), ρ_σ per coordinate (σ in metres); a
     basis term (`jaxmocap.solve.basis`), so the LM eliminates the coefficients by their
     Kronecker structure. Windows of `length` frames, the last one as `DCTBasis` says."""
-    basis = WindowBasis("coef", PosedJoints(), DCTBasis(int(length), int(num_dct)), int(length))
+    basis = WindowBasis("coef", PosedJoints(), DCTBasis(int(length), int(num_dct)), int(length), PosedInViews())
     return basis_term("temporal", basis, (("pose", None), ("trans", None)), weight, GemanMcClure(sigma))
 
 

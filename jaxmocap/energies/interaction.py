@@ -58,7 +58,7 @@ from ..body.model import SMPL_JOINT_NAMES, Body
 from ..geometry.keypoints import regress_keypoints
 from ..objects import ObjectSDF
 from ..solve import GemanMcClure, Huber, Term
-from .camera import Silhouettes, posed_in_views, project_to_views, mask_to_model
+from .camera import PosedInViews, Silhouettes, mask_to_model, posed_in_views, project_to_views
 
 __all__ = [
     "InteractionData",
@@ -192,8 +192,8 @@ class BodyDepthResidual(eqx.Module):
     """E_D (eq. 5.4): observed body points minus their matched visible vertices
     (`data.body_match`), (T, V, Mb, 3)."""
 
-    def __call__(self, params, data) -> Array:
-        verts = posed_in_views(params, data).vertices  # (T, N, 3)
+    def __call__(self, params, data, posed=None) -> Array:
+        verts = posed_in_views(params, data, posed).vertices  # (T, N, 3)
         T, V, M = data.body_match.shape
         matched = jnp.take_along_axis(verts, data.body_match.reshape(T, V * M)[..., None], axis=1)
         return data.body_points.astype(verts.dtype) - matched.reshape(T, V, M, 3)
@@ -207,7 +207,8 @@ def body_point_valid(data) -> Array:
 def body_depth_term(weight: float = 1.0, delta: float = 0.01) -> Term:
     """E_D (eq. 5.4): observed body points minus their matched visible vertices
     (`data.body_match`, re-found between solves), Huber δ (m), (T, V, Mb, 3)."""
-    return Term("body_depth", BodyDepthResidual(), weight, loss=Huber(delta), mask=body_point_valid)
+    return Term("body_depth", BodyDepthResidual(), weight, loss=Huber(delta), mask=body_point_valid,
+                posed=PosedInViews())  # fmt: skip
 
 
 #: (joint, rotation axis, sign s): E_α penalises exp(s θ), θ the bending angle about the
@@ -307,8 +308,8 @@ def _tree_distance(parents) -> np.ndarray:
 class SelfPenetrationResidual(eqx.Module):
     """E_P (eq. 5.5): max(0, r_i + r_j - ‖c_i - c_j‖) for the sphere pairs, (T, P, 1)."""
 
-    def __call__(self, params, data) -> Array:
-        joints = posed_in_views(params, data).joints  # (T, J, 3)
+    def __call__(self, params, data, posed=None) -> Array:
+        joints = posed_in_views(params, data, posed).joints  # (T, J, 3)
         centres = jnp.einsum("sj,tjc->tsc", data.sphere_weights.astype(joints.dtype), joints)
         i, k = data.sphere_pairs[:, 0], data.sphere_pairs[:, 1]
         d2 = jnp.sum((centres[:, i] - centres[:, k]) ** 2, -1)
@@ -320,7 +321,7 @@ class SelfPenetrationResidual(eqx.Module):
 def self_penetration_term(weight: float = 1.0) -> Term:
     """E_P (eq. 5.5): max(0, r_i + r_j - ‖c_i - c_j‖) for the sphere pairs, (T, P, 1);
     centres from the posed joints (`body_spheres`)."""
-    return Term("self_penetration", SelfPenetrationResidual(), weight)
+    return Term("self_penetration", SelfPenetrationResidual(), weight, posed=PosedInViews())
 
 
 # --- joint fit over all frames (eq. 5.6-5.7) -----------------------------------------------
@@ -338,8 +339,8 @@ class VertexAcceleration(eqx.Module):
 
     stride: int = eqx.field(static=True, default=8)
 
-    def __call__(self, params, data) -> Array:
-        return _second_difference(posed_in_views(params, data).vertices[:, :: self.stride])
+    def __call__(self, params, data, posed=None) -> Array:
+        return _second_difference(posed_in_views(params, data, posed).vertices[:, :: self.stride])
 
 
 def smoothness_term(weight: float = 1.0, stride: int = 8, delta: float | None = None) -> Term:
@@ -347,7 +348,7 @@ def smoothness_term(weight: float = 1.0, stride: int = 8, delta: float | None = 
     Huber δ (m per frame²) when given (see `object_smoothness_term`)."""
     loss = None if delta is None else Huber(delta)
     return Term("smooth", VertexAcceleration(int(stride)), weight, loss=loss, bandwidth=1,
-                reads=(("pose", None), ("trans", None)))  # fmt: skip
+                reads=(("pose", None), ("trans", None)), posed=PosedInViews())  # fmt: skip
 
 
 class CornerAcceleration(eqx.Module):
@@ -378,15 +379,15 @@ class PenetrationResidual(eqx.Module):
 
     stride: int = eqx.field(static=True, default=1)
 
-    def __call__(self, params, data) -> Array:
-        verts = posed_in_views(params, data).vertices[:, :: self.stride]
+    def __call__(self, params, data, posed=None) -> Array:
+        verts = posed_in_views(params, data, posed).vertices[:, :: self.stride]
         return jax.nn.relu(-data.sdf(_object_local(params["object"], verts)))[..., None]
 
 
 def penetration_term(weight: float = 1.0, stride: int = 1) -> Term:
     """Body-object interpenetration (eq. 5.6, as in PROX with a moving object): max(0, -sdf)
     of every `stride`-th posed body vertex in the posed object, (T, N, 1)."""
-    return Term("penetration", PenetrationResidual(int(stride)), weight)
+    return Term("penetration", PenetrationResidual(int(stride)), weight, posed=PosedInViews())
 
 
 class GroundResidual(eqx.Module):
@@ -394,14 +395,15 @@ class GroundResidual(eqx.Module):
 
     stride: int = eqx.field(static=True, default=1)
 
-    def __call__(self, params, data) -> Array:
-        y = posed_in_views(params, data).vertices[:, :: self.stride, 1]
+    def __call__(self, params, data, posed=None) -> Array:
+        y = posed_in_views(params, data, posed).vertices[:, :: self.stride, 1]
         return jax.nn.relu(data.floor.astype(y.dtype) - y)[..., None]
 
 
 def ground_term(weight: float = 1.0, stride: int = 1) -> Term:
     """E_G (eq. 5.6): max(0, h - y) of every `stride`-th body vertex, (T, N, 1)."""
-    return Term("ground", GroundResidual(int(stride)), weight, reads=(("pose", None), ("trans", None)))
+    return Term("ground", GroundResidual(int(stride)), weight, reads=(("pose", None), ("trans", None)),
+                posed=PosedInViews())  # fmt: skip
 
 
 class ObjectGroundResidual(eqx.Module):
@@ -421,8 +423,8 @@ class ContactResidual(eqx.Module):
     """E_C (eq. 5.7): √Q_t · the least signed distance of the body contact vertices to the
     posed object, (T, 1, 1) (`contact_term`)."""
 
-    def __call__(self, params, data) -> Array:
-        verts = posed_in_views(params, data).vertices[:, data.contact_vertices]
+    def __call__(self, params, data, posed=None) -> Array:
+        verts = posed_in_views(params, data, posed).vertices[:, data.contact_vertices]
         d = jnp.min(data.sdf(_object_local(params["object"], verts)), axis=-1, keepdims=True)
         return (jnp.sqrt(data.contact.astype(d.dtype))[:, None] * d)[..., None]
 
@@ -448,7 +450,7 @@ def contact_term(weight: float = 1.0) -> Term:
     penetrating closest vertex is pushed out.
     """
 
-    return Term("contact", ContactResidual(), weight, mask=in_contact)
+    return Term("contact", ContactResidual(), weight, mask=in_contact, posed=PosedInViews())
 
 
 class FloorContactResidual(eqx.Module):
@@ -462,8 +464,8 @@ class FloorContactResidual(eqx.Module):
     offsets: tuple[float, ...] = eqx.field(static=True)
     sigma: float | None = eqx.field(static=True, default=None)
 
-    def __call__(self, params, data) -> Array:
-        body = posed_in_views(params, data)
+    def __call__(self, params, data, posed=None) -> Array:
+        body = posed_in_views(params, data, posed)
         points = np.asarray(self.points, np.int32)
         feet = regress_keypoints(data.regressor, body.vertices, body.joints)[:, points]  # (T, P, 3)
         up, offsets = np.asarray(self.up, np.float64), np.asarray(self.offsets, np.float64)
@@ -493,4 +495,4 @@ def floor_contact_term(up, height: float, points, offsets, sigma: float | None =
     offsets = np.broadcast_to(np.asarray(offsets, np.float64), points.shape)
     fn = FloorContactResidual(tuple(up.tolist()), float(height), tuple(points.tolist()), tuple(offsets.tolist()),
                               None if sigma is None else float(sigma))  # fmt: skip
-    return Term("floor", fn, weight)
+    return Term("floor", fn, weight, posed=PosedInViews())

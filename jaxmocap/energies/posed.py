@@ -3,11 +3,12 @@
 Every term is `fn(params, data)` with `params["pose"]` local rotation matrices
 (T, J, 3, 3) (a rotation key of the `Problem`) and optional `params["trans"]` (T, 3).
 
-- `posed_body`: one SMPL forward pass per residual evaluation, shared by all terms that
-  read vertices, joints or global rotations (ground, contact, objects, keypoints,
-  silhouettes). When the engine hands `params` with a `shared(key, compute)` memo, the
-  pass is computed once and reused; otherwise each call computes it. Under `jit`, what no
-  term reads (e.g. vertices when only joints are used) is dropped by XLA.
+- `PosedBody`: a term that reads vertices, joints or global rotations (ground, contact,
+  objects, keypoints, silhouettes) is `Term(..., posed=PosedBody())` and is called as
+  `fn(params, data, posed)`; its `Problem` computes the one SMPL forward pass per
+  evaluation for all such terms. Under `jit`, what no term reads (e.g. vertices when only
+  joints are used) is dropped by XLA. `posed_body` (deprecated) is the same pass for a
+  term that computes it itself.
 - `CombinedData`: terms read their data by attribute (`data.orientation`,
   `data.body`, `data.ground`, ...); a problem mixing kinds of terms (IMU and physics)
   gets one `data` joining the containers of each kind.
@@ -15,39 +16,41 @@ Every term is `fn(params, data)` with `params["pose"]` local rotation matrices
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+import warnings
+from collections.abc import Mapping
 
 import equinox as eqx
 
 from ..body.kinematics import BodyOutput, forward_rotations
 from ..body.model import Body
 
-__all__ = ["POSED_BODY", "posed_body", "shared", "CombinedData"]
-
-#: Memo key of the shared forward pass.
-POSED_BODY = "posed_body"
+__all__ = ["PosedBody", "posed_body", "CombinedData"]
 
 
-def shared(params, key: str, compute: Callable[[], object]):
-    """`params.shared(key, compute)` when the engine provides it (memoised for one
-    residual evaluation), else `compute()`."""
-    memo = getattr(params, "shared", None)
-    return compute() if memo is None else memo(key, compute)
+class PosedBody(eqx.Module):
+    """`Problem.posed` of the SMPL body `data.body` with shape `data.betas` (None: the
+    mean shape; (B,) or (T, B)): vertices (T, V, 3), joints (T, J, 3), global
+    joint_rotations (T, J, 3, 3) from params["pose"] (T, J, 3, 3) local rotations and
+    params.get("trans") (T, 3)."""
+
+    def __call__(self, params, data) -> BodyOutput:
+        return forward_rotations(data.body, params["pose"], getattr(data, "betas", None), params.get("trans"))
 
 
 def posed_body(params, body: Body, betas=None) -> BodyOutput:
-    """The posed body of `params`: vertices (T, V, 3), joints (T, J, 3), global
-    joint_rotations (T, J, 3, 3), from params["pose"] (T, J, 3, 3) local rotations,
-    params.get("trans") (T, 3) and betas (B,) or (T, B).
+    """The posed body of `params` (see `PosedBody`), computed on each call.
 
-    Memoised under one key per evaluation: every term of a problem must pose the same
-    body and betas (they come from the problem's one `data`).
+    Deprecated: give the term `posed=PosedBody()` and take the posed body as `fn`'s third
+    argument, so that the pass is computed once for all terms; this helper goes in the
+    next release.
     """
-
-    def compute():
-        return forward_rotations(body, params["pose"], betas, params.get("trans"))
-
-    return shared(params, POSED_BODY, compute)
+    warnings.warn(
+        "posed_body is deprecated: declare Term(..., posed=PosedBody()) (jaxmocap.energies.posed) "
+        "and take the posed body as fn's third argument.",
+        DeprecationWarning,
+        stacklevel=2,
+    )
+    return forward_rotations(body, params["pose"], betas, params.get("trans"))
 
 
 class CombinedData(eqx.Module):

@@ -53,7 +53,7 @@ from ..rotation import matrix_to_axis_angle, rotation_y
 from ..solve import GemanMcClure, Term, nan_mask
 from ..timeseries import second_difference
 from .camera import detected
-from .posed import posed_body
+from .posed import PosedBody
 
 __all__ = [
     "REFERENCE_IMAGE_HEIGHT",
@@ -244,8 +244,8 @@ class ImageResidual(eqx.Module):
     sigma: float = eqx.field(static=True, default=100.0)
     free_camera: bool = eqx.field(static=True, default=True)
 
-    def __call__(self, params, data: VIPData) -> Array:
-        body = posed_body(params, data.body, data.betas)
+    def __call__(self, params, data: VIPData, posed=None) -> Array:
+        body = PosedBody()(params, data) if posed is None else posed  # posed: the problem's (Term.posed)
         kp = regress_keypoints(data.regressor, body.vertices, body.joints)  # (T, 18, 3)
         R, t = world_to_camera(params["cam"] if self.free_camera else data.camera)
         uv, _ = project(data.K[None], R, t, kp)
@@ -256,7 +256,9 @@ class ImageResidual(eqx.Module):
 def image_term(weight, sigma: float = 100.0, free_camera: bool = True) -> Term:
     """w_img E_img (eq. 4.27-4.28): √c (π(K, camera, keypoint) - detection), (T, 18, 2)."""
     reads = (("pose", None), ("trans", None)) + ((("cam", None),) if free_camera else ())
-    return Term("img", ImageResidual(float(sigma), bool(free_camera)), weight, 0, None, detected, reads)
+    return Term(
+        "img", ImageResidual(float(sigma), bool(free_camera)), weight, 0, None, detected, reads, posed=PosedBody()
+    )
 
 
 class InitialPoseResidual(eqx.Module):

@@ -145,16 +145,13 @@ def _posed(x, d):
     mesh makes an LM step about 8x cheaper.
     """
 
-    def compute():
-        local = d["local"].at[:, d["free"]].set(x["free"])
-        R, p = forward_kinematics(SMPL_PARENTS, local, d["rest"])
-        t = x["trans"]
-        v = d["v_rest"] + (local[:, 1:] - jnp.eye(3, dtype=t.dtype)).reshape(1, -1) @ d["v_dirs"]
-        c = jnp.einsum("j,tjab,tjb->ta", d["v_w"], R, v[:, None] - d["rest"]) + d["v_w"] @ p[0] + t
-        com = jnp.einsum("tjab,jb->ta", R, d["S"] - d["W"][:, None] * d["rest"]) + d["W"] @ p[0] + t
-        return R, p + t[:, None], c, com
-
-    return x.shared("posed", compute)
+    local = d["local"].at[:, d["free"]].set(x["free"])
+    R, p = forward_kinematics(SMPL_PARENTS, local, d["rest"])
+    t = x["trans"]
+    v = d["v_rest"] + (local[:, 1:] - jnp.eye(3, dtype=t.dtype)).reshape(1, -1) @ d["v_dirs"]
+    c = jnp.einsum("j,tjab,tjb->ta", d["v_w"], R, v[:, None] - d["rest"]) + d["v_w"] @ p[0] + t
+    com = jnp.einsum("tjab,jb->ta", R, d["S"] - d["W"][:, None] * d["rest"]) + d["W"] @ p[0] + t
+    return R, p + t[:, None], c, com
 
 
 def _e_body(x, d):

@@ -7,8 +7,8 @@ energy protocol of `jaxmocap.solve` (one row per frame, last axis one observatio
   joint ids, margins), so equal configurations compare and hash equal and a rebuilt
   problem reuses the compiled solve;
 - `params["pose"]` reaches it as local rotation matrices (T, 24, 3, 3) (a rotation key of
-  the `Problem`), `params["trans"]` (T, 3) as given; the posed body comes from
-  `jaxmocap.energies.posed.posed_body`, one forward pass per evaluation shared by all terms;
+  the `Problem`), `params["trans"]` (T, 3) as given; the posed body (`jaxmocap.energies.posed.PosedBody`, `Term.posed`) reaches it as a third
+  argument, one forward pass per evaluation shared by all terms;
 - body, ground, contact weights, object SDF and pose are data, read by attribute
   (`PhysicsData`): new data of the same shapes does not recompile. IMU and physics terms
   compose in one `Problem(..., rotations=("pose",))` with
@@ -41,7 +41,7 @@ from jax import Array
 
 from ..body.kinematics import forward_kinematics
 from ..body.model import SMPL_FEET, SMPL_JOINT_NAMES, SMPL_PARENTS, Body
-from ..energies.posed import posed_body
+from ..energies.posed import PosedBody
 from ..objects import ObjectSDF
 from ..solve import Term
 from .mjcf import Ground
@@ -92,9 +92,14 @@ def _ids(ids) -> tuple[int, ...] | None:
     return None if ids is None else tuple(int(i) for i in np.asarray(ids).reshape(-1))
 
 
-def _vertices(params, data, ids) -> Array:
+def _posed(params, data, posed):
+    """The posed body as the problem passes it, or (a residual called on its own) its own pass."""
+    return PosedBody()(params, data) if posed is None else posed
+
+
+def _vertices(params, data, posed, ids) -> Array:
     """Posed vertices (T, N, 3) of `data.body` (the shared forward pass), subset `ids`."""
-    vertices = posed_body(params, data.body, getattr(data, "betas", None)).vertices
+    vertices = _posed(params, data, posed).vertices
     return vertices if ids is None else vertices[..., np.asarray(ids), :]
 
 
@@ -121,15 +126,15 @@ class GroundSupportResidual(eqx.Module):
     vertex_ids: tuple[int, ...] | None = eqx.field(static=True, default=None, converter=_ids)
     margin: float = eqx.field(static=True, default=0.0, converter=float)
 
-    def __call__(self, params, data) -> Array:
-        vertices = _vertices(params, data, self.vertex_ids)
+    def __call__(self, params, data, posed=None) -> Array:
+        vertices = _vertices(params, data, posed, self.vertex_ids)
         return ground_support(vertices, data.ground, self.margin)[..., None]
 
 
 def ground_support_term(vertex_ids=None, margin: float = 0.0, weight=1.0, loss=None, name: str = "ground") -> Term:
     """`GroundSupportResidual` as a per-frame `Term`; it reads every unknown (through the
     pose blend shapes every vertex depends on every joint)."""
-    return Term(name, GroundSupportResidual(vertex_ids, margin), weight, 0, loss)
+    return Term(name, GroundSupportResidual(vertex_ids, margin), weight, 0, loss, posed=PosedBody())
 
 
 # --- foot contact ---------------------------------------------------------------------
@@ -188,8 +193,8 @@ class FootStationarityResidual(eqx.Module):
 
     joints: tuple[int, ...] = eqx.field(static=True, default=_joint_ids(SMPL_FEET), converter=_joint_ids)
 
-    def __call__(self, params, data) -> Array:
-        joints = posed_body(params, data.body, getattr(data, "betas", None)).joints
+    def __call__(self, params, data, posed=None) -> Array:
+        joints = _posed(params, data, posed).joints
         feet = joints[:, np.asarray(self.joints)]
         weights = data.contact_weights[: feet.shape[0] - 1].astype(feet.dtype)
         r = foot_stationarity(feet, weights)
@@ -207,7 +212,7 @@ def foot_stationarity_term(
         while j >= 0:
             chains.add(j)
             j = SMPL_PARENTS[j]
-    return Term(name, fn, weight, 1, loss, reads=(("pose", tuple(sorted(chains))), ("trans", None)))
+    return Term(name, fn, weight, 1, loss, reads=(("pose", tuple(sorted(chains))), ("trans", None)), posed=PosedBody())
 
 
 # --- objects --------------------------------------------------------------------------
@@ -233,8 +238,8 @@ class ObjectPenetrationResidual(eqx.Module):
     vertex_ids: tuple[int, ...] | None = eqx.field(static=True, default=None, converter=_ids)
     margin: float = eqx.field(static=True, default=0.0, converter=float)
 
-    def __call__(self, params, data) -> Array:
-        vertices = _vertices(params, data, self.vertex_ids)
+    def __call__(self, params, data, posed=None) -> Array:
+        vertices = _vertices(params, data, posed, self.vertex_ids)
         dtype = vertices.dtype
         rotation, position = data.object_rotation.astype(dtype), data.object_position.astype(dtype)
         return object_penetration(vertices, data.sdf, rotation, position, self.margin)[..., None]
@@ -242,7 +247,7 @@ class ObjectPenetrationResidual(eqx.Module):
 
 def object_penetration_term(vertex_ids=None, margin: float = 0.0, weight=1.0, loss=None, name: str = "object") -> Term:
     """`ObjectPenetrationResidual` as a per-frame `Term`."""
-    return Term(name, ObjectPenetrationResidual(vertex_ids, margin), weight, 0, loss)
+    return Term(name, ObjectPenetrationResidual(vertex_ids, margin), weight, 0, loss, posed=PosedBody())
 
 
 # --- MJX variant -----------------------------------------------------------------------

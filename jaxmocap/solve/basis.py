@@ -53,12 +53,15 @@ class WindowBasis(eqx.Module):
         basis: `basis(n) -> (n, k)`, k <= K = basis(length).shape[1]: the basis of a
             window of n frames (n = length but for a shorter last window).
         length: L, frames per window.
+        posed: the posed body `features` reads as `features(params, data, posed)`, or None
+            (`Term.posed`).
     """
 
     key: str = eqx.field(static=True)
     features: Callable = eqx.field(static=True)
     basis: Callable[[int], np.ndarray] = eqx.field(static=True)
     length: int = eqx.field(static=True)
+    posed: Callable | None = eqx.field(static=True, default=None)
 
     @property
     def width(self) -> int:
@@ -83,9 +86,10 @@ class WindowBasis(eqx.Module):
         c = coef.reshape(coef.shape[0], self.width, -1)
         return jnp.einsum("tk,tkq->tq", jnp.asarray(rows, coef.dtype), c[window])
 
-    def residual(self, params, data) -> Array:
-        """e = f(x) − B c as rows (T, 1 window slot, Q, 1): ρ acts per coordinate."""
-        f = self.features(params, data)
+    def residual(self, params, data, *posed) -> Array:
+        """e = f(x) − B c as rows (T, 1 window slot, Q, 1): ρ acts per coordinate
+        (`posed`: the posed body, when the basis reads one)."""
+        f = self.features(params, data, *posed)
         return (f - self.fit(params[self.key], f.shape[0]))[:, None, :, None]
 
 
@@ -208,4 +212,12 @@ def basis_term(name: str, basis: WindowBasis, reads, weight: float | Array = 1.0
         raise ValueError(
             f"basis term {name!r}: give the per-frame keys its features read, e.g. reads=(('pose', None),)."
         )
-    return Term(name, basis.residual, weight, loss=loss, reads=tuple(reads) + ((basis.key, None),), basis=basis)
+    return Term(
+        name,
+        basis.residual,
+        weight,
+        loss=loss,
+        reads=tuple(reads) + ((basis.key, None),),
+        basis=basis,
+        posed=basis.posed,
+    )

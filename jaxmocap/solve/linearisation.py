@@ -64,7 +64,7 @@ def residuals(y: dict, args: Args) -> dict[str, Array]:
 # --- linearisation in the tangent of the manifold (the LM's own) -------------------------
 
 
-def _analytic_blocks(term, x, clean, data, frame_mask, layout: Layout, st: Structure, dtype, plain=False):
+def _analytic_blocks(term, x, clean, data, frame_mask, layout: Layout, st: Structure, dtype, plain=False, posed=None):
     """Residual (T, m) and frame blocks (T, 2b+1, m, n) of a term with an analytic Jacobian.
 
     The term supplies ∂e/∂δ of its raw output; weight, robust loss and masks (which act
@@ -73,8 +73,8 @@ def _analytic_blocks(term, x, clean, data, frame_mask, layout: Layout, st: Struc
     unless `plain` (the term has window or sequence blocks to join).
     """
     T = layout.T
-    e = term.raw(x, clean, data)
-    jac = dict(term.raw_jacobian(x, clean, data))
+    e = term.raw(x, clean, data, posed)
+    jac = dict(term.raw_jacobian(x, clean, data, posed))
     C = 2 * term.bandwidth + 1
     factored = [k for k, v in jac.items() if isinstance(v, BlockJacobian)]
     if factored and term.bandwidth:
@@ -138,13 +138,14 @@ def linearise(y: dict, args: Args, st: Structure, dtype, factor_dtype, tridiagon
     bw, cols = args.leaf_structure()
     clean = sanitise(args.data)
     blocks: dict[str, TermBlocks] = {}
-    views = problem.views(x)  # one shared memo for the analytic terms
+    views = problem.views(x)
+    with_jacobian = [terms[k] for k in names if terms[k].jacobian is not None]
+    posed = problem.posed_of(x, clean, with_jacobian)  # once for all the analytic terms
     analytic = {}
-    for k in names:
-        t = terms[k]
-        if t.jacobian is not None:
-            plain = any(cols[names.index(k)][1:])  # window or sequence blocks to join
-            analytic[k] = _analytic_blocks(t, views[k], clean, args.data, args.frame_mask, layout, st, dtype, plain)
+    for t in with_jacobian:
+        k = t.name
+        plain = any(cols[names.index(k)][1:])  # window or sequence blocks to join
+        analytic[k] = _analytic_blocks(t, views[k], clean, args.data, args.frame_mask, layout, st, dtype, plain, posed)
     ad = [k for k in names if k not in analytic or any(cols[names.index(k)][1:])]
     zero = layout.ravel(layout.zeros(dtype))
     # One linearisation per kind of term (bandwidth, window and sequence columns read): each
@@ -196,7 +197,7 @@ def _linearise_basis(y: dict, args: Args, dtype, factor_dtype):
     lf = Layout.of(yf, spec)
     T, n = lf.T, lf.n
     if others:
-        sub = Args(Problem(others, spec), args.data, args.frame_mask, lf)
+        sub = Args(Problem(others, spec, posed=problem.posed), args.data, args.frame_mask, lf)
         normal, (gF, _, _), cost = linearise(yf, sub, sub.structure(), dtype, factor_dtype)
         H = normal.FF[0]
     else:
@@ -207,7 +208,10 @@ def _linearise_basis(y: dict, args: Args, dtype, factor_dtype):
 
     def features(dF):
         view = Params(retract(x, lf.unravel(dF), lf), term=bt.name)
-        return bt.basis.features(view, bt._input(clean, args.data)).astype(dtype)
+        if bt.posed is None:
+            return bt.basis.features(view, bt._input(clean, args.data)).astype(dtype)
+        posed = problem.posed(view, clean)
+        return bt.basis.features(view, bt._input(clean, args.data), posed).astype(dtype)
 
     f, lin = jax.linearize(features, jnp.zeros((T, n), dtype))
     # Bandwidth 0: one tangent e_k on every frame gives column k of every frame's block.

@@ -208,6 +208,11 @@ class Term(eqx.Module):
         basis: a `basis.WindowBasis` when the term is a per-window basis term (built by
             `basis_term`, whose `fn` is then `basis.residual`): the LM solves its problem
             with the Kronecker elimination of `jaxmocap.solve.basis`.
+        posed: None, or the posed body the term reads, `posed(params, data)` (static: an
+            equinox module of static configuration, e.g. `energies.posed.PosedBody()`):
+            then `fn` (and `jacobian`) take it as a third argument, `fn(params, data,
+            posed)`, computed once per evaluation for all the terms of the problem that
+            read it (`Problem.posed`).
     """
 
     name: str = eqx.field(static=True)
@@ -219,6 +224,7 @@ class Term(eqx.Module):
     reads: tuple[tuple[str, tuple[int, ...] | None], ...] | None = eqx.field(static=True, default=None)
     jacobian: Callable[[Any, Any], dict[str, Array]] | None = eqx.field(static=True, default=None)
     basis: Any = eqx.field(static=True, default=None)
+    posed: Callable[[Any, Any], Any] | None = eqx.field(static=True, default=None)
 
     def __check_init__(self):
         if not isinstance(self.name, str) or not self.name:
@@ -239,17 +245,25 @@ class Term(eqx.Module):
         # cost (a failed solve) rather than be silently read as 0.
         return data if self.mask is not None else raw_data
 
-    def raw(self, params, data, raw_data) -> Array:
-        """`fn`'s output e (`data`: NaN-free, `raw_data`: as given)."""
-        return self.fn(params, self._input(data, raw_data))
+    def _call(self, f, params, data, raw_data, posed):
+        if self.posed is None:
+            return f(params, self._input(data, raw_data))
+        if posed is None:
+            raise ValueError(f"Term {self.name!r} reads the posed body: evaluate it through its Problem.")
+        return f(params, self._input(data, raw_data), posed)
 
-    def raw_jacobian(self, params, data, raw_data) -> dict[str, Array]:
+    def raw(self, params, data, raw_data, posed=None) -> Array:
+        """`fn`'s output e (`data`: NaN-free, `raw_data`: as given, `posed`: the posed
+        body when the term reads it)."""
+        return self._call(self.fn, params, data, raw_data, posed)
+
+    def raw_jacobian(self, params, data, raw_data, posed=None) -> dict[str, Array]:
         """The analytic Jacobian of `raw` (see `jacobian`)."""
-        return self.jacobian(params, self._input(data, raw_data))
+        return self._call(self.jacobian, params, data, raw_data, posed)
 
-    def residual(self, params, data, raw_data, frame_mask: Array | None, T: int) -> Array:
+    def residual(self, params, data, raw_data, frame_mask: Array | None, T: int, posed=None) -> Array:
         """Weighted, masked (square-root robust) residual, flattened to (T, m)."""
-        return self.finish(self.raw(params, data, raw_data), raw_data, frame_mask, T)
+        return self.finish(self.raw(params, data, raw_data, posed), raw_data, frame_mask, T)
 
     def read_keys(self) -> set[str] | None:
         """Keys named in `reads` (None: undeclared, every per-frame unknown)."""
@@ -323,15 +337,12 @@ class Params(dict):
 
     A dict of the per-frame unknowns and the per-sequence / per-window unknowns the
     term declares in `reads`; reading an undeclared one raises a ValueError naming it.
-    `shared(key, compute)` memoises `compute()` across all terms of one evaluation, so
-    a posed body needed by several terms is computed once (`energies.posed`).
     """
 
-    def __init__(self, values, hidden=(), term="", cache=None):
+    def __init__(self, values, hidden=(), term=""):
         super().__init__(values)
         self._hidden = dict(hidden)
         self._term = term
-        self._cache = {} if cache is None else cache
 
     def __missing__(self, key):
         if key in self._hidden:
@@ -340,12 +351,6 @@ class Params(dict):
                 f"declaring it: add ({key!r}, None) to the term's reads."
             )
         raise KeyError(key)
-
-    def shared(self, key, compute):
-        """compute(), evaluated once per residual evaluation for each `key`."""
-        if key not in self._cache:
-            self._cache[key] = compute()
-        return self._cache[key]
 
 
 class Problem(eqx.Module):
@@ -361,16 +366,32 @@ class Problem(eqx.Module):
     Attributes:
         terms: the energy terms; names must be unique.
         unknowns: {key: Unknown}; `rotations=("pose",)` is short for {"pose": frame("so3")}.
+        posed: the posed body `posed(params, data)` shared by the terms that read one
+            (`Term.posed`), computed once per evaluation and passed to each as
+            `fn(params, data, posed)`. Default: the terms' own, which must then agree;
+            give it to choose one for terms that differ (e.g. a physics term's
+            `PosedBody()` in a camera problem posed by `PosedInViews()`).
     """
 
     terms: tuple[Term, ...]
     unknowns: tuple[tuple[str, Unknown], ...] = eqx.field(static=True, default=())
+    posed: Callable[[Any, Any], Any] | None = eqx.field(static=True, default=None)
 
-    def __init__(self, terms, unknowns=None, rotations=()):
+    def __init__(self, terms, unknowns=None, rotations=(), posed=None):
         self.terms = tuple(terms)
         spec = {k: Unknown("frame", "so3") for k in rotations}
         spec.update(unknowns or {})
         self.unknowns = tuple(sorted(spec.items()))
+        if posed is None:
+            own = list(dict.fromkeys(t.posed for t in self.terms if t.posed is not None))
+            if len(own) > 1:
+                readers = {t.name: t.posed for t in self.terms if t.posed is not None}
+                raise ValueError(
+                    f"the terms read different posed bodies {readers}: give the Problem the one "
+                    f"to compute for all of them, Problem(..., posed=...)."
+                )
+            posed = own[0] if own else None
+        self.posed = posed
 
     def __check_init__(self):
         names = [t.name for t in self.terms]
@@ -378,6 +399,8 @@ class Problem(eqx.Module):
             raise ValueError(f"Problem needs at least one term and unique term names, got {names}.")
         if any(n.startswith("_") for n in names):
             raise ValueError(f"Term names starting with '_' are reserved, got {names}.")
+        if self.posed is not None and not callable(self.posed):
+            raise ValueError(f"Problem posed must be callable, posed(params, data), got {self.posed!r}.")
         spec = dict(self.unknowns)
         for key, u in spec.items():
             if not isinstance(u, Unknown):
@@ -422,18 +445,26 @@ class Problem(eqx.Module):
         """The `Layout` of `params` under this problem's unknowns."""
         return Layout.of(params, self.spec)
 
-    def views(self, x: dict) -> dict[str, Params]:
-        """Per term, the unknowns it may read (one shared cache)."""
+    def _view(self, x: dict, declared: set[str], name: str) -> Params:
         spec = self.spec
-        cache = {}
         kinds = {k: spec[k].kind if k in spec else "frame" for k in x}
-        out = {}
-        for t in self.terms:
-            declared = t.read_keys() or set()
-            visible = {k: v for k, v in x.items() if kinds[k] == "frame" or k in declared}
-            hidden = {k: "per-" + kinds[k] for k in x if k not in visible}
-            out[t.name] = Params(visible, hidden, t.name, cache)
-        return out
+        visible = {k: v for k, v in x.items() if kinds[k] == "frame" or k in declared}
+        hidden = {k: "per-" + kinds[k] for k in x if k not in visible}
+        return Params(visible, hidden, name)
+
+    def views(self, x: dict) -> dict[str, Params]:
+        """Per term, the unknowns it may read."""
+        return {t.name: self._view(x, t.read_keys() or set(), t.name) for t in self.terms}
+
+    def posed_of(self, x: dict, data, terms=None):
+        """`posed(params, data)` at `x` (manifold form) for those of `terms` (default: all)
+        that read it, None if none does. It sees the unknowns that any of them may read;
+        `data` is the NaN-free data (`sanitise`)."""
+        readers = [t for t in (self.terms if terms is None else terms) if t.posed is not None]
+        if not readers:
+            return None
+        declared = set().union(*(t.read_keys() or set() for t in readers))
+        return self.posed(self._view(x, declared, "posed"), data)
 
     def residuals(self, params, data, frame_mask: Array | None = None) -> dict[str, Array]:
         """Weighted residuals per term at stored `params`, each flattened to (T, m_term)."""
@@ -443,14 +474,16 @@ class Problem(eqx.Module):
     def residuals_on_manifold(self, x, data, frame_mask: Array | None = None, T: int | None = None,
                               names=None) -> dict[str, Array]:  # fmt: skip
         """As `residuals`, with `x` already in manifold form (rotations as matrices);
-        `names`: only these terms' (default: all)."""
+        `names`: only these terms' (default: all). The posed body is computed once, and
+        only when one of these terms reads it."""
         if T is None:
             spec = self.spec
             T = next(jnp.shape(v)[0] for k, v in x.items() if k not in spec or spec[k].kind == "frame")
         clean = sanitise(data)
         views = self.views(x)
         terms = self.terms if names is None else [t for t in self.terms if t.name in names]
-        return {t.name: t.residual(views[t.name], clean, data, frame_mask, T) for t in terms}
+        posed = self.posed_of(x, clean, terms)
+        return {t.name: t.residual(views[t.name], clean, data, frame_mask, T, posed) for t in terms}
 
     def costs(self, params, data, frame_mask: Array | None = None) -> dict[str, Array]:
         """Per-term costs ½ w Σ ρ(‖e‖²), the balance the solver struck."""

@@ -131,7 +131,8 @@ def _observed(args: Args, value) -> Array | None:
     views = args.problem.views(x)
     seen = []
     for t in masked:
-        shape = jax.eval_shape(lambda t=t: t.raw(views[t.name], clean, args.data)).shape
+        raw = lambda t=t: t.raw(views[t.name], clean, args.data, args.problem.posed_of(x, clean, [t]))  # noqa: E731
+        shape = jax.eval_shape(raw).shape
         seen.append(jnp.any(t.kept(shape, args.data, args.frame_mask, args.layout.T)))
     return jnp.any(jnp.stack(seen))
 
