@@ -62,3 +62,18 @@ def test_every_term_function_and_mask_is_a_module_or_a_module_level_function():
                 continue
             # A closure would be a new function per problem, and a new compile.
             assert "<locals>" not in f.__qualname__ and f.__name__ != "<lambda>", (t.name, f)
+
+
+def test_the_old_posed_body_helper_warns_and_poses_the_body(random_body):
+    """`posed_body` is kept for one release: it warns and equals the forward pass."""
+    import jax.numpy as jnp
+    import pytest
+
+    from jaxmocap.body.kinematics import forward_rotations
+    from jaxmocap.energies.posed import posed_body
+
+    params = {"pose": jnp.broadcast_to(jnp.eye(3), (2, random_body.num_joints, 3, 3)), "trans": jnp.ones((2, 3))}
+    with pytest.warns(DeprecationWarning, match="PosedBody"):
+        out = posed_body(params, random_body)
+    want = forward_rotations(random_body, params["pose"], None, params["trans"])
+    assert jnp.array_equal(out.vertices, want.vertices) and jnp.array_equal(out.joints, want.joints)
