@@ -1,7 +1,8 @@
 """What the terms of one problem share: the posed body and the data.
 
-Every term is `fn(params, data)` with `params["pose"]` local rotation matrices
-(T, J, 3, 3) (a rotation key of the `Problem`) and optional `params["trans"]` (T, 3).
+Every term is `fn(params, data)`, or `fn(params, data, posed)` when it reads the posed
+body (below), with `params["pose"]` local rotation matrices (T, J, 3, 3) (a rotation key
+of the `Problem`) and optional `params["trans"]` (T, 3).
 
 - `PosedBody`: a term that reads vertices, joints or global rotations (ground, contact,
   objects, keypoints, silhouettes) is `Term(..., posed=PosedBody())` and is called as
