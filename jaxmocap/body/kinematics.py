@@ -118,9 +118,9 @@ def _by_level(parents, local_rotations: Array, rest_joints: Array, keep: frozens
     out = [((0,), R, p)]
     for joints in _levels(parents, keep):
         at = [out[-1][0].index(parents[j]) for j in joints]
-        R_p = R[..., at, :, :]
-        p = p[..., at, :] + mat3_apply(R_p, rest[..., joints, :] - rest[..., [parents[j] for j in joints], :])
-        R = mat3_mul(R_p, local_rotations[..., joints, :, :])
+        R_p = _take(R, at, -3)
+        p = _take(p, at, -2) + mat3_apply(R_p, _take(rest, joints, -2) - _take(rest, [parents[j] for j in joints], -2))
+        R = mat3_mul(R_p, _take(local_rotations, joints, -3))
         out.append((joints, R, p))
     return out
 
@@ -143,9 +143,21 @@ def _forward_kinematics(parents: tuple[int, ...], local_rotations: Array, rest_j
     """Every joint's global rotation and position, stacked in joint order."""
     levels = _by_level(parents, local_rotations, rest_joints, frozenset(range(len(parents))))
     order = np.argsort([j for joints, _, _ in levels for j in joints])
-    R = jnp.concatenate([R for _, R, _ in levels], -3)[..., order, :, :]
-    p = jnp.concatenate([p for _, _, p in levels], -2)[..., order, :]
+    R = _take(jnp.concatenate([R for _, R, _ in levels], -3), order, -3)
+    p = _take(jnp.concatenate([p for _, _, p in levels], -2), order, -2)
     return R, p
+
+
+def _take(x: Array, indices, axis: int) -> Array:
+    """x at the static `indices` along `axis`, as slices of their contiguous runs: XLA's
+    CPU gather with constant indices made the chain of 30 frames 2.9x slower (168 against
+    58 µs)."""
+    runs, start = [], 0
+    for k in range(1, len(indices) + 1):
+        if k == len(indices) or indices[k] != indices[k - 1] + 1:
+            runs.append(jax.lax.slice_in_dim(x, int(indices[start]), int(indices[k - 1]) + 1, axis=axis))
+            start = k
+    return runs[0] if len(runs) == 1 else jnp.concatenate(runs, axis)
 
 
 def forward_kinematics(parents: Sequence[int], local_rotations: Array, rest_joints: Array) -> tuple[Array, Array]:
