@@ -189,7 +189,7 @@ def _extended(motion: Motion, frames: int) -> tuple[np.ndarray, np.ndarray]:
     the last frame (trans: 2 x_{T-1} - x_{T-1-k}; each joint: R_{T-1} R_{T-1-k}ᵀ R_{T-1}),
     so velocities carry on smoothly and the finite differences at the real last frame see no
     jump. Used to pad sequences to a few compiled lengths."""
-    from scipy.spatial.transform import Rotation
+    from ..rotation import host_compose
 
     T = motion.num_frames
     if frames <= 0:
@@ -197,10 +197,10 @@ def _extended(motion: Motion, frames: int) -> tuple[np.ndarray, np.ndarray]:
     k = np.minimum(np.arange(1, frames + 1), T - 1)
     src = T - 1 - k
     trans = 2 * motion.trans[-1] - motion.trans[src]
-    last = Rotation.from_rotvec(motion.poses[-1])  # (24,)
+    last = motion.poses[-1]  # (24, 3)
     poses = np.empty((frames, 24, 3))
     for i, s in enumerate(src):
-        poses[i] = (last * Rotation.from_rotvec(motion.poses[s]).inv() * last).as_rotvec()
+        poses[i] = host_compose(last, -motion.poses[s], last)  # exp(-ω) = exp(ω)ᵀ
     return np.concatenate([motion.poses, poses]), np.concatenate([motion.trans, trans])
 
 
