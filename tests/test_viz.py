@@ -76,6 +76,8 @@ def test_posed_arrays_per_frame_betas(body, motion, posed):
     np.testing.assert_array_equal(posed_arrays(body, motion.poses, None, motion.trans, chunk=8)[0], posed[0])
     with pytest.raises(ValueError, match=r"betas has shape \(3, 10\); expected \(B,\) for every frame or \(16, B\)"):
         posed_arrays(body, motion.poses, betas[:3], motion.trans)
+    with pytest.raises(ValueError, match=r"trans contains NaN or inf \(first at index \(5, 1\)\)"):
+        posed_arrays(body, motion.poses, None, np.where(np.arange(T)[:, None] == 5, [0.0, np.nan, 0.0], motion.trans))
 
 
 @pytest.mark.parametrize("suffix", ["ply", "obj", "glb"])

@@ -12,6 +12,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from .._checks import check_finite
 from .._progress import progress as show_progress
 from .kinematics import forward
 from .model import Body
@@ -109,6 +110,9 @@ def posed_arrays(
     b = b[..., : body.num_betas]
     if b.shape[-1] == 0:
         b = np.zeros(body.num_betas, work)
+    # Named here: inside the jit, forward's own value checks see tracers.
+    for name, x in (("poses", poses), ("betas", b), ("trans", trans)):
+        check_finite(name, x)
     # Shared betas go in per frame: one compiled program for either (same values bitwise).
     b = np.broadcast_to(b, (T, b.shape[-1]))
     out = np.dtype(dtype) if dtype is not None else work
