@@ -201,9 +201,9 @@ def _maps_onto(mesh, points, centre, S, tol) -> bool:
 
 
 def _about(axis, angle) -> np.ndarray:
-    from scipy.spatial.transform import Rotation
+    from .rotation import host_exp
 
-    return Rotation.from_rotvec(np.asarray(axis, np.float64) * angle).as_matrix()
+    return host_exp(np.asarray(axis, np.float64) * angle)
 
 
 def _symmetry(obj: RigidObject, rel_tol: float = 0.01) -> Symmetry:

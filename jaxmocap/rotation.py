@@ -9,7 +9,9 @@ Conventions: quaternions are (w, x, y, z) with w >= 0 after `quaternion_from_mat
 axis-angle vectors are ω = θ·axis with θ in [0, π]; matrices act on column vectors.
 
 Host twins (NumPy in, NumPy out, float64, through SciPy) sit at the end for code that runs
-once per sequence outside JAX (sensor error models, file readers): `host_exp`, `host_log`.
+once per sequence outside JAX (sensor error models, file readers, resampling): `host_exp`,
+`host_log`, `host_compose`, `host_rotate`, `host_euler`, `host_slerp`. They are the package's
+one door to SciPy's `Rotation`.
 """
 
 from __future__ import annotations
@@ -40,6 +42,10 @@ __all__ = [
     "log_small",
     "host_exp",
     "host_log",
+    "host_compose",
+    "host_rotate",
+    "host_euler",
+    "host_slerp",
 ]
 
 # Below this θ² the Taylor branch is used; its truncation error (θ⁶ terms) is far below
@@ -311,3 +317,51 @@ def host_log(matrix) -> np.ndarray:
 
     R = np.asarray(matrix, np.float64)
     return Rotation.from_matrix(R.reshape(-1, 3, 3)).as_rotvec().reshape(*R.shape[:-1])
+
+
+def host_compose(*omegas) -> np.ndarray:
+    """Rotation vectors of the product exp(ω₁^) exp(ω₂^) ⋯ on the host: each (..., 3),
+    broadcast against each other -> (..., 3), float64 (SciPy's quaternion product)."""
+    from scipy.spatial.transform import Rotation
+
+    if not omegas:
+        raise ValueError("host_compose needs at least one rotation vector.")
+    # Copies: SciPy asks for writable buffers, which broadcast views are not.
+    vs = [np.array(v) for v in np.broadcast_arrays(*(np.asarray(w, np.float64) for w in omegas))]
+    shape = vs[0].shape
+    product = Rotation.from_rotvec(vs[0].reshape(-1, 3))
+    for v in vs[1:]:
+        product = product * Rotation.from_rotvec(v.reshape(-1, 3))
+    return product.as_rotvec().reshape(shape)
+
+
+def host_rotate(matrix, omega) -> np.ndarray:
+    """Rotation vectors of R exp(ω^) on the host, for one R (3, 3) and ω (..., 3) -> (..., 3),
+    float64 (e.g. a root orientation in a rotated world)."""
+    from scipy.spatial.transform import Rotation
+
+    R, v = np.asarray(matrix, np.float64), np.asarray(omega, np.float64)
+    if R.shape != (3, 3):
+        raise ValueError(f"matrix has shape {R.shape}; expected one (3, 3) rotation.")
+    return (Rotation.from_matrix(R) * Rotation.from_rotvec(v.reshape(-1, 3))).as_rotvec().reshape(v.shape)
+
+
+def host_euler(axes: str, angles, degrees: bool = False) -> np.ndarray:
+    """Euler-angle rotations on the host: (..., len(axes)) -> (..., 3, 3), float64.
+
+    `axes` as SciPy's `from_euler`: lower case ("zyx") for fixed axes, the first applied
+    first; upper case ("ZYX") for intrinsic axes, as a BVH file lists its channels.
+    """
+    from scipy.spatial.transform import Rotation
+
+    a = np.asarray(angles, np.float64)
+    flat = a.reshape(-1, len(axes))
+    return Rotation.from_euler(axes, flat, degrees=degrees).as_matrix().reshape(*a.shape[:-1], 3, 3)
+
+
+def host_slerp(times, omega, new_times) -> np.ndarray:
+    """Rotations ω (T, 3) at increasing `times` (T,), spherically interpolated at `new_times`
+    (N,) within [times[0], times[-1]] -> (N, 3) rotation vectors, float64 (SciPy's Slerp)."""
+    from scipy.spatial.transform import Rotation, Slerp
+
+    return Slerp(times, Rotation.from_rotvec(np.asarray(omega, np.float64)))(new_times).as_rotvec()

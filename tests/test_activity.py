@@ -158,7 +158,7 @@ def test_labelling_rule_squats_bend_and_segments_are_long_enough():
 
 def test_merge_short_segments():
     labels = np.array([0] * 6 + [1] * 2 + [0] * 5 + [2] * 8 + [3])
-    out = A._merge_short_segments(labels, 3)
+    out = A.labels._merge_short_segments(labels, 3)
     np.testing.assert_array_equal(out, [0] * 13 + [2] * 9)
 
 

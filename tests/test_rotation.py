@@ -143,3 +143,48 @@ def test_left_jacobian_inverse_is_the_derivative_of_log(name):
     assert inverse32.dtype == jnp.float32
     np.testing.assert_allclose(inverse32, reference, atol=2e-6)
     assert bool(jnp.all(jnp.isfinite(g)))
+
+
+def _rodrigues(w):
+    """exp(ω^) in NumPy, one rotation vector: an independent reference for the host twins."""
+    theta = np.linalg.norm(w)
+    K = np.array([[0, -w[2], w[1]], [w[2], 0, -w[0]], [-w[1], w[0], 0]]) / theta
+    return np.eye(3) + np.sin(theta) * K + (1 - np.cos(theta)) * K @ K
+
+
+def _elementary(axis, angle):
+    c, s = np.cos(angle), np.sin(angle)
+    i, j = [(1, 2), (2, 0), (0, 1)]["xyz".index(axis)]
+    R = np.eye(3)
+    R[i, i], R[i, j], R[j, i], R[j, j] = c, -s, s, c
+    return R
+
+
+def test_host_twins_match_numpy_references():
+    rng = np.random.default_rng(3)
+    a, b, c = rng.normal(size=(3, 5, 3))
+    R = rot.host_exp(a)
+    assert R.shape == (5, 3, 3)
+    np.testing.assert_allclose(R, [_rodrigues(w) for w in a], atol=1e-12)
+    np.testing.assert_allclose(rot.host_exp(rot.host_log(R)), R, atol=1e-12)
+    product = rot.host_compose(a, b, c)  # exp(a) exp(b) exp(c), frame by frame
+    np.testing.assert_allclose(rot.host_exp(product), R @ rot.host_exp(b) @ rot.host_exp(c), atol=1e-12)
+    np.testing.assert_allclose(rot.host_exp(rot.host_compose(a[0], b)), R[0] @ rot.host_exp(b), atol=1e-12)  # broadcast
+    np.testing.assert_allclose(rot.host_exp(rot.host_rotate(R[1], b)), R[1] @ rot.host_exp(b), atol=1e-12)
+    with pytest.raises(ValueError, match=r"matrix has shape \(5, 3, 3\); expected one \(3, 3\)"):
+        rot.host_rotate(R, b)
+    angles = rng.uniform(-3, 3, (4, 3))
+    # Lower case: fixed axes, the first applied first; upper case: intrinsic, the first outermost.
+    fixed = [_elementary("y", z) @ _elementary("x", y) @ _elementary("z", x) for x, y, z in angles]
+    intrinsic = [_elementary("z", x) @ _elementary("x", y) @ _elementary("y", z) for x, y, z in angles]
+    np.testing.assert_allclose(rot.host_euler("zxy", angles), fixed, atol=1e-12)
+    np.testing.assert_allclose(rot.host_euler("ZXY", np.degrees(angles), degrees=True), intrinsic, atol=1e-12)
+    assert rot.host_euler("xz", angles[0, :2]).shape == (3, 3)
+
+
+def test_host_slerp_moves_at_constant_angular_speed():
+    w = np.array([[0.1, 0.2, 0.3], [0.5, -1.0, 0.8]])
+    out = rot.host_slerp([0.0, 2.0], w, [0.0, 0.5, 2.0])
+    R0, R1 = rot.host_exp(w)
+    step = rot.host_log(R0.T @ R1)  # the relative rotation, a quarter of it by t = 0.5
+    np.testing.assert_allclose(rot.host_exp(out), [R0, R0 @ rot.host_exp(step / 4), R1], atol=1e-12)

@@ -184,6 +184,8 @@ def test_tuning_inside_the_folds_never_reads_the_locked_subject():
 # Experiments that write no result file through experiments/_provenance.py: why.
 WITHOUT_PROVENANCE = {
     "make_datasets.py": "writes benchmark datasets into a cache folder, no result",
+    "build_default_body.py": "builds the shipped default body (jaxmocap/body/data/*.npz), no result; the files "
+    "record their source and the data README how they were made",
     "vip_association_unseen.py": "adds its blocks, each with its own split record, into vip_association.json "
     "(and retrains the shipped weights file); not yet recorded in provenance.json",
 }

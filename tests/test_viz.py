@@ -7,7 +7,7 @@ import trimesh
 
 from conftest import assert_picture
 
-from jaxmocap.body import forward, mannequin_body, posed_vertices
+from jaxmocap.body import forward, mannequin_body, posed_arrays, posed_vertices
 from jaxmocap.motion import Motion
 from jaxmocap.viz import (
     MeshExportError,
@@ -60,6 +60,24 @@ def test_posed_vertices_matches_forward(body, motion, posed):
     np.testing.assert_allclose(joints[[0, 13]], out.joints, atol=1e-5)
     v5, j5 = posed_vertices(body, motion, frames=slice(3, 8))  # padded to the same 8-frame chunk
     np.testing.assert_allclose(v5, vertices[3:8], atol=1e-6)
+
+
+def test_posed_arrays_per_frame_betas(body, motion, posed):
+    # Per-frame betas (a fit's first stage) pose each frame with its own shape.
+    betas = np.random.default_rng(2).normal(size=(T, 10))
+    vertices, joints = posed_arrays(body, motion.poses, betas, motion.trans, chunk=8, dtype=np.float64)
+    assert vertices.dtype == np.float64 and vertices.shape == (T, body.num_vertices, 3)
+    out = forward(body, np.asarray(motion.poses[[2, 11]], np.float32), betas[[2, 11]].astype(np.float32),
+                  np.asarray(motion.trans[[2, 11]], np.float32))  # fmt: skip
+    np.testing.assert_allclose(vertices[[2, 11]], out.vertices, atol=1e-5)
+    np.testing.assert_allclose(joints[[2, 11]], out.joints, atol=1e-5)
+    shared, _ = posed_arrays(body, motion.poses, betas[4], motion.trans, chunk=8)
+    np.testing.assert_allclose(shared[4], vertices[4], atol=1e-5)
+    np.testing.assert_array_equal(posed_arrays(body, motion.poses, None, motion.trans, chunk=8)[0], posed[0])
+    with pytest.raises(ValueError, match=r"betas has shape \(3, 10\); expected \(B,\) for every frame or \(16, B\)"):
+        posed_arrays(body, motion.poses, betas[:3], motion.trans)
+    with pytest.raises(ValueError, match=r"trans contains NaN or inf \(first at index \(5, 1\)\)"):
+        posed_arrays(body, motion.poses, None, np.where(np.arange(T)[:, None] == 5, [0.0, np.nan, 0.0], motion.trans))
 
 
 @pytest.mark.parametrize("suffix", ["ply", "obj", "glb"])

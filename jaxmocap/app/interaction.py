@@ -208,23 +208,16 @@ def fit_scene(obs, body, progress: bool = False, log=print) -> dict:
             "part": part, "separate": separate, "timings_s": clock.timings}  # fmt: skip
 
 
-def _posed(body, pose, betas, trans):
-    from ..body.kinematics import forward
-
-    dtype = body.dtype
-    out = forward(body, np.asarray(pose, dtype), np.asarray(betas, dtype), np.asarray(trans, dtype))
-    return np.asarray(out.vertices, np.float64), np.asarray(out.joints, np.float64)
-
-
 def score_fit(body, obs, truth: dict, true_part: str, fit: dict) -> tuple[dict, np.ndarray]:
     """`metrics.interaction_metrics` (true contact frames, contact region of the true part)
     and `metrics.object_pose_errors` of a fit (keys of `fit_scene`'s result) against the
     scene's truth (`Scenario.sequence`); returns (metrics, posed vertices (T, N, 3))."""
+    from ..body.posed import posed_arrays
     from ..methods.interaction import object_sdf
     from ..metrics import interaction_metrics, object_pose_errors
     from ..motion.reach import contact_vertices
 
-    verts, joints = _posed(body, fit["pose"], fit["betas"], fit["trans"])
+    verts, joints = posed_arrays(body, fit["pose"], fit["betas"], fit["trans"], dtype=np.float64)
     R, t = np.asarray(fit["object_R"], np.float64), np.asarray(fit["object_t"], np.float64)
     m = interaction_metrics(verts, joints, truth["joints"][0], R, t, object_sdf(obs.obj), truth["contact"],
                             obs.body_points, obs.body_valid, obs.object_points, obs.object_valid,
@@ -238,6 +231,7 @@ def write_outputs(
 ) -> dict:
     """Score `fit` (keys of `fit_scene`'s result; "separate" optional) against the truth and
     write the files of the module docstring into `out_dir`; returns the report (metrics.json)."""
+    from ..body.posed import posed_arrays
     from ..viz.mesh import export_mesh
     from ..viz.plot import plot_body
 
@@ -265,7 +259,7 @@ def write_outputs(
         contact_part=np.array(part), object_vertices=np.asarray(obs.obj.vertices, np.float64),
         object_faces=np.asarray(obs.obj.faces, np.int64),
     )  # fmt: skip
-    rest, _ = _posed(body, np.zeros((24, 3)), betas, np.zeros(3))
+    (rest,), _ = posed_arrays(body, np.zeros((1, 24, 3)), betas, dtype=np.float64)
     ply = export_mesh(rest, body.faces, out_dir / "contact_heatmap.ply", colors=heat, cmap=HEAT_CMAP, vmin=0.0,
                       vmax=max(float(heat.max()), 1e-6))  # fmt: skip
     png = plot_body(rest, body.faces, out_dir / "contact_heatmap.png", vertex_values=heat, cmap=HEAT_CMAP,

@@ -39,7 +39,6 @@ pieces with `frames=`).
 from __future__ import annotations
 
 import dataclasses
-import functools
 import json
 import math
 import re
@@ -358,34 +357,6 @@ def _fill_empty_frames(params: dict, empty: np.ndarray) -> dict:
     return {k: np.asarray(v)[nearest] for k, v in params.items()}
 
 
-@functools.cache
-def _forward_jit():
-    import jax
-
-    from ..body.kinematics import forward
-
-    def posed(body, pose, betas, trans):
-        out = forward(body, pose, betas, trans)
-        return out.vertices, out.joints
-
-    return jax.jit(posed)
-
-
-def _posed(body, poses, betas, trans, chunk: int = 256):
-    """Vertices (T, N, 3) and joints (T, 24, 3) for per-frame (T, B) or shared (B,) betas."""
-    import jax.numpy as jnp
-
-    T = len(poses)
-    betas = np.broadcast_to(np.asarray(betas), (T, np.shape(betas)[-1]))  # one jit shape for both stages
-    verts, joints = [], []
-    for s in range(0, T, chunk):
-        part = (jnp.asarray(a[s : s + chunk], body.dtype) for a in (poses, betas, trans))
-        v, j = _forward_jit()(body, *part)
-        verts.append(np.asarray(v, np.float64))
-        joints.append(np.asarray(j, np.float64))
-    return np.concatenate(verts), np.concatenate(joints)
-
-
 def _distorted_pixels(cam, uv_undistorted):
     """Undistorted OpenCV pixels (..., 2) → the video's distorted pixels (same K)."""
     from ..geometry.camera import to_pixels, distort_points
@@ -549,6 +520,7 @@ def fit_recording(
     from ..geometry.keypoints import KEYPOINT_FORMATS, keypoint_regressor, regress_keypoints
     from ..geometry.triangulation import projection_matrices, select_person
     from ..body.io import resolve_body
+    from ..body.posed import posed_arrays
     from .layout import check_layout
 
     notes: list[str] = []
@@ -724,7 +696,8 @@ def fit_recording(
             f"{d['from']}: {d['depth_m']:.2f} m ± {d['depth_uncertainty_m']:.2f} m (1σ). Add a second camera to "
             "measure it.")  # fmt: skip
         model_kp = regress_keypoints(
-            keypoint_regressor(body_model, layout), *_posed(body_model, final["pose"], final["betas"], final["trans"])
+            keypoint_regressor(body_model, layout),
+            *posed_arrays(body_model, final["pose"], final["betas"], final["trans"], dtype=np.float64),
         )
         cut = ground_depth(camera, keypoints[:, placed["view"]], model_kp, KEYPOINT_FORMATS[layout],
                            report["world_up"])  # fmt: skip
@@ -765,11 +738,12 @@ def _write_outputs(
     from ..geometry.keypoints import regress_keypoints
     from ..geometry.triangulation import projection_matrices
     from ..viz.mesh import export_sequence
+    from ..body.posed import posed_arrays
 
     out_dir.mkdir(parents=True, exist_ok=True)
     T, V = keypoints.shape[:2]
-    verts1, joints1 = _posed(body, p1["pose"], p1["betas"], p1["trans"])
-    verts, joints = _posed(body, final["pose"], final["betas"], final["trans"])
+    verts1, joints1 = posed_arrays(body, p1["pose"], p1["betas"], p1["trans"], dtype=np.float64)
+    verts, joints = posed_arrays(body, final["pose"], final["betas"], final["trans"], dtype=np.float64)
 
     # reprojection in undistorted OpenCV pixels (the detections' frame)
     P = projection_matrices(cameras)  # (V, 3, 4)

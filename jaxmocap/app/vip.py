@@ -165,13 +165,6 @@ def fit_inputs(inputs: VIPInputs, max_steps: int = 30, rounds: int = 2, log=prin
                                 log=log)  # fmt: skip
 
 
-def _posed(body, poses, betas, trans):
-    from ..body.kinematics import forward
-
-    out = forward(body, np.asarray(poses, body.dtype), np.asarray(betas, body.dtype), np.asarray(trans, body.dtype))
-    return np.asarray(out.vertices, np.float64)
-
-
 def _project(camera, points):
     """Pixels (T, N, 2) of world points (T, N, 3) in cameras (T, 4, 4) camera-to-world; NaN behind."""
     R, c = camera[:, :3, :3], camera[:, :3, 3]
@@ -197,6 +190,7 @@ def _association_counts(assoc, labels, people) -> dict:
 def write_outputs(out_dir, inputs: VIPInputs, scene, log=print) -> dict:
     """Write the files of the module docstring for a fitted `scene` (`VIPScene`) of
     `inputs`; returns the report (also written as report.json)."""
+    from ..body.posed import posed_arrays
     from ..methods.visual_inertial import camera_matrices, into_camera, world_keypoints
     from ..metrics import pose_errors
     from ..motion.io import FORMAT_VERSION
@@ -219,7 +213,7 @@ def write_outputs(out_dir, inputs: VIPInputs, scene, log=print) -> dict:
                  heading=np.asarray(r.heading, np.float64), x0=np.asarray(r.x0, np.float64),
                  bones=np.asarray(inputs.bones), tracker_poses=np.asarray(r.init, np.float64))  # fmt: skip
         outputs.append(name)
-        verts.append(_posed(body, r.poses, betas, r.trans))
+        verts.append(posed_arrays(body, r.poses, betas, r.trans, dtype=np.float64)[0])
         kps.append(world_keypoints(data, r.poses, r.trans))
         entry = {"person": int(inputs.people[k]), "heading_deg": [round(float(h), 2) for h in np.degrees(r.heading)],
                  "cost": float(r.solution.cost)}  # fmt: skip

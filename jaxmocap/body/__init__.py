@@ -18,4 +18,5 @@ from .model import SMPL_PARENTS as SMPL_PARENTS
 from .model import Body as Body
 from .model import make_body as make_body
 from .model import scaled_body as scaled_body
+from .posed import posed_arrays as posed_arrays
 from .posed import posed_vertices as posed_vertices

@@ -33,7 +33,6 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from .._files import load_array_pickle
 from ..motion.sequence import Motion
@@ -155,13 +154,6 @@ def _tuple(arrays):
     return None if arrays is None else tuple(arrays)
 
 
-def _rotate_motion(R, poses, trans, j0):
-    """One person's (T, 24, 3) poses and (T, 3) trans in the world rotated by R (module docstring)."""
-    poses = poses.copy()
-    poses[:, 0] = (Rotation.from_matrix(R) * Rotation.from_rotvec(poses[:, 0])).as_rotvec()
-    return poses, (trans + j0) @ R.T - j0
-
-
 def load_threedpw(path, image_size: tuple[int, int] | None = None, world_rotation=None, body=None) -> ThreeDPWSequence:
     """Read a 3DPW sequence file (`sequenceFiles/*/name.pkl`) into a `ThreeDPWSequence`.
 
@@ -227,17 +219,17 @@ def load_threedpw(path, image_size: tuple[int, int] | None = None, world_rotatio
             arrays = [_array(path, f"{key}[{p}]", v, (None, width)) for p, v in enumerate(data[key])]
             sixty[key] = [a.reshape(len(a), 24, 3) if width == 72 else a for a in arrays]
     if world_rotation is not None:
-        from ..motion.amass import pelvis_rest
+        from ..motion.amass import pelvis_rest, rotate_world
 
         R = np.asarray(world_rotation, np.float64)
         if R.shape != (3, 3) or not np.allclose(R @ R.T, np.eye(3), atol=1e-6) or np.linalg.det(R) < 0:
             raise ValueError(f"world_rotation must be a (3, 3) rotation matrix, got {R.tolist()}.")
         for p in range(len(poses)):
             j0 = pelvis_rest(body, betas[p])
-            poses[p], trans[p] = _rotate_motion(R, poses[p], trans[p], j0)
+            poses[p], trans[p] = rotate_world(poses[p], trans[p], R, j0)
             if len(sixty) == 2 and len(sixty["poses_60Hz"][p]) == len(sixty["trans_60Hz"][p]):
-                sixty["poses_60Hz"][p], sixty["trans_60Hz"][p] = _rotate_motion(
-                    R, sixty["poses_60Hz"][p], sixty["trans_60Hz"][p], j0
+                sixty["poses_60Hz"][p], sixty["trans_60Hz"][p] = rotate_world(
+                    sixty["poses_60Hz"][p], sixty["trans_60Hz"][p], R, j0
                 )
             else:
                 sixty = {}  # a translation cannot be rotated without its pose: not returned

@@ -33,8 +33,8 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
+from ..rotation import host_rotate
 from .sequence import Motion
 from .skeleton import MotionFileError, check_file, read_npz
 
@@ -65,8 +65,7 @@ def pelvis_rest(body=None, betas=None) -> np.ndarray:
 def rotate_world(poses: np.ndarray, trans: np.ndarray, R: np.ndarray, j0: np.ndarray):
     """Rotate the world by R: root ↦ R·root, trans ↦ R(trans + j0) − j0."""
     poses = poses.copy()
-    root = Rotation.from_matrix(R) * Rotation.from_rotvec(poses[:, 0])
-    poses[:, 0] = root.as_rotvec()
+    poses[:, 0] = host_rotate(R, poses[:, 0])
     return poses, (trans + j0) @ R.T - j0
 
 

@@ -37,8 +37,8 @@ import dataclasses
 from pathlib import Path
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
+from ..rotation import host_euler
 from .skeleton import MotionFileError, SkeletonMotion, check_file
 
 __all__ = ["AsfBone", "AsfSkeleton", "load_asf_amc", "read_amc", "read_asf"]
@@ -331,7 +331,7 @@ def read_amc(path, skeleton: AsfSkeleton) -> tuple[dict[str, np.ndarray], float 
 
 def _euler(order: str, angles: np.ndarray, degrees: bool) -> np.ndarray:
     """Fixed-axis Euler rotation(s): the first listed axis is applied first."""
-    return Rotation.from_euler(order.lower(), angles, degrees=degrees).as_matrix()
+    return host_euler(order.lower(), angles, degrees=degrees)
 
 
 def _motion_rotation(channels, values: np.ndarray, degrees: bool) -> np.ndarray | None:

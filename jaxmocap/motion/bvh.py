@@ -21,8 +21,8 @@ to the nearest integer when within 0.01 Hz of it (CMU writes .0083333 for 120 Hz
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
+from ..rotation import host_euler
 from .skeleton import MotionFileError, SkeletonMotion, check_file
 
 __all__ = ["UNIT_CANDIDATES", "BvhSkeleton", "load_bvh", "read_bvh"]
@@ -231,7 +231,7 @@ def skeleton_motion(skel: BvhSkeleton, values: np.ndarray, fps: float, scale: fl
                 t[:, "xyz".index(c[0])] += v[:, i]
         rcols = [i for i, c in enumerate(chans) if c.endswith("rotation")]
         local = (
-            Rotation.from_euler("".join(chans[i][0] for i in rcols).upper(), v[:, rcols], degrees=True).as_matrix()
+            host_euler("".join(chans[i][0] for i in rcols).upper(), v[:, rcols], degrees=True)
             if rcols
             else np.broadcast_to(np.eye(3), (T, 3, 3))
         )

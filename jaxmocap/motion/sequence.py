@@ -100,7 +100,8 @@ class Motion:
         ceil(T / 4) frames. No low-pass filtering is applied before downsampling.
         """
         from scipy.interpolate import interp1d
-        from scipy.spatial.transform import Rotation, Slerp
+
+        from ..rotation import host_slerp
 
         fps = float(fps)
         if not (np.isfinite(fps) and fps > 0):
@@ -115,8 +116,7 @@ class Motion:
         new_times = np.minimum(np.arange(n) / fps, times[-1])
         poses = np.empty((n, 24, 3))
         for j in range(24):
-            slerp = Slerp(times, Rotation.from_rotvec(self.poses[:, j]))
-            poses[:, j] = slerp(new_times).as_rotvec()
+            poses[:, j] = host_slerp(times, self.poses[:, j], new_times)
         trans = interp1d(times, self.trans, axis=0)(new_times)
         return dataclasses.replace(self, poses=poses, trans=trans, fps=fps)
 

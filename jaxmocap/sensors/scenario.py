@@ -279,12 +279,11 @@ def _visibility_jit(K, R, t, vertices, depth):
 
 def _rotate_motion(body, poses, trans, betas, yaw, offset):
     """The motion rotated by `yaw` about the vertical through the origin, then shifted."""
-    from scipy.spatial.transform import Rotation
+    from ..rotation import host_compose, host_exp
 
-    Q = Rotation.from_rotvec([0.0, yaw, 0.0])
     poses = poses.copy()
-    poses[:, 0] = (Q * Rotation.from_rotvec(poses[:, 0])).as_rotvec()
-    Q = Q.as_matrix()
+    poses[:, 0] = host_compose([0.0, yaw, 0.0], poses[:, 0])
+    Q = host_exp([0.0, yaw, 0.0])
     j0 = np.asarray(body.J_regressor[0] @ (body.v_template + np.einsum("kvc,k->vc", np.asarray(body.shapedirs), betas)))
     trans = (trans + j0) @ Q.T - j0 + offset
     return poses, trans

