@@ -263,3 +263,18 @@ def test_multiview_layout_margins_quotes():
         _range([r["score_other"] for r in one]),
         f"{math.floor(10 * res['min_ratio']) / 10:.1f}",
     )
+
+
+def test_vip_tables_quotes():
+    res = json.loads((ROOT / "experiments/results/vip_tables.json").read_text())
+    rows, cfg, a = res["rows"], res["config"], res["association"]
+    m = re.search(r"\*\*(\d+) of the (\d+)\s+clips\*\*.*?IT ([\d.]+) mm → VIP ([\d.]+) mm \(−([\d.]+) %; thesis −53 %\), "
+                  r"VIP-2D ([\d.]+) < VIP < VIP-vanilla ([\d.]+) and\s+6 IMUs ([\d.]+) mm.*?bystanders reaches "
+                  r"([\d.]+) % / ([\d.]+) %", README, re.S)  # fmt: skip
+    assert m, "the README's sentence on experiments/vip_tables.py changed; update this test"
+    mm = lambda k: f"{rows[k]['mpjpe_mm']:.1f}"  # noqa: E731
+    assert m.groups() == (
+        str(cfg["clips"]), str(cfg["requested_clips"]), mm("IT"), mm("VIP"),
+        f"{-res['vip_vs_it_relative_change_percent']['mpjpe']:.1f}", mm("VIP-2D"), mm("VIP-vanilla"), mm("VIP-6IMU"),
+        f"{100 * a['precision']:.1f}", f"{100 * a['recall']:.1f}",
+    )  # fmt: skip

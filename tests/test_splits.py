@@ -35,7 +35,6 @@ PREDATE_SPLITS = {
     "sip_tables.json": "nested tuning let the locked subject 07 tune; sip_tables.py on the GPU",
     "sip_tables_engine_v2_check.json": "compares two sip_tables.json runs (compare_tables.py); no data of its own",
     "vip_association.json": "development seeds drew evaluated subjects' clips; vip_association.py --fusion on the GPU",
-    "vip_tables.json": "vip_tables.py on the GPU",
     "vip_tables_per_clip/*.json": "vip_tables.py's per-clip cache (its split is vip_tables.json's)",
     "dip_init.json": "dip_init.py on the GPU",
     "learn_weights.json": "trained and tested on subject 02 before 2026-11-28; learn_weights.py (CPU, > 40 min when loaded)",
