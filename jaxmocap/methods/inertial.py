@@ -675,8 +675,16 @@ def estimate_body_scale(
     1.35 % on the development subjects. The error is one factor per clip, the same for every
     true scale (-10 % to +8 %): the sensors' 2 cm placement error moves the lever arms the
     estimate measures. Without it (experiments/results/sip_body_scale_no_placement_error.md)
-    the first 3 of those clips err by 1.07 % on average, with it by 8.9 %. So the estimate
-    helps when the size is unknown or off by 10 % or more; a known size is better given.
+    the first 3 of those clips err by 1.07 % on average, with it by 8.9 %. The 1.35 % was one
+    draw of the sensor errors: with a second draw, 6 development clips × 2 draws err by
+    4.4 % (experiments/results/sip_body_scale_variants.md, issue 46). Tried there against the
+    placement error, none better on the development subjects: each sensor's offset along its
+    limb fitted as a sequence-wide unknown (free it absorbs the scale: 10.5 %, biased large;
+    with a prior no better than this estimate on the same clips), the pelvis sensor's
+    accelerations left out (4.5 %), 200 LM steps instead of 60 (the same estimates on the 2
+    clips tried); a closed-form lever-arm fit at fixed poses returns the size SIP's poses were
+    fitted with and drowns in SOP's noise (-87 %). So the estimate helps when the size is
+    unknown or off by 10 % or more; a known size is better given.
 
     Args:
         make_setup: s -> the `InertialSetup` calibrated with the body scaled by s
