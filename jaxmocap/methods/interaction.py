@@ -64,6 +64,7 @@ from ..priors.pose_prior import PosePrior
 from ..rotation import host_exp, host_log
 from ..solve import Problem, frame, solve, with_weights
 from .multiview import MuVSWeights, camera_data, dataclasses_replace, initialise, stage_one
+from .weights import Weights
 
 __all__ = [
     "InterCapWeights",
@@ -81,9 +82,10 @@ __all__ = [
 
 
 @dataclasses.dataclass(frozen=True)
-class InterCapWeights:
+class InterCapWeights(Weights):
     """Weights of eq. 5.1-5.7 (Huang gives none: ours, set on synthetic scenes of the
-    training clips; see experiments/intercap_tables.py). 0 switches a term off.
+    training clips; see experiments/intercap_tables.py). 0 switches a term off. The
+    weights carry their terms' names (`term_weights`); `CONSTANTS` configure the terms.
 
     Units: keypoints in px (Geman-McClure σ px), masks in px, distances in m, so the
     metric terms carry large weights. body_points/object_points: points per view and frame
@@ -125,8 +127,7 @@ class InterCapWeights:
     mask_points: int = 96
     icp_rounds: int = 2
 
-    def replace(self, **changes) -> InterCapWeights:
-        return dataclasses.replace(self, **changes)
+    CONSTANTS = ("sigma", "accel_delta", "body_points", "object_points", "mask_points", "icp_rounds")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -276,7 +277,8 @@ def _weighted(names, weights: InterCapWeights, dtype, off=(), depth_sigma: float
     if "object_depth" in names:  # E_O's σ traced like the weights: the coarse and fine trackers share one program
         k = names.index("object_depth")
         problem = eqx.tree_at(lambda p: p.terms[k].loss.sigma, problem, jnp.asarray(depth_sigma, dtype))
-    return with_weights(problem, {n: jnp.asarray(0.0 if n in off else getattr(weights, n), dtype) for n in names})
+    w = weights.term_weights()
+    return with_weights(problem, {n: jnp.asarray(0.0 if n in off else w[n], dtype) for n in names})
 
 
 # --- data --------------------------------------------------------------------------------------

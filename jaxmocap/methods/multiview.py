@@ -78,7 +78,8 @@ from ..geometry.surface import rest_joints
 from ..geometry.triangulation import triangulate
 from ..priors.pose_prior import PosePrior, default_pose_prior
 from ..rotation import matrix_to_axis_angle
-from ..solve import Problem, frame, solve, solve_batch, with_weights
+from ..solve import Problem, frame, solve, solve_batch
+from .weights import Weights
 
 __all__ = [
     "MuVSWeights",
@@ -109,13 +110,14 @@ REFERENCE_FOCAL = float(intrinsics(256, 192, 55.0)[1, 1])
 
 
 @dataclasses.dataclass(frozen=True)
-class MuVSWeights:
+class MuVSWeights(Weights):
     """Weights and constants of eq. 4.1-4.8 (our choices: Huang gives none). The defaults
     are the "validated" preset (`PRESETS`, the default of `multiview_smplify`, the stages
     and `jaxmocap multiview`): λ_θ, λ_β and the silhouette setting as
     experiments/muvs_tuning.py chose them on the development subjects 02 and 131
     (experiments/results/muvs_tuning.json), the rest as this implementation started. 0
-    switches a term off.
+    switches a term off. The weights carry their terms' names (`term_weights`); the other
+    fields (`CONSTANTS`) configure the terms and the stages.
 
     keypoints: E_J weight; sigma: its Geman-McClure σ₁ (px) with two or more views;
         sigma_monocular: σ₁ when only one view sees the person (`_sigma`). A detection
@@ -195,8 +197,14 @@ class MuVSWeights:
     floor: float = 1e4
     floor_sigma: float | None = 0.1
 
-    def replace(self, **changes) -> MuVSWeights:
-        return dataclasses.replace(self, **changes)
+    CONSTANTS = ("sigma", "sigma_monocular", "anneal", "silhouette_points", "silhouette_stride", "silhouette_slack",
+                 "steps", "temporal_sigma", "window", "num_dct", "temporal_noise", "num_betas", "reference_focal",
+                 "floor_sigma")  # fmt: skip
+
+    def term_weights(self, prior_factor: float = 1.0) -> dict:
+        """{term: weight}; `prior_factor` scales λ_θ and λ_β (a step of `anneal`)."""
+        w = super().term_weights()
+        return {**w, "pose_prior": self.pose_prior * prior_factor, "shape": self.shape * prior_factor}
 
 
 #: The named settings, as the inertial posers' (`methods.inertial.PRESETS`).
@@ -626,13 +634,7 @@ def _silhouettes(on: bool, stride: int, slack: float, huber: float) -> list:
 
 def _weighted(problem: Problem, w: MuVSWeights, dtype, prior_factor: float = 1.0) -> Problem:
     """`problem` with the weights of `w` as traced arrays (no recompilation per value)."""
-    values = {
-        "keypoints": w.keypoints, "pose_prior": w.pose_prior * prior_factor, "shape": w.shape * prior_factor,
-        "silhouette_model": w.silhouette_model, "silhouette_mask": w.silhouette_mask, "temporal": w.temporal,
-        "floor": w.floor,
-    }  # fmt: skip
-    names = {t.name for t in problem.terms}
-    return with_weights(problem, {k: jnp.asarray(v, dtype) for k, v in values.items() if k in names})
+    return w.weigh(problem, dtype, prior_factor=prior_factor)
 
 
 def _batched(data: CameraData) -> bool:
