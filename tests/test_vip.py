@@ -126,7 +126,8 @@ def test_wrong_keypoint_layout_is_rejected(scene):
 def test_energy_gradients_are_finite(scene):
     data, bones, res = scene["data"], scene["bones"], scene["res"]
     problem = vip._vip_problem(tuple(bones), data.fps, True, True, True, 100.0)
-    layout_params = {"pose": res.poses, "trans": res.trans, "cam": res.camera, "heading": res.heading, "x0": res.x0}
+    layout_params = res.params  # the fitted unknowns by the problem's names (`FitResult`)
+    assert set(layout_params) == set(problem.spec) and layout_params["heading"] is res.heading
 
     def energy(p):
         seen = to_manifold(p, problem.layout(p))

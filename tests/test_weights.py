@@ -1,18 +1,21 @@
-"""One weights convention across the methods (issue 49): fields named after the terms they
-weight, one validation, to_dict / from_dict, and `term_weights` matching each method's
-`Problem`; VIP's old field name `prior` kept for one release."""
+"""One weights convention and one result protocol across the methods (issue 49): fields
+named after the terms they weight, one validation, to_dict / from_dict, `term_weights`
+matching each method's `Problem`, VIP's old field name `prior` kept for one release; every
+result a `FitResult` (solution, converged, params)."""
 
 import types
 import warnings
 
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
 from jaxmocap.methods import interaction as ic
 from jaxmocap.methods import multiview as mv
 from jaxmocap.methods import visual_inertial as vip
-from jaxmocap.methods.inertial import SIPWeights, inertial_problem
-from jaxmocap.methods.weights import Weights
+from jaxmocap.methods.inertial import SIPResult, SIPWeights, inertial_problem
+from jaxmocap.methods.weights import FitResult, Weights
+from jaxmocap.solve import Solution
 
 CLASSES = [SIPWeights, vip.VIPWeights, mv.MuVSWeights, ic.InterCapWeights]
 
@@ -111,3 +114,34 @@ def test_vip_prior_is_mahal_for_one_release():
         assert vip.VIPWeights(mahal=0.1).to_dict()["mahal"] == 0.1  # the new name: no warning
     with pytest.raises(AttributeError, match="no attribute 'nonsense'"):
         w.nonsense  # noqa: B018
+
+
+def _solution(result, value=None) -> Solution:
+    r = jnp.asarray(result)
+    return Solution(value or {}, r, jnp.zeros_like(r), jnp.zeros(r.shape), {}, jnp.zeros(r.shape))
+
+
+def test_every_method_result_is_a_fit_result():
+    for cls in (SIPResult, vip.VIPResult, mv.MuVSResult, ic.InterCapResult):
+        assert issubclass(cls, FitResult) and isinstance(cls.__dict__.get("params"), property), cls.__name__
+
+
+def test_one_solve_converges_by_its_result_code():
+    poses, trans = jnp.zeros((2, 24, 3)), jnp.ones((2, 3))
+    ok = SIPResult(poses, trans, poses, _solution(0))
+    assert bool(ok.converged) and ok.solutions == {"fit": ok.solution}
+    assert ok.params["pose"] is poses and ok.params["trans"] is trans
+    assert not bool(SIPResult(poses, trans, poses, _solution(2)).converged)
+
+
+def test_staged_results_converge_when_every_stage_did_per_batch_member():
+    z = np.zeros(1)
+    mk = lambda sols: mv.MuVSResult(z, z, z, {}, {}, solution=sols)  # noqa: E731
+    assert bool(mk({"joints_0": _solution(0), "temporal": _solution(0)}).converged)
+    assert not bool(mk({"joints_0": _solution(0), "temporal": _solution(1)}).converged)
+    batched = mk({"joints_0": _solution([0, 0, 1]), "temporal": _solution([0, 2, 0])})
+    np.testing.assert_array_equal(batched.converged, [True, False, False])
+    with pytest.raises(ValueError, match="MuVSResult records no solve"):
+        mk({}).converged  # noqa: B018
+    r = ic.InterCapResult(z, z, z, z, z, z, {}, {"human": _solution(0), "joint": _solution(0)})
+    assert bool(r.converged) and set(r.params) == {"pose", "trans", "betas", "object_R", "object_t"}

@@ -44,7 +44,7 @@ from ..priors.pose_prior import PosePrior, default_pose_prior
 from .._progress import report
 from ..solve import NO_OBSERVATIONS, Problem, Solution, VonMarcardLM, solve, solve_batch
 from ..solve.solver import PROGRESS_FRAMES
-from .weights import Weights
+from .weights import FitResult, Weights
 
 __all__ = [
     "SIPWeights",
@@ -410,7 +410,7 @@ def inertial_tracker(setup: InertialSetup, weights: SIPWeights | str = "validate
     return orientation_poser(setup, weights, **kw)
 
 
-class SIPResult(eqx.Module):
+class SIPResult(eqx.Module, FitResult):
     """Outcome of `sparse_inertial_poser`.
 
     poses (T, 24, 3), trans (T, 3): the fitted trajectory (translation is up to the
@@ -422,6 +422,10 @@ class SIPResult(eqx.Module):
     trans: Array
     init: Array
     solution: Solution
+
+    @property
+    def params(self) -> dict:
+        return {"pose": self.poses, "trans": self.trans}
 
 
 def sparse_inertial_poser(

@@ -79,7 +79,7 @@ from ..geometry.triangulation import triangulate
 from ..priors.pose_prior import PosePrior, default_pose_prior
 from ..rotation import matrix_to_axis_angle
 from ..solve import Problem, frame, solve, solve_batch
-from .weights import Weights
+from .weights import FitResult, Weights
 
 __all__ = [
     "MuVSWeights",
@@ -232,11 +232,13 @@ def preset(weights: MuVSWeights | str = "validated") -> MuVSWeights:
 
 
 @dataclasses.dataclass(frozen=True)
-class MuVSResult:
+class MuVSResult(FitResult):
     """Poses (T, 24, 3) axis-angle, trans (T, 3), betas (B,) of the final stage, the
     stage-1 outcome (`stage1`: poses, trans, per-frame betas (T, B)), and per-stage costs.
     monocular: one view saw the person, so depth along its line of sight was not measured;
-    depth: then `monocular_depth`'s record (depth, its 1σ uncertainty, what it came from)."""
+    depth: then `monocular_depth`'s record (depth, its 1σ uncertainty, what it came from).
+    solution: the engine's `Solution` of each solve by stage ("joints_0", ...,
+    "silhouettes", "temporal"; `FitResult`)."""
 
     poses: np.ndarray
     trans: np.ndarray
@@ -245,6 +247,11 @@ class MuVSResult:
     costs: dict
     monocular: bool = False
     depth: dict | None = None
+    solution: dict = dataclasses.field(default_factory=dict)
+
+    @property
+    def params(self) -> dict:
+        return {"pose": self.poses, "trans": self.trans, "betas": self.betas}
 
 
 def camera_data(
@@ -701,10 +708,16 @@ def stage_one(
     (`MuVSWeights.floor`) to every solve; None (default): no such term.
     Returns ({pose, trans, betas (T, B)}, {stage: cost}).
     """
+    p, costs, _ = _stage_one(data, params0, weights, silhouettes, max_steps, floor)
+    return p, costs
+
+
+def _stage_one(data, params0, weights, silhouettes, max_steps, floor) -> tuple[dict, dict, dict]:
+    """`stage_one`, and the `Solution` of each solve by stage name."""
     weights = preset(weights)
     dtype = data.K.dtype
     p = {k: jnp.asarray(v, dtype) for k, v in params0.items()}
-    costs = {}
+    costs, sols = {}, {}
     steps = weights.steps if max_steps is None else (max_steps,) * 3
     weights, delta = _in_pixels(weights, data)
     sigma = _sigma(data, weights)
@@ -714,17 +727,17 @@ def stage_one(
     for i, factor in enumerate(weights.anneal):
         prob = _weighted(joints_only, weights, dtype, factor)
         sol = _solve(prob, p, joint_data, steps[0])
-        p = sol.value
+        p, sols[f"joints_{i}"] = sol.value, sol
         costs[f"joints_{i}"] = np.asarray(sol.cost).tolist()
         costs[f"joints_{i}_steps"] = np.asarray(sol.num_steps).tolist()
     if silhouettes and data.silhouettes is not None:
         prob = _weighted(_stage_one_problem(sigma, weights.silhouette_stride, weights.silhouette_slack, True, delta,
                                             ground), weights, dtype)  # fmt: skip
         sol = _solve(prob, p, compact(data, weights.silhouette_points, weights.silhouette_stride), steps[1])
-        p = sol.value
+        p, sols["silhouettes"] = sol.value, sol
         costs["silhouettes"] = np.asarray(sol.cost).tolist()
         costs["silhouettes_steps"] = np.asarray(sol.num_steps).tolist()
-    return {k: np.asarray(v) for k, v in p.items()}, costs
+    return {k: np.asarray(v) for k, v in p.items()}, costs, sols
 
 
 def stage_two(
@@ -743,6 +756,12 @@ def stage_two(
     Returns ({pose, trans, betas (B,), coef}, {"temporal": cost, "temporal_steps",
     "temporal_result"}).
     """
+    out, costs, _ = _stage_two(data, params1, weights, silhouettes, max_steps, floor)
+    return out, costs
+
+
+def _stage_two(data, params1, weights, silhouettes, max_steps, floor) -> tuple[dict, dict, object]:
+    """`stage_two`, and the `Solution` of its solve."""
     weights = preset(weights)
     dtype = data.K.dtype
     betas = np.median(np.asarray(params1["betas"]), -2)  # over frames: (B,) or (batch, B)
@@ -768,7 +787,7 @@ def stage_two(
     out = {k: np.asarray(v) for k, v in sol.value.items()}
     out["betas"] = betas
     return out, {"temporal": np.asarray(sol.cost).tolist(), "temporal_steps": np.asarray(sol.num_steps).tolist(),
-                 "temporal_result": np.asarray(sol.result).tolist()}  # fmt: skip
+                 "temporal_result": np.asarray(sol.result).tolist()}, sol  # fmt: skip
 
 
 def reprojection_px(data: CameraData, params: dict) -> float:
@@ -1004,17 +1023,17 @@ def multiview_smplify(
     data = resolve_left_right(data) if resolve_swaps else data
     p0 = initialise(data, weights.num_betas) if params0 is None else params0
     ground = _floor_for(data, floor)
-    p1, costs = stage_one(data, p0, weights, silhouettes, floor=ground)
+    p1, costs, sols = _stage_one(data, p0, weights, silhouettes, None, ground)
     p1, depth = place_monocular(data, p1, floor)
     stage1 = {"poses": p1["pose"], "trans": p1["trans"], "betas": p1["betas"]}
     if not temporal:
         final = {"pose": p1["pose"], "trans": p1["trans"], "betas": np.median(p1["betas"], -2)}
     else:
-        final, c2 = stage_two(data, p1, weights, temporal_silhouettes, floor=ground)
+        final, c2, sols["temporal"] = _stage_two(data, p1, weights, temporal_silhouettes, None, ground)
         costs = {**costs, **c2}
     if isinstance(depth, dict):
         depth = final_depth(data, final, depth)
-    return MuVSResult(final["pose"], final["trans"], final["betas"], stage1, costs, depth is not None, depth)
+    return MuVSResult(final["pose"], final["trans"], final["betas"], stage1, costs, depth is not None, depth, sols)
 
 
 def _floor_for(data: CameraData, floor):

@@ -61,7 +61,7 @@ from ..priors.pose_prior import PosePrior, default_pose_prior
 from ..rotation import axis_angle_to_matrix, matrix_to_axis_angle
 from ..solve import Problem, Solution, frame, sequence, solve, solve_batch, with_weights
 from .association import AssociationModel, associate
-from .weights import Weights, renamed
+from .weights import FitResult, Weights, renamed
 
 __all__ = ["VIPWeights", "VIPResult", "vip_data", "inertial_tracker", "initial_camera", "video_inertial_poser",
            "tracker_hypotheses", "with_keypoints", "world_keypoints",
@@ -95,7 +95,7 @@ class VIPWeights(Weights):
         return w
 
 
-class VIPResult(eqx.Module):
+class VIPResult(eqx.Module, FitResult):
     """poses (T, 24, 3), trans (T, 3), camera (T, 6) camera-to-world (axis-angle, centre),
     heading (S,) γ_s, x0 (24, 3), init: the Inertial Tracker's poses, solution: the engine's."""
 
@@ -106,6 +106,11 @@ class VIPResult(eqx.Module):
     x0: Array
     init: Array
     solution: Solution
+
+    @property
+    def params(self) -> dict:
+        """pose, trans, cam, heading, x0 by the problem's names (those held fixed: their given values)."""
+        return {"pose": self.poses, "trans": self.trans, "cam": self.camera, "heading": self.heading, "x0": self.x0}
 
 
 def _global_acceleration(R, a):

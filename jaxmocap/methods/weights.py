@@ -21,6 +21,7 @@ import warnings
 from typing import Any, ClassVar
 
 import jax.numpy as jnp
+
 from .._checks import check_weight
 from ..solve import with_weights
 
@@ -148,4 +149,6 @@ class FitResult:
     def converged(self):
         """Every solve ended with result code 0: a bool array, () or per batch member."""
         codes = [jnp.asarray(s.result) == 0 for s in self.solutions.values()]
+        if not codes:
+            raise ValueError(f"this {type(self).__name__} records no solve, so whether it converged is unknown.")
         return functools.reduce(jnp.logical_and, codes)
