@@ -302,7 +302,7 @@ def main(argv=None):
     subset = sorted({int(i) for i in args.subset.split(",") if i.strip()}) or list(range(len(clips)))
     scenes = [run_scene(i, clips[i], args, body, cache) for i in subset]
     reduced = len(subset) < args.scenes or len(args.variants) < len(VARIANTS)
-    result = {"scenes": len(scenes), "frames": args.frames, "views": args.views, "weights": vars(InterCapWeights()),
+    result = {"scenes": len(scenes), "frames": args.frames, "views": args.views, "weights": InterCapWeights().to_dict(),
               "reduced": {"subset": subset, "of": args.scenes, "variants": args.variants} if reduced else None,
               **summarise(scenes), "thesis": THESIS, "per_scene": scenes,
               "machine": {"platform": platform.platform(), "device": str(jax.devices()[0]), "jax": jax.__version__}}  # fmt: skip

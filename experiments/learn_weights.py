@@ -105,12 +105,8 @@ F64 = jnp.float64
 
 def term_weights(theta, num_sensors: int, thesis: I.SIPWeights = I.SIPWeights()) -> dict:
     """The engine's term weights (w_ori/N_s, w_acc/N_s, w_anthro w_mahal, w_anthro w_limit)."""
-    w = {"ori": thesis.ori, "acc": thesis.acc, "mahal": thesis.mahal, "limit": thesis.limit}
-    w = {k: jnp.asarray(v, F64) for k, v in w.items()}
-    for i, k in enumerate(LEARNED):
-        w[k] = w[k] * jnp.exp(theta[i])
-    return {"ori": w["ori"] / num_sensors, "acc": w["acc"] / num_sensors,
-            "mahal": thesis.anthro * w["mahal"], "limit": thesis.anthro * w["limit"]}  # fmt: skip
+    learned = {k: jnp.asarray(getattr(thesis, k), F64) * jnp.exp(theta[i]) for i, k in enumerate(LEARNED)}
+    return thesis.replace(ori=jnp.asarray(thesis.ori, F64), **learned).term_weights(num_sensors)
 
 
 def sip_weights(theta, thesis: I.SIPWeights = I.SIPWeights()) -> I.SIPWeights:

@@ -167,13 +167,7 @@ def fit_padded(method, it, w_mahal: float, length: int, args):
     stacked, mask = I.pad_setups([it.setup], length)
     dtype = stacked.pose0.dtype
     w = {k: jnp.asarray([w_mahal if k == "mahal" else v], dtype) for k, v in method.defaults.items()}
-    S = len(stacked.bones)
-    term_w = {
-        "ori": w["ori"] / S,
-        "acc": w["acc"] / S,
-        "mahal": w["anthro"] * w["mahal"],
-        "limit": w["anthro"] * w["limit"],
-    }
+    term_w = I.SIPWeights(**w).term_weights(len(stacked.bones))
     init = np.concatenate([it.init, np.repeat(it.init[-1:], length - it.length, 0)])[None]
     sol = solve_batch(I.inertial_problem(stacked, acceleration=True),
                       {"pose": jnp.asarray(init, dtype), "trans": jnp.broadcast_to(stacked.trans0[:, None], (1, length, 3))},

@@ -399,7 +399,7 @@ def run(args) -> dict:
         "grid_solves": f"float64, at most {args.grid_steps} LM steps",
     }  # fmt: skip
     res["config"] = {"frames_cap": args.frames, "fps": 30.0, "seed": args.seed, "body": "default_body('low'), mean shape",
-                     "imu_errors": "IMUErrorModel.xsens()", "weights": vars(I.SIPWeights()),
+                     "imu_errors": "IMUErrorModel.xsens()", "weights": I.SIPWeights().to_dict(),
                      "seconds": time.perf_counter() - t0, "device": str(jax.devices()[0]),
                      "jax": jax.__version__}  # fmt: skip
     res["thesis"], res["old_protocol"] = THESIS, OLD_PROTOCOL

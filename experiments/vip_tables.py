@@ -190,7 +190,7 @@ def run(
             "seed": seed,
             "lm_steps": steps,
             "body": "low",
-            "weights": vars(vip.VIPWeights()),
+            "weights": vip.VIPWeights().to_dict(),
             "association_penalty_window": model.penalty_window,
             "association_model": model.tag,
             "data": str(folder),

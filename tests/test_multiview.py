@@ -374,6 +374,8 @@ def test_one_view_says_it_is_monocular_and_how_uncertain_its_depth_is(scene, flo
     assert abs(ground.depth["depth_m"] - true_depth) < abs(alone.depth["depth_m"] - true_depth)
     both = mv.multiview_smplify(data, w, silhouettes=False, temporal=False)
     assert not both.monocular and both.depth is None
+    assert set(both.solution) == {f"joints_{i}" for i in range(len(w.anneal))}  # one Solution per stage solve
+    assert both.params["betas"] is both.betas and np.shape(both.converged) == ()
 
 
 def test_the_floor_puts_a_body_of_the_wrong_size_back_at_its_depth(scene):

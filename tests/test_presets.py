@@ -88,7 +88,7 @@ def test_presets_reproduce_the_committed_check(jump, name):
 def test_a_fit_that_meets_its_tolerance_reports_success(jump):
     _, setup, _, _ = jump
     r = I.sparse_inertial_poser(setup, "validated", max_steps=200)
-    assert int(r.solution.result) == 0 and bool(r.solution.converged)
+    assert int(r.solution.result) == 0 and bool(r.solution.converged) and bool(r.converged)
     assert r.solution.status() == f"converged in {int(r.solution.num_steps)} steps"
     assert int(r.solution.num_steps) < 200
 
@@ -97,7 +97,7 @@ def test_explicit_limits_override_the_preset(jump):
     _, setup, _, _ = jump
     sop, _ = I.sparse_orientation_poser(setup, "thesis")
     r = I.sparse_inertial_poser(setup, "validated", init=sop, max_steps=3)
-    assert int(r.solution.num_steps) == 3 and int(r.solution.result) != 0
+    assert int(r.solution.num_steps) == 3 and int(r.solution.result) != 0 and not bool(r.converged)
     with pytest.raises(ValueError, match="max_steps"):
         I.sparse_inertial_poser(setup, init=sop, max_steps=0)
     with pytest.raises(ValueError, match="preset name"):

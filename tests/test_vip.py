@@ -38,7 +38,7 @@ def scene():
     # 10 steps: the headings, MPJPE and camera path are those of 30 to the fifth digit
     # (measured; 30 were those of 100 to the third, the LM then creeps, cost -2e-6
     # relative); each step runs ~0.7 CPU-s here.
-    res = vip.video_inertial_poser(data, bones, vip.VIPWeights(prior=0.0006), init=it, max_steps=10)
+    res = vip.video_inertial_poser(data, bones, vip.VIPWeights(mahal=0.0006), init=it, max_steps=10)
     return {"body": body, "scenario": sc, "data": data, "truth": truth, "bones": bones, "it": it, "res": res,
             "heading": heading}  # fmt: skip
 
@@ -126,7 +126,8 @@ def test_wrong_keypoint_layout_is_rejected(scene):
 def test_energy_gradients_are_finite(scene):
     data, bones, res = scene["data"], scene["bones"], scene["res"]
     problem = vip._vip_problem(tuple(bones), data.fps, True, True, True, 100.0)
-    layout_params = {"pose": res.poses, "trans": res.trans, "cam": res.camera, "heading": res.heading, "x0": res.x0}
+    layout_params = res.params  # the fitted unknowns by the problem's names (`FitResult`)
+    assert set(layout_params) == set(problem.spec) and layout_params["heading"] is res.heading
 
     def energy(p):
         seen = to_manifold(p, problem.layout(p))
@@ -144,7 +145,7 @@ def test_whole_method_assigns_and_fuses(scene):
     seq = sc.sequence(0)
     # 10 steps per round, as the fixture: the fit is converged there (10 and 30 steps
     # agree to 1e-4 mm, measured); 100 ran 55 CPU-s more.
-    out = vip.video_inertial_scene([data], bones, seq["det_keypoints"][0], weights=vip.VIPWeights(prior=0.0006),
+    out = vip.video_inertial_scene([data], bones, seq["det_keypoints"][0], weights=vip.VIPWeights(mahal=0.0006),
                                    max_steps=10)  # fmt: skip
     labels = seq["det_person"][0]
     for a in out.associations:  # every visible detection of the wearer, and nothing else

@@ -218,9 +218,7 @@ class InertialMethod:
 
     name: str = "sip"
     metrics: tuple = ("mpjae", "mpjpe", "cost")
-    defaults: dict = dataclasses.field(
-        default_factory=lambda: dict(ori=1.0, acc=0.05, anthro=1.0, mahal=0.003, limit=0.1)
-    )
+    defaults: dict = dataclasses.field(default_factory=lambda: _thesis_weights().to_dict())
     terms: dict = dataclasses.field(
         default_factory=lambda: dict(ori=("ori",), acc=("acc",), mahal=("mahal",), limit=("limit",))
     )
@@ -282,12 +280,12 @@ class InertialMethod:
         stacked, mask = I.pad_setups([it.setup for it in items], T)
         dtype = stacked.pose0.dtype
         w = {k: jnp.asarray(weights.get(k, np.full(len(items), v)), dtype) for k, v in self.defaults.items()}
-        S = len(stacked.bones)
-        term_w = {"ori": w["ori"] / S, "mahal": w["anthro"] * w["mahal"], "limit": w["anthro"] * w["limit"]}
+        term_w = I.SIPWeights(**w).term_weights(len(stacked.bones))
+        if self.name != "sip":
+            del term_w["acc"]  # SOP / IT: no E_acc
         steps = int(options.get("max_steps", 20))
         pad = lambda x: np.concatenate([x, np.repeat(x[-1:], T - len(x), 0)]) if len(x) < T else x  # noqa: E731
         if self.name == "sip":
-            term_w["acc"] = w["acc"] / S
             problem = I.inertial_problem(stacked, "thesis", acceleration=True)  # weights replaced below
             init = jnp.asarray(np.stack([pad(it.init) for it in items]), dtype)
             trans = jnp.broadcast_to(stacked.trans0[:, None], (len(items), T, 3))
@@ -314,6 +312,12 @@ class InertialMethod:
                 "result": int(result[i]), "steps": int(nsteps[i]), "frames": it.length,
             })  # fmt: skip
         return out
+
+
+def _thesis_weights():
+    from ..methods.inertial import SIPWeights
+
+    return SIPWeights()
 
 
 @eqx.filter_jit

@@ -29,7 +29,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
-from .._checks import check_frames, check_max_steps, check_rate, check_rotations, check_weight
+from .._checks import check_frames, check_max_steps, check_rate, check_rotations
 from ..body.kinematics import forward, shaped_joints
 from ..body.model import Body
 from ..energies.imu import (
@@ -44,6 +44,7 @@ from ..priors.pose_prior import PosePrior, default_pose_prior
 from .._progress import report
 from ..solve import NO_OBSERVATIONS, Problem, Solution, VonMarcardLM, solve, solve_batch
 from ..solve.solver import PROGRESS_FRAMES
+from .weights import FitResult, Weights
 
 __all__ = [
     "SIPWeights",
@@ -70,10 +71,13 @@ __all__ = [
 
 
 @dataclasses.dataclass(frozen=True)
-class SIPWeights:
+class SIPWeights(Weights):
     """Weights of eq. 3.5 and 3.16 (defaults: von Marcard §3.4.1). 0 switches a term off.
 
-    Floats or arrays (traced: changing them does not recompile; differentiable).
+    ori, acc, mahal, limit weight the terms of those names; anthro (w_anthro) scales
+    both prior terms (`term_weights`). Floats or arrays (traced: changing them does not
+    recompile; differentiable). A negative weight does not switch a term off: it rewards
+    the error (acc=-1 used to drop E_acc silently), so each is checked (`Weights`).
     """
 
     ori: float = 1.0
@@ -82,14 +86,11 @@ class SIPWeights:
     mahal: float = 0.003
     limit: float = 0.1
 
-    def __post_init__(self):
-        # A negative weight does not switch a term off: it rewards the error (acc=-1 used to
-        # drop E_acc silently). Traced weights (under jit/vmap) are checked by their maker.
-        for f in dataclasses.fields(self):
-            check_weight(f"SIPWeights.{f.name}", getattr(self, f.name))
-
-    def replace(self, **changes) -> SIPWeights:
-        return dataclasses.replace(self, **changes)
+    def term_weights(self, num_sensors: int) -> dict:
+        """{term: weight} as eq. 3.5 and 3.16 weigh them: w_ori / N_s, w_acc / N_s,
+        w_anthro w_mahal, w_anthro w_limit."""
+        return {"ori": self.ori / num_sensors, "acc": self.acc / num_sensors,
+                "mahal": self.anthro * self.mahal, "limit": self.anthro * self.limit}  # fmt: skip
 
 
 @dataclasses.dataclass(frozen=True)
@@ -409,7 +410,7 @@ def inertial_tracker(setup: InertialSetup, weights: SIPWeights | str = "validate
     return orientation_poser(setup, weights, **kw)
 
 
-class SIPResult(eqx.Module):
+class SIPResult(eqx.Module, FitResult):
     """Outcome of `sparse_inertial_poser`.
 
     poses (T, 24, 3), trans (T, 3): the fitted trajectory (translation is up to the
@@ -421,6 +422,10 @@ class SIPResult(eqx.Module):
     trans: Array
     init: Array
     solution: Solution
+
+    @property
+    def params(self) -> dict:
+        return {"pose": self.poses, "trans": self.trans}
 
 
 def sparse_inertial_poser(

@@ -64,6 +64,7 @@ from ..priors.pose_prior import PosePrior
 from ..rotation import host_exp, host_log
 from ..solve import Problem, frame, solve, with_weights
 from .multiview import MuVSWeights, camera_data, dataclasses_replace, initialise, stage_one
+from .weights import FitResult, Weights
 
 __all__ = [
     "InterCapWeights",
@@ -81,9 +82,10 @@ __all__ = [
 
 
 @dataclasses.dataclass(frozen=True)
-class InterCapWeights:
+class InterCapWeights(Weights):
     """Weights of eq. 5.1-5.7 (Huang gives none: ours, set on synthetic scenes of the
-    training clips; see experiments/intercap_tables.py). 0 switches a term off.
+    training clips; see experiments/intercap_tables.py). 0 switches a term off. The
+    weights carry their terms' names (`term_weights`); `CONSTANTS` configure the terms.
 
     Units: keypoints in px (Geman-McClure σ px), masks in px, distances in m, so the
     metric terms carry large weights. body_points/object_points: points per view and frame
@@ -125,8 +127,7 @@ class InterCapWeights:
     mask_points: int = 96
     icp_rounds: int = 2
 
-    def replace(self, **changes) -> InterCapWeights:
-        return dataclasses.replace(self, **changes)
+    CONSTANTS = ("sigma", "accel_delta", "body_points", "object_points", "mask_points", "icp_rounds")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -192,9 +193,11 @@ class InteractionObservations:
 
 
 @dataclasses.dataclass(frozen=True)
-class InterCapResult:
+class InterCapResult(FitResult):
     """poses (T, 24, 3) axis-angle, trans (T, 3), betas (B,), object_R (T, 3, 3), object_t
-    (T, 3), contact (T,) bool (the frames E_C acted on), and the stages' outcomes."""
+    (T, 3), contact (T,) bool (the frames E_C acted on), and the stages' outcomes.
+    solution: the engine's `Solution` of the last solve of the human-only ("human") and
+    joint ("joint") fits (`FitResult`; the object tracker's per-frame solves are not kept)."""
 
     poses: np.ndarray
     trans: np.ndarray
@@ -203,6 +206,13 @@ class InterCapResult:
     object_t: np.ndarray
     contact: np.ndarray
     stages: dict
+    solution: dict = dataclasses.field(default_factory=dict)
+
+    @property
+    def params(self) -> dict:
+        """The fitted unknowns: the body's, and the object's pose as (R, t)."""
+        return {"pose": self.poses, "trans": self.trans, "betas": self.betas, "object_R": self.object_R,
+                "object_t": self.object_t}  # fmt: skip
 
 
 def contact_region(body: Body, part: str, depth: float = 0.015) -> np.ndarray:
@@ -276,7 +286,8 @@ def _weighted(names, weights: InterCapWeights, dtype, off=(), depth_sigma: float
     if "object_depth" in names:  # E_O's σ traced like the weights: the coarse and fine trackers share one program
         k = names.index("object_depth")
         problem = eqx.tree_at(lambda p: p.terms[k].loss.sigma, problem, jnp.asarray(depth_sigma, dtype))
-    return with_weights(problem, {n: jnp.asarray(0.0 if n in off else getattr(weights, n), dtype) for n in names})
+    w = weights.term_weights()
+    return with_weights(problem, {n: jnp.asarray(0.0 if n in off else w[n], dtype) for n in names})
 
 
 # --- data --------------------------------------------------------------------------------------
@@ -514,6 +525,11 @@ def fit_human(
     max_steps: int = 40,
 ) -> dict:
     """Human-only, per frame (module docstring, step 2): {pose, trans, betas (T, B)}."""
+    return _fit_human(obs, body, weights, prior, max_steps)[0]
+
+
+def _fit_human(obs, body, weights, prior, max_steps: int = 40) -> tuple[dict, object]:
+    """`fit_human`, and the `Solution` of its last solve (None without ICP rounds)."""
     from ..body.io import default_body
 
     body = default_body("low") if body is None else body
@@ -530,13 +546,14 @@ def fit_human(
     names = ("keypoints", "pose_prior", "shape", "body_depth", "bend", "self_penetration")
     problem = _weighted(names, weights, dtype)
     bp, bv = _subsample(obs.body_points, obs.body_valid, weights.body_points, 1)
+    sol = None
     for _ in range(weights.icp_rounds):
         match = _correspondences(obs, body, p["pose"], p["betas"], p["trans"], bp, bv)
         data = _interaction_data(obs, body, None, weights, np.median(p["betas"], 0), body_match=match, dtype=dtype)
         sol = solve(problem, {k: jnp.asarray(v, dtype) for k, v in p.items()}, CombinedData((cam, data)),
                     max_steps=max_steps)  # fmt: skip
         p = {k: np.asarray(v) for k, v in sol.value.items()}
-    return p
+    return p, sol
 
 
 # --- 4. contact frames (ours) -------------------------------------------------------------------
@@ -643,6 +660,11 @@ def fit_joint(
 
     Returns {pose, trans, betas (B,), object_R, object_t, costs}.
     """
+    return _fit_joint(obs, human, obj, contact, body, weights, off, parts, prior, max_steps)[0]
+
+
+def _fit_joint(obs, human, obj, contact, body, weights, off, parts, prior, max_steps: int = 40) -> tuple[dict, object]:
+    """`fit_joint`, and the `Solution` of its last solve (None without ICP rounds)."""
     from ..body.io import default_body
 
     body = default_body("low") if body is None else body
@@ -657,7 +679,7 @@ def fit_joint(
     p = {"pose": jnp.asarray(human["pose"], dtype), "trans": jnp.asarray(human["trans"], dtype),
          "object": jnp.asarray(_pose6(obj["R"], obj["t"]), dtype)}  # fmt: skip
     bp, bv = _subsample(obs.body_points, obs.body_valid, weights.body_points, 1)
-    costs = {}
+    costs, sol = {}, None
     for r in range(weights.icp_rounds):
         match = _correspondences(obs, body, np.asarray(p["pose"]), betas, np.asarray(p["trans"]), bp, bv)
         data = _interaction_data(obs, body, obj["masks"], weights, betas, np.asarray(contact, np.float64), match, ids,
@@ -667,7 +689,7 @@ def fit_joint(
         costs[f"round_{r}"] = {k: float(v) for k, v in sol.costs.items()}
     R, t = _matrices(np.asarray(p["object"]))
     return {"pose": np.asarray(p["pose"]), "trans": np.asarray(p["trans"]), "betas": betas, "object_R": R,
-            "object_t": t, "costs": costs}  # fmt: skip
+            "object_t": t, "costs": costs}, sol  # fmt: skip
 
 
 def accept_object(
@@ -730,17 +752,18 @@ def intercap(
 
     body = default_body("low") if body is None else body
     obj = track_object(obs, weights, body=body, progress=progress)
-    human = fit_human(obs, body, weights, prior)
+    human, human_sol = _fit_human(obs, body, weights, prior)
     parts = ("right_grip", "left_grip")
     if contact is None:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)
             contact, part = detect_contact(body, human, obj, obs.obj, obs.fps)
         parts = (part,)
-    joint = fit_joint(obs, human, obj, contact, body, weights, off, parts=parts, prior=prior)
+    joint, joint_sol = _fit_joint(obs, human, obj, contact, body, weights, off, parts, prior)
     kept = accept_object(obs, obj, joint, body, weights)
     return InterCapResult(
         poses=joint["pose"], trans=joint["trans"], betas=joint["betas"], object_R=kept["object_R"],
         object_t=kept["object_t"], contact=np.asarray(contact, bool),
         stages={"object": obj, "human": human, "joint": joint, "accept": kept},
+        solution={k: v for k, v in (("human", human_sol), ("joint", joint_sol)) if v is not None},
     )  # fmt: skip

@@ -78,7 +78,8 @@ from ..geometry.surface import rest_joints
 from ..geometry.triangulation import triangulate
 from ..priors.pose_prior import PosePrior, default_pose_prior
 from ..rotation import matrix_to_axis_angle
-from ..solve import Problem, frame, solve, solve_batch, with_weights
+from ..solve import Problem, frame, solve, solve_batch
+from .weights import FitResult, Weights
 
 __all__ = [
     "MuVSWeights",
@@ -109,13 +110,14 @@ REFERENCE_FOCAL = float(intrinsics(256, 192, 55.0)[1, 1])
 
 
 @dataclasses.dataclass(frozen=True)
-class MuVSWeights:
+class MuVSWeights(Weights):
     """Weights and constants of eq. 4.1-4.8 (our choices: Huang gives none). The defaults
     are the "validated" preset (`PRESETS`, the default of `multiview_smplify`, the stages
     and `jaxmocap multiview`): λ_θ, λ_β and the silhouette setting as
     experiments/muvs_tuning.py chose them on the development subjects 02 and 131
     (experiments/results/muvs_tuning.json), the rest as this implementation started. 0
-    switches a term off.
+    switches a term off. The weights carry their terms' names (`term_weights`); the other
+    fields (`CONSTANTS`) configure the terms and the stages.
 
     keypoints: E_J weight; sigma: its Geman-McClure σ₁ (px) with two or more views;
         sigma_monocular: σ₁ when only one view sees the person (`_sigma`). A detection
@@ -195,8 +197,14 @@ class MuVSWeights:
     floor: float = 1e4
     floor_sigma: float | None = 0.1
 
-    def replace(self, **changes) -> MuVSWeights:
-        return dataclasses.replace(self, **changes)
+    CONSTANTS = ("sigma", "sigma_monocular", "anneal", "silhouette_points", "silhouette_stride", "silhouette_slack",
+                 "steps", "temporal_sigma", "window", "num_dct", "temporal_noise", "num_betas", "reference_focal",
+                 "floor_sigma")  # fmt: skip
+
+    def term_weights(self, prior_factor: float = 1.0) -> dict:
+        """{term: weight}; `prior_factor` scales λ_θ and λ_β (a step of `anneal`)."""
+        w = super().term_weights()
+        return {**w, "pose_prior": self.pose_prior * prior_factor, "shape": self.shape * prior_factor}
 
 
 #: The named settings, as the inertial posers' (`methods.inertial.PRESETS`).
@@ -224,11 +232,13 @@ def preset(weights: MuVSWeights | str = "validated") -> MuVSWeights:
 
 
 @dataclasses.dataclass(frozen=True)
-class MuVSResult:
+class MuVSResult(FitResult):
     """Poses (T, 24, 3) axis-angle, trans (T, 3), betas (B,) of the final stage, the
     stage-1 outcome (`stage1`: poses, trans, per-frame betas (T, B)), and per-stage costs.
     monocular: one view saw the person, so depth along its line of sight was not measured;
-    depth: then `monocular_depth`'s record (depth, its 1σ uncertainty, what it came from)."""
+    depth: then `monocular_depth`'s record (depth, its 1σ uncertainty, what it came from).
+    solution: the engine's `Solution` of each solve by stage ("joints_0", ...,
+    "silhouettes", "temporal"; `FitResult`)."""
 
     poses: np.ndarray
     trans: np.ndarray
@@ -237,6 +247,11 @@ class MuVSResult:
     costs: dict
     monocular: bool = False
     depth: dict | None = None
+    solution: dict = dataclasses.field(default_factory=dict)
+
+    @property
+    def params(self) -> dict:
+        return {"pose": self.poses, "trans": self.trans, "betas": self.betas}
 
 
 def camera_data(
@@ -626,13 +641,7 @@ def _silhouettes(on: bool, stride: int, slack: float, huber: float) -> list:
 
 def _weighted(problem: Problem, w: MuVSWeights, dtype, prior_factor: float = 1.0) -> Problem:
     """`problem` with the weights of `w` as traced arrays (no recompilation per value)."""
-    values = {
-        "keypoints": w.keypoints, "pose_prior": w.pose_prior * prior_factor, "shape": w.shape * prior_factor,
-        "silhouette_model": w.silhouette_model, "silhouette_mask": w.silhouette_mask, "temporal": w.temporal,
-        "floor": w.floor,
-    }  # fmt: skip
-    names = {t.name for t in problem.terms}
-    return with_weights(problem, {k: jnp.asarray(v, dtype) for k, v in values.items() if k in names})
+    return w.weigh(problem, dtype, prior_factor=prior_factor)
 
 
 def _batched(data: CameraData) -> bool:
@@ -699,10 +708,16 @@ def stage_one(
     (`MuVSWeights.floor`) to every solve; None (default): no such term.
     Returns ({pose, trans, betas (T, B)}, {stage: cost}).
     """
+    p, costs, _ = _stage_one(data, params0, weights, silhouettes, max_steps, floor)
+    return p, costs
+
+
+def _stage_one(data, params0, weights, silhouettes, max_steps, floor) -> tuple[dict, dict, dict]:
+    """`stage_one`, and the `Solution` of each solve by stage name."""
     weights = preset(weights)
     dtype = data.K.dtype
     p = {k: jnp.asarray(v, dtype) for k, v in params0.items()}
-    costs = {}
+    costs, sols = {}, {}
     steps = weights.steps if max_steps is None else (max_steps,) * 3
     weights, delta = _in_pixels(weights, data)
     sigma = _sigma(data, weights)
@@ -712,17 +727,17 @@ def stage_one(
     for i, factor in enumerate(weights.anneal):
         prob = _weighted(joints_only, weights, dtype, factor)
         sol = _solve(prob, p, joint_data, steps[0])
-        p = sol.value
+        p, sols[f"joints_{i}"] = sol.value, sol
         costs[f"joints_{i}"] = np.asarray(sol.cost).tolist()
         costs[f"joints_{i}_steps"] = np.asarray(sol.num_steps).tolist()
     if silhouettes and data.silhouettes is not None:
         prob = _weighted(_stage_one_problem(sigma, weights.silhouette_stride, weights.silhouette_slack, True, delta,
                                             ground), weights, dtype)  # fmt: skip
         sol = _solve(prob, p, compact(data, weights.silhouette_points, weights.silhouette_stride), steps[1])
-        p = sol.value
+        p, sols["silhouettes"] = sol.value, sol
         costs["silhouettes"] = np.asarray(sol.cost).tolist()
         costs["silhouettes_steps"] = np.asarray(sol.num_steps).tolist()
-    return {k: np.asarray(v) for k, v in p.items()}, costs
+    return {k: np.asarray(v) for k, v in p.items()}, costs, sols
 
 
 def stage_two(
@@ -741,6 +756,12 @@ def stage_two(
     Returns ({pose, trans, betas (B,), coef}, {"temporal": cost, "temporal_steps",
     "temporal_result"}).
     """
+    out, costs, _ = _stage_two(data, params1, weights, silhouettes, max_steps, floor)
+    return out, costs
+
+
+def _stage_two(data, params1, weights, silhouettes, max_steps, floor) -> tuple[dict, dict, object]:
+    """`stage_two`, and the `Solution` of its solve."""
     weights = preset(weights)
     dtype = data.K.dtype
     betas = np.median(np.asarray(params1["betas"]), -2)  # over frames: (B,) or (batch, B)
@@ -766,7 +787,7 @@ def stage_two(
     out = {k: np.asarray(v) for k, v in sol.value.items()}
     out["betas"] = betas
     return out, {"temporal": np.asarray(sol.cost).tolist(), "temporal_steps": np.asarray(sol.num_steps).tolist(),
-                 "temporal_result": np.asarray(sol.result).tolist()}  # fmt: skip
+                 "temporal_result": np.asarray(sol.result).tolist()}, sol  # fmt: skip
 
 
 def reprojection_px(data: CameraData, params: dict) -> float:
@@ -1002,17 +1023,17 @@ def multiview_smplify(
     data = resolve_left_right(data) if resolve_swaps else data
     p0 = initialise(data, weights.num_betas) if params0 is None else params0
     ground = _floor_for(data, floor)
-    p1, costs = stage_one(data, p0, weights, silhouettes, floor=ground)
+    p1, costs, sols = _stage_one(data, p0, weights, silhouettes, None, ground)
     p1, depth = place_monocular(data, p1, floor)
     stage1 = {"poses": p1["pose"], "trans": p1["trans"], "betas": p1["betas"]}
     if not temporal:
         final = {"pose": p1["pose"], "trans": p1["trans"], "betas": np.median(p1["betas"], -2)}
     else:
-        final, c2 = stage_two(data, p1, weights, temporal_silhouettes, floor=ground)
+        final, c2, sols["temporal"] = _stage_two(data, p1, weights, temporal_silhouettes, None, ground)
         costs = {**costs, **c2}
     if isinstance(depth, dict):
         depth = final_depth(data, final, depth)
-    return MuVSResult(final["pose"], final["trans"], final["betas"], stage1, costs, depth is not None, depth)
+    return MuVSResult(final["pose"], final["trans"], final["betas"], stage1, costs, depth is not None, depth, sols)
 
 
 def _floor_for(data: CameraData, floor):

@@ -41,7 +41,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax import Array
 
-from .._checks import check_rate, check_weight
+from .._checks import check_rate
 from ..body.compact import compact_body
 from ..body.kinematics import forward, shaped_joints
 from ..body.model import Body
@@ -61,34 +61,41 @@ from ..priors.pose_prior import PosePrior, default_pose_prior
 from ..rotation import axis_angle_to_matrix, matrix_to_axis_angle
 from ..solve import Problem, Solution, frame, sequence, solve, solve_batch, with_weights
 from .association import AssociationModel, associate
+from .weights import FitResult, Weights, renamed
 
 __all__ = ["VIPWeights", "VIPResult", "vip_data", "inertial_tracker", "initial_camera", "video_inertial_poser",
            "tracker_hypotheses", "with_keypoints", "world_keypoints",
            "VIPScene", "video_inertial_scene"]  # fmt: skip
 
 
+@renamed(prior="mahal")
 @dataclasses.dataclass(frozen=True)
-class VIPWeights:
+class VIPWeights(Weights):
     """Weights of eq. 4.19 (defaults: von Marcard §4.3: w_acc 0.2, w_img 1e-4, w_prior
-    0.006; w_ori 1). Ours: limit (SIP's w_limit, eq. 3.16) and x0, the pull of x₀
-    towards its given value (`energies.visual_inertial.initial_pose_term`)."""
+    0.006; w_ori 1), each named after its term: mahal is the thesis's w_prior (`prior`
+    until this release: the old name still works, with a DeprecationWarning). Ours: limit
+    (SIP's w_limit, eq. 3.16) and x0, the pull of x₀ towards its given value
+    (`energies.visual_inertial.initial_pose_term`)."""
 
     ori: float = 1.0
     acc: float = 0.2
     img: float = 1e-4
-    prior: float = 0.006
+    mahal: float = 0.006
     limit: float = 0.1
     x0: float = 0.1
 
-    def __post_init__(self):
-        for f in dataclasses.fields(self):
-            check_weight(f"VIPWeights.{f.name}", getattr(self, f.name))
+    def term_weights(self, num_sensors: int, free_camera: bool = True) -> dict:
+        """{term: weight} of eq. 4.19-4.20: the IMU terms averaged over the sensors, the
+        camera IMU counting as one when the camera is free (its terms cam_ori, cam_acc)."""
+        n = num_sensors + 1 if free_camera else num_sensors
+        w = {"ori": self.ori / n, "acc": self.acc / n, "img": self.img, "mahal": self.mahal, "limit": self.limit,
+             "x0": self.x0}  # fmt: skip
+        if free_camera:
+            w.update(cam_ori=self.ori / n, cam_acc=self.acc / n)
+        return w
 
-    def replace(self, **changes) -> VIPWeights:
-        return dataclasses.replace(self, **changes)
 
-
-class VIPResult(eqx.Module):
+class VIPResult(eqx.Module, FitResult):
     """poses (T, 24, 3), trans (T, 3), camera (T, 6) camera-to-world (axis-angle, centre),
     heading (S,) γ_s, x0 (24, 3), init: the Inertial Tracker's poses, solution: the engine's."""
 
@@ -99,6 +106,11 @@ class VIPResult(eqx.Module):
     x0: Array
     init: Array
     solution: Solution
+
+    @property
+    def params(self) -> dict:
+        """pose, trans, cam, heading, x0 by the problem's names (those held fixed: their given values)."""
+        return {"pose": self.poses, "trans": self.trans, "cam": self.camera, "heading": self.heading, "x0": self.x0}
 
 
 def _global_acceleration(R, a):
@@ -352,11 +364,7 @@ def _fusion_setup(data, bones, weights, free_heading, free_x0, camera, free_came
     if cam.shape != (T, 6):
         raise ValueError(f"camera has shape {cam.shape}; expected (T, 6) camera-to-world (axis-angle, centre).")
     problem = _vip_problem(bones, data.fps, free_heading, free_x0, free_camera, float(sigma))
-    n = S + 1 if free_camera else S  # the camera IMU counts as a sensor in eq. 4.20's mean
-    w = weights
-    problem = _weighted(problem, {k: v for k, v in {
-        "ori": w.ori / n, "acc": w.acc / n, "cam_ori": w.ori / n, "cam_acc": w.acc / n, "img": w.img,
-        "mahal": w.prior, "limit": w.limit, "x0": w.x0}.items() if k in {t.name for t in problem.terms}}, dtype)  # fmt: skip
+    problem = weights.weigh(problem, dtype, num_sensors=S, free_camera=free_camera)
     params = {"pose": poses, "trans": trans}
     if free_camera:
         params["cam"] = jnp.asarray(cam, dtype)
