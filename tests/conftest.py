@@ -6,7 +6,15 @@ from pathlib import Path
 # The suite is compile-bound: LLVM at -O1 compiled its cases 5-20 % faster here at about
 # the same steady speed (benchmarks/results/compile_time_llvm_o1.json; the suite 15:29 ->
 # 14:21). Set before JAX starts its backend; subprocesses inherit it.
-os.environ["XLA_FLAGS"] = " ".join(filter(None, [os.environ.get("XLA_FLAGS"), "--xla_backend_optimization_level=1"]))
+# XLA's legacy LLVM IR emitters for fusions instead of the MLIR fusion emitters (each of
+# those builds and lowers an MLIR module per kernel; with the passes below off there is a
+# kernel per operation): test_solve's structured-step program compiled in 12.1 -> 3.9
+# CPU-s, the 8-frame chain's LM solve 8.2 -> 3.5, results equal to round-off.
+os.environ["XLA_FLAGS"] = " ".join(
+    filter(
+        None, [os.environ.get("XLA_FLAGS"), "--xla_backend_optimization_level=1", "--xla_cpu_use_fusion_emitters=false"]
+    )
+)
 # Most of XLA's optimisation passes off (JAX_DISABLE_MOST_OPTIMIZATIONS): the suite's programs
 # run for milliseconds after compiling for seconds. Measured with JAXMOCAP_COMPILE_REPORT's
 # cpu_s on test_rotation + test_metrics + test_body + test_solve's structured step (85 tests,
