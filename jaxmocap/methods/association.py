@@ -88,7 +88,10 @@ Choices that are ours (the thesis leaves them open):
     scenes (subjects 02, 131, `experiments/vip_association_unseen.py --role development`; x₀
     30° off per joint makes them harder) a margin of 0 barred the wearer's right track in 2 of 26
     scenes (mean excess 0.33 and 0.02 a frame: Inertial Tracker keypoints that bad let a
-    bystander fit a little better in most frames), 0.5-2 barred nothing; 1.0 is shipped.
+    bystander fit a little better in most frames), 0.5-2 barred nothing; 1.0 is shipped
+    (`experiments/results/vip_association_identity_dev.json`). No development scene showed the
+    failure above; one failed otherwise (x₀ 30° off: the bystander as likely by the unary, 88
+    wrong with the check on or off): where the unary does not say whose a track is, it cannot.
 """
 
 from __future__ import annotations
