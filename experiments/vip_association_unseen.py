@@ -173,7 +173,7 @@ TABLES_CAUSE = {
 #: detections at -1010.6; all of the wearer's give -1007.9. One wearer and nobody else to take
 #: the bystander's track: nothing but the unary margin opposes the switch.
 WORST_SCENE = {
-    "scene": "bystanders 2, index 3: 006_07.bvh (wearer), 005_16.bvh, 005_12.bvh",
+    "scene": "bystanders 2, index 3: 006_07.bvh (wearer), 005_16.bvh, 005_12.bvh; model pw30_c4ed28, before the identity check",
     "wearer_best_unary_frames": 82, "frames": 90,
     "objective_terms": {"wearer_all": {"detections": 86, "unary": -155.9, "pairs": -852.0, "total": -1007.9},
                         "bystander_2_all": {"detections": 89, "unary": 64.0, "pairs": -1039.7, "total": -975.7},
