@@ -89,10 +89,10 @@ def wearer_prior(clip):
     return _PRIORS[exclude]
 
 
-def noisy_x0(rng, pose0):
-    """The given initial pose: the true one with 10° (1σ) error per joint (as vip_tables)."""
+def noisy_x0(rng, pose0, degrees: float = 10.0):
+    """The given initial pose: the true one with 10° (1σ, as vip_tables; or `degrees`) error per joint."""
     R = np.asarray(axis_angle_to_matrix(np.asarray(pose0)))
-    return np.asarray(matrix_to_axis_angle(random_rotations(rng, np.radians(10.0), (24,)) @ R))
+    return np.asarray(matrix_to_axis_angle(random_rotations(rng, np.radians(degrees), (24,)) @ R))
 
 
 def _scene(motions, bystanders: int, frames: int, seed: int, body):
