@@ -278,3 +278,16 @@ def test_vip_tables_quotes():
         f"{-res['vip_vs_it_relative_change_percent']['mpjpe']:.1f}", mm("VIP-2D"), mm("VIP-vanilla"), mm("VIP-6IMU"),
         f"{100 * a['precision']:.1f}", f"{100 * a['recall']:.1f}",
     )  # fmt: skip
+
+
+def test_vip_association_fresh_set_quotes():
+    res = json.loads((ROOT / "experiments/results/vip_association.json").read_text())
+    fresh, first = res["defaults_unseen_seed1"], res["defaults_unseen"]
+    m = re.search(r"\(([\d.]+) % / ([\d.]+) % there, [\d.]+ % / [\d.]+ % before the check\).*?final association reaches "
+                  r"([\d.]+) % precision and\s+([\d.]+) % recall over (\d+) scenes", README, re.S)  # fmt: skip
+    assert m, "the README's sentence on the association's evaluation sets changed; update this test"
+    pct = lambda x: f"{100 * x:.1f}"  # noqa: E731
+    assert m.groups() == (
+        pct(first["final_round"]["precision"]), pct(first["final_round"]["recall"]),
+        pct(fresh["final_round"]["precision"]), pct(fresh["final_round"]["recall"]), str(fresh["scenes"]),
+    )  # fmt: skip
