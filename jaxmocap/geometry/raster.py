@@ -24,6 +24,7 @@ E_D, Huang eq. 5.2-5.5).
 from __future__ import annotations
 
 import functools
+import os
 
 import jax
 import jax.numpy as jnp
@@ -136,15 +137,25 @@ def rasterize(
 #: The rasteriser does F·w² work per view (each triangle's window of candidate pixels), so
 #: it is compiled at XLA's defaults whatever the process asks of other programs (a test
 #: suite's JAX_DISABLE_MOST_OPTIMIZATIONS, XLA_FLAGS): unoptimised, 64 views of a two-person
-#: 64x48 scene (window 16 and 32) ran in 20-39 CPU-s instead of 4.
-_OPTIMISED = {"xla_backend_optimization_level": 3, "xla_llvm_disable_expensive_passes": False,
-              "xla_cpu_use_fusion_emitters": True}  # fmt: skip
+#: 64x48 scene (window 16 and 32) ran in 20-39 CPU-s instead of 4. Only the options the
+#: process changed are reset: an XLA that lacks one (jax >= 0.4.30 is allowed) is never asked.
+def _optimised() -> dict:
+    flags = os.environ.get("XLA_FLAGS", "")
+    unoptimised = os.environ.get("JAX_DISABLE_MOST_OPTIMIZATIONS", "").lower() in ("1", "true")
+    options = {}
+    if unoptimised or "xla_backend_optimization_level" in flags:
+        options["xla_backend_optimization_level"] = 3
+    if unoptimised or "xla_llvm_disable_expensive_passes" in flags:
+        options["xla_llvm_disable_expensive_passes"] = False
+    if "xla_cpu_use_fusion_emitters" in flags:
+        options["xla_cpu_use_fusion_emitters"] = True
+    return options
 
 
 @functools.partial(
     jax.jit,
     static_argnames=("faces_key", "width", "height", "window", "floor", "batch_size"),
-    compiler_options=_OPTIMISED,
+    compiler_options=_optimised() or None,
 )
 def _rasterize_batch(K, R, t, vertices, face_labels, faces_key, width, height, window, floor, floor_height, batch_size):
     faces = _FACES[faces_key]
